@@ -1,0 +1,28 @@
+# The two commands of the README:  `make main`  and  `make test`.
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: venv main test lint bench
+
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+
+# Installs pbc into a local venv. torch is installed first as the 2.13.0 wheel when it is missing:
+# a CPU wheel on the reference machine, the CUDA one on a GPU user's pip.
+venv: $(BIN)/python
+	@$(BIN)/python -c "import torch" 2>/dev/null || $(BIN)/pip install -q "torch==2.13.0"
+	@$(BIN)/pip install -q -e ".[dev,sweeps]"
+
+# The main job on the built-in default data (see README).
+main: venv
+	$(BIN)/python -m pbc.main
+
+test: venv
+	$(BIN)/python -m pytest -x
+
+lint: venv
+	$(BIN)/ruff check pbc tests bench
+
+bench: venv
+	for b in bench/*.py; do $(BIN)/python $$b || exit 1; done

@@ -1,0 +1,1 @@
+"""Body, skeleton, skinning, garment, cage and the rest-pose embedding of the garment on the body."""

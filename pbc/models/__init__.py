@@ -1,0 +1,1 @@
+"""Decoders (CNN and fully connected) that map a pose to cloth images or per-vertex values."""

@@ -1,0 +1,1 @@
+"""Pose sampling and the physical drape of the garment on a posed body."""

@@ -1,0 +1,1 @@
+"""Stitching 28 patch predictions into one garment and removing the seams."""
