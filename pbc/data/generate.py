@@ -1,0 +1,285 @@
+"""Make a dataset of (pose -> draped garment) pairs: resumable, shardable, parallel, reproducible from a seed.
+
+Pipeline: build the body, read (or make) the garment and its cage, shrink-wrap the garment onto the body,
+sample all poses up front from the seed, then drape every pose independently and keep the ones that pass
+the distortion check (appendix D.6).
+
+Why it survives SIGKILL: every drape result goes to `work/samples/NNNNNN.npz` via a temp file and a
+rename, so a sample is either complete or absent. A re-run skips the samples that exist. Pose i depends
+only on the seed, and the drape is deterministic, so the merged arrays are byte-identical to an
+uninterrupted run. Shards (`data.shard=i data.num_shards=n`) take every n-th pose; the merge (any run
+with `data.shard=null`) collects them. Timings go to `timings.json`, apart from the manifest, so that the
+manifest is byte-identical too.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
+
+from pbc.data.dataset import FORMAT_VERSION, save_embedding
+from pbc.data.store import atomic_path, hash_arrays, read_json, save_npy, write_json
+from pbc.geometry.body import Body, build_body, pose_body, save_body
+from pbc.geometry.cage import Cage, load_cage, save_cage
+from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
+from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
+from pbc.sim.drape import check_sample, drape
+from pbc.sim.poses import sample_poses
+
+
+@dataclass
+class Scene:
+    """Everything a worker needs to drape any pose; built once per process."""
+
+    body: Body
+    garment: Garment
+    cage: Cage
+    embedding: Embedding
+    sim: DictConfig
+
+
+def dataset_dir(cfg: DictConfig) -> Path:
+    return Path(cfg.data.dir)
+
+
+def garment_from_config(gcfg: DictConfig) -> tuple[Garment, Cage]:
+    """The garment through one door: a user's OBJ + cage file when `obj` is set, else the procedural shirt."""
+    if gcfg.get("obj"):
+        garment = load_garment_obj(gcfg.obj)
+        return garment, load_cage(gcfg.cage, garment)
+    return make_tshirt(gcfg)
+
+
+def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
+    """What makes two runs produce the same dataset. A directory made with another one is refused."""
+    return {
+        "format_version": FORMAT_VERSION,
+        "seed": int(cfg.data.seed),
+        "num_samples": int(cfg.data.num_samples),
+        "garment_hash": hash_arrays(scene.garment.vertices, scene.garment.faces, scene.garment.uv),
+        "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights),
+        "sim": OmegaConf.to_container(scene.sim, resolve=True),
+    }
+
+
+def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
+    """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
+    body = build_body(cfg.body)
+    garment, cage = garment_from_config(cfg.garment)
+    embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
+    return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats
+
+
+def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
+    """Skin the embedded garment onto the posed body and drape it. Returns the per-sample record."""
+    t0 = time.perf_counter()
+    rot = torch.from_numpy(pose)[None].float()
+    body_v = pose_body(scene.body, rot)  # (1, Vb, 3)
+    start = embedded_points(body_v, scene.body.faces, scene.embedding)[0]
+    t1 = time.perf_counter()
+    res = drape(scene.garment, start.numpy(), body_v[0].numpy(), scene.body, scene.embedding, scene.sim)
+    t2 = time.perf_counter()
+    ok, reason = check_sample(res, scene.garment, scene.sim)
+    return {
+        "positions": res.positions.astype(np.float32),
+        "ok": ok,
+        "reason": reason,
+        "residual": float(res.residual),
+        "iterations": int(res.iterations),
+        "t_skin": t1 - t0,
+        "t_drape": t2 - t1,
+    }
+
+
+_SCENE: Scene | None = None
+
+
+def _init_worker(cfg_yaml: str, threads: int) -> None:
+    global _SCENE
+    torch.set_num_threads(threads)
+    cfg = OmegaConf.create(cfg_yaml)
+    _SCENE, _ = build_scene(cfg)
+
+
+def _work(args: tuple[int, np.ndarray, str]) -> tuple[int, bool, str]:
+    i, pose, path = args
+    rec = drape_pose(_SCENE, pose)
+    t0 = time.perf_counter()
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
+    rec["t_write"] = time.perf_counter() - t0
+    return i, rec["ok"], rec["reason"]
+
+
+def _sample_path(work: Path, i: int) -> Path:
+    return work / "samples" / f"{i:06d}.npz"
+
+
+def _read_sample(path: Path) -> tuple[np.ndarray, dict]:
+    try:
+        with np.load(path) as z:
+            return np.array(z["positions"]), json.loads(str(z["meta"]))
+    except (OSError, ValueError, KeyError, EOFError) as err:
+        raise ValueError(f"sample file {path} is corrupt ({err}); delete it and re-run to redo that sample") from err
+
+
+def _check_or_write_fingerprint(out: Path, fp: dict) -> None:
+    path = out / "work" / "fingerprint.json"
+    for existing in (out / "manifest.json", path):
+        if existing.is_file():
+            old = read_json(existing, "dataset metadata")
+            old = {k: old.get(k) for k in fp}
+            if old != fp:
+                diff = sorted(k for k in fp if old.get(k) != fp[k])
+                raise ValueError(
+                    f"{out} holds a dataset made with a different {', '.join(diff)}; "
+                    f"choose another data.dir or delete {out} to regenerate"
+                )
+            return
+    write_json(path, fp)
+
+
+def generate(cfg: DictConfig) -> Path:
+    """Generate (or resume, or merge) the dataset configured by `cfg.data`. Returns its directory."""
+    out = dataset_dir(cfg)
+    data = cfg.data
+    if (out / "manifest.json").is_file() and data.shard is None:
+        # already finished; still refuse a directory made with another configuration
+        scene, _ = build_scene(cfg)
+        _check_or_write_fingerprint(out, fingerprint(cfg, scene))
+        return out
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    scene, wrap_stats = build_scene(cfg)
+    timings["scene"] = time.perf_counter() - t0
+    work = out / "work"
+    (work / "samples").mkdir(parents=True, exist_ok=True)
+    fp = fingerprint(cfg, scene)
+    _check_or_write_fingerprint(out, fp)
+
+    t0 = time.perf_counter()
+    poses, angles, pose_stats = sample_poses(scene.body.skeleton, int(data.num_samples), int(data.seed), scene.body)
+    poses = poses.numpy().astype(np.float32)
+    timings["sample_poses"] = time.perf_counter() - t0
+
+    n_shards = int(data.num_shards)
+    shards = range(n_shards) if data.shard is None else [int(data.shard)]
+    if any(not 0 <= s < n_shards for s in shards):
+        raise ValueError(f"data.shard={data.shard} is out of range for data.num_shards={n_shards}")
+    todo = [i for s in shards for i in range(s, len(poses), n_shards) if not _sample_path(work, i).is_file()]
+    t0 = time.perf_counter()
+    _run_drapes(cfg, scene, poses, todo, work)
+    timings["drape_wall"] = time.perf_counter() - t0
+    if data.shard is not None:
+        return out
+    merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings)
+    return out
+
+
+def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[int], work: Path) -> None:
+    if not todo:
+        return
+    workers = max(1, min(int(cfg.data.workers), len(todo)))
+    jobs = [(i, poses[i], str(_sample_path(work, i))) for i in todo]
+    bar = tqdm(total=len(todo), desc=f"drape ({workers} workers)", unit="sample", dynamic_ncols=True)
+    discarded = 0
+    if workers == 1:
+        global _SCENE
+        _SCENE = scene
+        results = map(_work, jobs)
+    else:
+        # spawn, not fork: warp and torch threads do not survive a fork
+        ctx = mp.get_context("spawn")
+        pool = ctx.Pool(workers, _init_worker, (OmegaConf.to_yaml(cfg, resolve=True), 1))
+        results = pool.imap(_work, jobs)
+    try:
+        for _, ok, _reason in results:
+            discarded += not ok
+            bar.update(1)
+            bar.set_postfix(discarded=discarded)
+    finally:
+        bar.close()
+        if workers > 1:
+            pool.terminate()
+
+
+def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings) -> None:
+    """Collect all sample files into the final arrays and write the manifest last."""
+    work = out / "work"
+    missing = [i for i in range(len(poses)) if not _sample_path(work, i).is_file()]
+    if missing:
+        raise RuntimeError(
+            f"cannot merge {out}: {len(missing)} of {len(poses)} samples are missing (first: {missing[:5]}); "
+            "run the remaining shards first"
+        )
+    kept, reasons, residuals, stage = [], {}, [], {"skin": 0.0, "drape": 0.0}
+    positions = []
+    for i in range(len(poses)):
+        pos, meta = _read_sample(_sample_path(work, i))
+        residuals.append(meta["residual"])
+        stage["skin"] += meta["t_skin"]
+        stage["drape"] += meta["t_drape"]
+        if meta["ok"]:
+            kept.append(i)
+            positions.append(pos)
+        else:
+            reasons[meta["reason"]] = reasons.get(meta["reason"], 0) + 1
+    if not kept:
+        raise RuntimeError(f"every sample of {out} was discarded ({reasons}); check the sim config")
+    rng = np.random.default_rng(fp["seed"])
+    order = rng.permutation(len(kept))
+    n_train, n_val = int(round(0.8 * len(kept))), int(round(0.1 * len(kept)))
+    splits = {
+        "train": sorted(order[:n_train].tolist()),
+        "val": sorted(order[n_train : n_train + n_val].tolist()),
+        "test": sorted(order[n_train + n_val :].tolist()),
+    }
+    save_garment_obj(scene.garment, out / "garment.obj")
+    save_cage(scene.cage, out / "cage.json")
+    save_body(scene.body, out / "body.npz")
+    save_embedding(scene.embedding, out / "embedding.npz")
+    save_npy(out / "poses.npy", poses[kept])
+    save_npy(out / "verts.npy", np.stack(positions).astype(np.float32))
+    save_npy(out / "angles.npy", angles[kept].astype(np.float32))
+    manifest = dict(fp)
+    manifest.update(
+        num_vertices=int(scene.garment.vertices.shape[0]),
+        joints=list(scene.body.skeleton.names),
+        counts={"requested": len(poses), "kept": len(kept), "discarded": reasons},
+        source_index=kept,
+        splits=splits,
+        shrinkwrap=_plain(wrap_stats),
+        poses=_plain(pose_stats),
+        drape_residual={"mean": float(np.mean(residuals)), "max": float(np.max(residuals))},
+    )
+    timings = dict(timings, **{f"{k}_cpu_total": v for k, v in stage.items()})
+    write_json(out / "timings.json", _plain(timings))
+    write_json(out / "manifest.json", manifest)  # last: its presence marks a finished dataset
+    shutil.rmtree(work, ignore_errors=True)
+
+
+def _plain(obj):
+    """JSON-able copy of stats dicts that may hold numpy/torch scalars."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, torch.Tensor | np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def cpu_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)))
