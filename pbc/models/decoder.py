@@ -1,0 +1,131 @@
+"""The one convolutional decoder family: pose vector -> cloth image (paper sec. 7, appendix E.1, F).
+
+One class, :class:`ConvDecoder`, configured by input size, optional hidden linear layers, the kind of
+first layer (a transpose convolution on the 1x1 pose "image", or a linear layer reshaped to a feature
+map), the start size/channels, the output size/channels. Between start and output sit groups of
+[ConvTranspose2d(k4, s2, p1), BatchNorm2d, ReLU] that double the resolution and halve the channels,
+then a 3x3 convolution to the output channels. The paper presets live in ``conf/model/*.yaml``:
+
+=========  =====================================================  ==============
+preset     layout                                                 parameters
+=========  =====================================================  ==============
+whole      90 -> ConvT(k8) 8x8x384 -> 5 groups -> 256x256x6        3,785,322
+patch      90 -> Linear 5x5x512 -> 5 groups -> 160x160x3           3,960,195
+necktie    36 -> Linear 128 -> Linear 8x8x64 -> 5 groups -> 64x256x3  576,851
+=========  =====================================================  ==============
+
+The necktie's 64x256 output is not square: the groups double both axes while an axis is short of
+its target and only the other one afterwards (a non-doubling axis uses kernel 3, stride 1, padding 1,
+which keeps its size). The paper's 2.16M for the necktie is not reproduced by this literal reading of
+appendix F; see ``conf/model/necktie.yaml``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+
+def _doublings(start: int, end: int) -> int:
+    """How many x2 steps take ``start`` to ``end`` (both > 0); raises when it is not a power of two."""
+    ratio = end / start
+    n = round(math.log2(ratio)) if ratio >= 1 else -1
+    if n < 0 or start * 2**n != end:
+        raise ValueError(f"output size {end} is not start size {start} times a power of two")
+    return n
+
+
+def group_strides(start_size: Sequence[int], output_size: Sequence[int]) -> list[tuple[int, int]]:
+    """Per-group (row, col) strides taking ``start_size`` (h, w) to ``output_size`` (H, W).
+
+    Both axes double together while both need it; the longer axis then doubles alone.
+    """
+    nh = _doublings(start_size[0], output_size[0])
+    nw = _doublings(start_size[1], output_size[1])
+    return [(2 if i < nh else 1, 2 if i < nw else 1) for i in range(max(nh, nw))]
+
+
+class ConvDecoder(nn.Module):
+    """Pose (B, in_features) -> image (B, out_channels, H, W).
+
+    Args:
+        in_features: pose vector size (90 = 10 joints x 3x3 for the T-shirt, 36 for the necktie).
+        out_channels: image channels (6 whole shirt: 3 front + 3 back; 3 patch / necktie).
+        output_size: (H, W) of the image.
+        start_size: (h, w) of the first feature map.
+        start_channels: channels of the first feature map (halved by every group).
+        first_layer: ``"conv_transpose"`` (ConvTranspose2d with kernel = start size on the 1x1 pose,
+            as the whole-shirt network) or ``"linear"`` (Linear to h*w*c, reshaped).
+        hidden: widths of linear+ReLU layers applied to the pose before the first layer.
+        final_kernel: kernel of the last convolution (3 in the paper).
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        out_channels: int,
+        output_size: Sequence[int],
+        start_size: Sequence[int],
+        start_channels: int,
+        first_layer: str = "conv_transpose",
+        hidden: Sequence[int] = (),
+        final_kernel: int = 3,
+    ) -> None:
+        super().__init__()
+        self.in_features = int(in_features)
+        self.out_channels = int(out_channels)
+        self.output_size = (int(output_size[0]), int(output_size[1]))
+        self.start_size = (int(start_size[0]), int(start_size[1]))
+        self.start_channels = int(start_channels)
+        self.first_layer = first_layer
+        strides = group_strides(self.start_size, self.output_size)
+        if self.start_channels >> len(strides) < 1:
+            raise ValueError(f"{start_channels} start channels cannot be halved {len(strides)} times")
+
+        mlp: list[nn.Module] = []
+        width = self.in_features
+        for h in hidden:
+            mlp += [nn.Linear(width, int(h)), nn.ReLU(inplace=True)]
+            width = int(h)
+        self.mlp = nn.Sequential(*mlp)
+
+        h0, w0 = self.start_size
+        if first_layer == "conv_transpose":
+            self.first = nn.ConvTranspose2d(width, self.start_channels, kernel_size=(h0, w0))
+        elif first_layer == "linear":
+            self.first = nn.Linear(width, self.start_channels * h0 * w0)
+        else:
+            raise ValueError(f"first_layer must be 'conv_transpose' or 'linear', got {first_layer!r}")
+
+        groups: list[nn.Module] = []
+        c = self.start_channels
+        for sh, sw in strides:
+            # k4/s2/p1 doubles an axis exactly; k3/s1/p1 keeps it (used only by non-square outputs).
+            kernel = (4 if sh == 2 else 3, 4 if sw == 2 else 3)
+            groups += [
+                nn.ConvTranspose2d(c, c // 2, kernel_size=kernel, stride=(sh, sw), padding=1),
+                nn.BatchNorm2d(c // 2),
+                nn.ReLU(inplace=True),
+            ]
+            c //= 2
+        self.groups = nn.Sequential(*groups)
+        self.head = nn.Conv2d(c, self.out_channels, kernel_size=final_kernel, padding=final_kernel // 2)
+
+    def forward(self, pose: Tensor) -> Tensor:
+        """pose (B, in_features) (or (B, J, 3, 3), flattened) -> (B, out_channels, H, W)."""
+        x = self.mlp(pose.reshape(pose.shape[0], -1))
+        h0, w0 = self.start_size
+        if self.first_layer == "conv_transpose":
+            x = self.first(x[:, :, None, None])
+        else:
+            x = self.first(x).view(-1, self.start_channels, h0, w0)
+        x = torch.relu(x)
+        return self.head(self.groups(x))
+
+
+def count_parameters(module: nn.Module) -> int:
+    """Trainable parameters (BatchNorm running statistics are buffers, not counted)."""
+    return sum(p.numel() for p in module.parameters() if p.requires_grad)

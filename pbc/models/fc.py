@@ -1,0 +1,97 @@
+"""Fully connected baselines of appendix E.3 (Table 2): pose -> per-vertex values, directly or via PCA.
+
+``FCNet`` is an MLP with two hidden layers of 256 and ReLU. In ``"direct"`` mode it outputs V*3 values;
+in ``"pca"`` mode it outputs K (128) coefficients that a fixed linear PCA basis maps to V*3 values.
+The basis is fitted on the training split (:func:`fit_pca`) and held as buffers, so it is saved in and
+restored from the checkpoint with the weights. What the per-vertex values mean (local offsets, root
+offsets, root positions) is the module's business, not this network's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import Tensor, nn
+
+MODES = ("direct", "pca")
+
+
+def fit_pca(values: Tensor, num_components: int) -> tuple[Tensor, Tensor, Tensor]:
+    """PCA of training samples.
+
+    Args:
+        values: (N, D) float samples (D = V*3).
+        num_components: K.
+    Returns:
+        mean (D,), components (K, D) orthonormal rows, scale (K,) the coefficient standard deviations.
+        When N or D is below K, the missing components are zero rows with scale 1 (shapes stay fixed,
+        so a checkpoint loads whatever split size it was fitted on).
+    """
+    values = values.double()
+    mean = values.mean(dim=0)
+    x = values - mean
+    _, s, vh = torch.linalg.svd(x, full_matrices=False)
+    k = min(num_components, vh.shape[0])
+    comps = torch.zeros(num_components, values.shape[1], dtype=torch.float64)
+    comps[:k] = vh[:k]
+    scale = torch.ones(num_components, dtype=torch.float64)
+    # std of the coefficients; floor keeps degenerate directions from exploding the decoded output
+    scale[:k] = (s[:k] / max(values.shape[0] - 1, 1) ** 0.5).clamp_min(1e-8)
+    return mean.float(), comps.float(), scale.float()
+
+
+class FCNet(nn.Module):
+    """Pose (B, in_features) -> per-vertex values (B, V, 3).
+
+    Args:
+        in_features: pose size (90).
+        num_vertices: V.
+        hidden: hidden layer widths (paper: 256, 256).
+        mode: ``"direct"`` or ``"pca"``.
+        num_components: K for ``"pca"`` (paper: 128).
+    """
+
+    def __init__(
+        self,
+        in_features: int,
+        num_vertices: int,
+        hidden: Sequence[int] = (256, 256),
+        mode: str = "direct",
+        num_components: int = 128,
+    ) -> None:
+        super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        self.mode = mode
+        self.num_vertices = int(num_vertices)
+        dim = self.num_vertices * 3
+        out = dim if mode == "direct" else int(num_components)
+        layers: list[nn.Module] = []
+        width = int(in_features)
+        for h in hidden:
+            layers += [nn.Linear(width, int(h)), nn.ReLU(inplace=True)]
+            width = int(h)
+        layers.append(nn.Linear(width, out))
+        self.mlp = nn.Sequential(*layers)
+        if mode == "pca":
+            # Buffers, not parameters: fitted once on the train split, then frozen and checkpointed.
+            self.register_buffer("pca_mean", torch.zeros(dim))
+            self.register_buffer("pca_components", torch.zeros(int(num_components), dim))
+            self.register_buffer("pca_scale", torch.ones(int(num_components)))
+            self.register_buffer("pca_fitted", torch.zeros((), dtype=torch.bool))
+
+    def set_pca(self, mean: Tensor, components: Tensor, scale: Tensor) -> None:
+        """Install a basis from :func:`fit_pca`."""
+        self.pca_mean.copy_(mean)
+        self.pca_components.copy_(components)
+        self.pca_scale.copy_(scale)
+        self.pca_fitted.fill_(True)
+
+    def forward(self, pose: Tensor) -> Tensor:
+        """pose (B, in_features) or (B, J, 3, 3) -> (B, V, 3)."""
+        y = self.mlp(pose.reshape(pose.shape[0], -1))
+        if self.mode == "pca":
+            # the network predicts whitened coefficients so its outputs are O(1) like the direct mode
+            y = (y * self.pca_scale) @ self.pca_components + self.pca_mean
+        return y.view(-1, self.num_vertices, 3)
