@@ -1,0 +1,19 @@
+"""Compose the Hydra config outside an entry point (tests, notebooks, workers): same files, same overrides."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def load_config(overrides: list[str] | None = None, config_name: str = "config") -> DictConfig:
+    """The root config with command-line style `overrides`, e.g. ["data=tshirt_tiny", "data.seed=3"].
+
+    `${hydra:...}` interpolations (the run dir) only resolve inside an entry point; read those keys there.
+    """
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        return compose(config_name, overrides=list(overrides or []))

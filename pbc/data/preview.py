@@ -1,0 +1,127 @@
+"""Preview figures of a dataset: the UV layout with the cage and patch ids, draped samples, OBJ exports.
+
+Everything is written under `<dataset>/preview/` (PNG via matplotlib, meshes via trimesh), atomically.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import trimesh  # noqa: E402
+from matplotlib.collections import PolyCollection  # noqa: E402
+from omegaconf import DictConfig  # noqa: E402
+
+from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
+from pbc.data.store import atomic_path  # noqa: E402
+from pbc.geometry.body import pose_body  # noqa: E402
+
+SIDE_NAMES = ("front", "back")
+
+
+def _save(fig, path: Path) -> Path:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    plt.close(fig)
+    return path
+
+
+def plot_uv_layout(ds: ClothDataset, path: Path) -> Path:
+    """Both UV charts, faces coloured by patch, patch ids at their box centres, boxes drawn (512 px)."""
+    g, cage = ds.garment, ds.cage
+    patch_of = np.empty(g.vertices.shape[0], dtype=np.int64)
+    for p in cage.patches:
+        patch_of[p.vertices] = p.id
+    uv = g.uv.numpy() * 512.0
+    face_uv, face_side = g.face_uv.numpy(), g.face_side.numpy()
+    face_patch = patch_of[g.faces.numpy()[:, 0]]
+    cmap = plt.get_cmap("tab20")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6))
+    for side, ax in enumerate(axes):
+        sel = face_side == side
+        polys = uv[face_uv[sel]]
+        ax.add_collection(
+            PolyCollection(polys, facecolors=cmap(face_patch[sel] % 20), edgecolors="k", linewidths=0.1, alpha=0.8)
+        )
+        for p in cage.patches:
+            if p.side != side:
+                continue
+            r0, c0, r1, c1 = p.box_512
+            ax.add_patch(plt.Rectangle((c0, r0), c1 - c0, r1 - r0, fill=False, lw=0.8, ec="k"))
+            ax.text((c0 + c1) / 2, (r0 + r1) / 2, str(p.id), ha="center", va="center", fontsize=8, weight="bold")
+        ax.set_xlim(0, 512)
+        ax.set_ylim(512, 0)  # image convention: row 0 at the top
+        ax.set_aspect("equal")
+        ax.set_title(f"{SIDE_NAMES[side]} chart (512 px), patches and boxes")
+    return _save(fig, path)
+
+
+def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
+    """Front and back views (x-y projections, depth-sorted faces) of draped samples on their bodies."""
+    rot = torch.from_numpy(np.asarray(ds.poses[indices])).float()
+    body_v = pose_body(ds.body, rot).numpy()
+    bf, gf = ds.body.faces.numpy(), ds.garment.faces.numpy()
+    fig, axes = plt.subplots(2, len(indices), figsize=(3.2 * len(indices), 7), squeeze=False)
+    light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+    for col, i in enumerate(indices):
+        for row, sign in enumerate((1.0, -1.0)):  # front view looks along -z, back view along +z
+            ax = axes[row, col]
+            for verts, faces, base in ((body_v[col], bf, (0.8, 0.7, 0.6)), (np.asarray(ds.verts[i]), gf, (0.3, 0.5, 0.9))):
+                tri = verts[faces] * np.array([sign, 1.0, sign])
+                n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+                n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
+                shade = 0.35 + 0.65 * np.clip(n @ light, 0, 1)
+                visible = n[:, 2] > 0
+                order = np.argsort(tri[visible, :, 2].mean(1))
+                colors = np.clip(np.asarray(base)[None] * shade[visible][order, None], 0, 1)
+                ax.add_collection(PolyCollection(tri[visible][order][:, :, :2], facecolors=colors, edgecolors="none"))
+            ax.set_xlim(-0.9, 0.9)
+            ax.set_ylim(-0.4, 0.9)
+            ax.set_aspect("equal")
+            ax.axis("off")
+            ax.set_title(f"sample {i} {'front' if row == 0 else 'back'}", fontsize=9)
+    return _save(fig, path)
+
+
+def export_objs(ds: ClothDataset, indices: list[int], out: Path) -> list[Path]:
+    """The draped garment and the posed body of each sample as OBJ files."""
+    rot = torch.from_numpy(np.asarray(ds.poses[indices])).float()
+    body_v = pose_body(ds.body, rot).numpy()
+    paths = []
+    for col, i in enumerate(indices):
+        for name, verts, faces in (
+            ("garment", np.asarray(ds.verts[i]), ds.garment.faces.numpy()),
+            ("body", body_v[col], ds.body.faces.numpy()),
+        ):
+            path = out / f"sample_{i:05d}_{name}.obj"
+            with atomic_path(path) as tmp:
+                trimesh.Trimesh(verts, faces, process=False).export(tmp, file_type="obj")
+            paths.append(path)
+    return paths
+
+
+def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_samples: int = 4) -> list[Path]:
+    """All preview figures and meshes of the dataset in `directory`. Returns the written paths."""
+    from pbc.sim.poses import plot_angle_histograms
+
+    ds = load_dataset(directory)
+    out = Path(directory) / "preview"
+    out.mkdir(exist_ok=True)
+    indices = np.linspace(0, len(ds) - 1, min(n_samples, len(ds))).round().astype(int).tolist()
+    paths = [plot_uv_layout(ds, out / "uv_layout.png"), plot_samples(ds, indices, out / "samples.png")]
+    angles_path = Path(directory) / "angles.npy"
+    if angles_path.is_file():
+        paths.append(plot_angle_histograms(np.load(angles_path), ds.body.skeleton, out / "pose_angles.png"))
+    paths += export_objs(ds, indices, out)
+    try:  # the cloth-image figures live with the pixels stage
+        from pbc.pixels.preview import write_cloth_image_preview
+
+        paths += write_cloth_image_preview(ds, out, cfg)
+    except ImportError:
+        pass
+    return paths
