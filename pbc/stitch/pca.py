@@ -1,0 +1,95 @@
+"""A PCA basis of whole-garment per-vertex offsets, for filtering stitched patch predictions.
+
+One job: fit (on the training split), project onto, save and load a linear basis of flattened
+`(V, 3)` offsets. The basis is stored with a hash of the dataset it was fitted on, so a basis from
+another dataset or garment is refused instead of silently filtering with the wrong shapes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+
+@dataclass
+class PCABasis:
+    """mean: (D,), components: (K, D) orthonormal rows, singular_values: (K,), D = 3V."""
+
+    mean: Tensor
+    components: Tensor
+    singular_values: Tensor
+    dataset_hash: str
+
+    @property
+    def num_components(self) -> int:
+        return int(self.components.shape[0])
+
+    def to(self, device) -> PCABasis:
+        return PCABasis(self.mean.to(device), self.components.to(device),
+                        self.singular_values.to(device), self.dataset_hash)
+
+
+def fit_pca(samples: Tensor, n_components: int, dataset_hash: str = "", exact_below: int = 4096) -> PCABasis:
+    """Fit the top principal components of the samples.
+
+    samples: (N, V, 3) or (N, D) float; n_components: K, clamped to min(N, D) (the most a basis can
+    hold). Exact SVD when min(N, D) <= exact_below, otherwise randomized `torch.svd_lowrank` (with
+    oversampling and power iterations) so a 20k-sample, 3V-wide matrix stays cheap.
+    """
+    X = samples.reshape(samples.shape[0], -1).double()  # float64: the identity test needs it exact
+    N, D = X.shape
+    k = min(int(n_components), N, D)
+    mean = X.mean(0)
+    Xc = X - mean
+    if min(N, D) <= exact_below:
+        _, s, vh = torch.linalg.svd(Xc, full_matrices=False)
+        comps, s = vh[:k], s[:k]
+    else:
+        _, s, v = torch.svd_lowrank(Xc, q=min(k + 16, N, D), niter=4)
+        comps, s = v[:, :k].T, s[:k]
+    return PCABasis(mean.float(), comps.float().contiguous(), s.float(), dataset_hash)
+
+
+def project(basis: PCABasis, x: Tensor, k: int | None = None) -> Tensor:
+    """Project onto the first k components (all when None): mean + C_k^T C_k (x - mean).
+
+    x: (B, V, 3) or (B, D) -> same shape.
+    """
+    C = basis.components if k is None else basis.components[:k]
+    flat = x.reshape(x.shape[0], -1) - basis.mean
+    return ((flat @ C.T) @ C + basis.mean).reshape(x.shape)
+
+
+def dataset_hash(dataset_dir: str | Path, split_key: str = "train") -> str:
+    """Short hash of a dataset's manifest (garment, seed, counts, split): where a basis came from."""
+    manifest = json.loads((Path(dataset_dir) / "manifest.json").read_text())
+    keyed = {k: manifest.get(k) for k in ("format_version", "seed", "garment_hash", "body_hash",
+                                           "num_vertices", "counts")}
+    keyed["split"] = manifest.get("splits", {}).get(split_key)
+    return hashlib.sha256(json.dumps(keyed, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def save_pca(basis: PCABasis, path: str | Path) -> None:
+    """Atomic save (.pt): a killed job never leaves a half-written basis behind."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"mean": basis.mean, "components": basis.components,
+                "singular_values": basis.singular_values, "dataset_hash": basis.dataset_hash}, tmp)
+    os.replace(tmp, path)
+
+
+def load_pca(path: str | Path, expected_hash: str | None = None) -> PCABasis:
+    """Load a basis; refuse it if it was fitted on another dataset than `expected_hash`."""
+    d = torch.load(Path(path), map_location="cpu", weights_only=True)
+    basis = PCABasis(d["mean"], d["components"], d["singular_values"], d["dataset_hash"])
+    if expected_hash is not None and basis.dataset_hash != expected_hash:
+        raise ValueError(f"PCA basis {path} was fitted on dataset {basis.dataset_hash!r}, "
+                         f"not on this one ({expected_hash!r}); delete it to refit")
+    return basis
