@@ -1,0 +1,375 @@
+"""The one LightningModule for every target (whole-shirt images, patch crops, FC per-vertex baselines).
+
+Job: turn a batch of (pose, draped vertices) into losses, metrics and logs. Ground-truth cloth images
+are rendered from the stored vertices on the batch's device (DESIGN key idea 1); predictions go back
+image -> vertices -> 3D through ``pbc.pixels.reconstruct`` so the normal/edge losses and the cm metrics
+see the real garment. Per-garment operators (render/sample, skinning, faces, edges) are not hparams:
+they are attached with :meth:`ClothModule.attach` (see :func:`build_geometry`) before fit/test.
+
+Also here: :class:`ImagePanel`, the TensorBoard callback drawing pred | gt | error images for fixed
+validation poses and writing one predicted mesh (``add_mesh`` + OBJ) at the end of fit.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from torch import Tensor
+
+from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
+from pbc.metrics import normal_cosine_distance, vertex_error_cm
+from pbc.pixels.frames import from_offsets, to_offsets
+from pbc.pixels.reconstruct import edge_lengths, mesh_edges, vertex_normals
+
+log = logging.getLogger(__name__)
+KINDS = ("whole", "patch", "fc")
+# the identity keys a checkpoint must share with the run that loads it
+IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space")
+
+
+@dataclass
+class Geometry:
+    """Everything per garment/resolution the module needs to go vertices <-> images <-> 3D.
+
+    ops: ``ImageOperators`` (whole) or ``PatchCrop`` (patch) or None (fc); skinner: pose -> anchors,
+    frames; faces (F, 3) long; edges (E, 2) long (only those inside ``vertices`` for a patch);
+    vertices: (Vk,) ids the metrics run over (None = all).
+    """
+
+    ops: Any
+    skinner: Any
+    faces: Tensor
+    edges: Tensor
+    vertices: Tensor | None
+
+
+def build_geometry(dataset, kind: str, patch_id: int | None, image_cfg, cache_dir=None) -> Geometry:
+    """Operators of ``dataset``'s garment for a model ``kind`` (resolutions/crop from ``image_cfg``)."""
+    from pbc.pixels.operators import ImageOperators
+    from pbc.pixels.reconstruct import Skinner
+
+    faces = torch.as_tensor(dataset.garment.faces).long()
+    edges = mesh_edges(faces)
+    skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
+    pad = int(image_cfg.get("pad", image_cfg.margin))
+    if kind == "whole":
+        ops = ImageOperators.for_garment(dataset.garment, int(image_cfg.whole_resolution), pad,
+                                         cache_dir=cache_dir)
+        return Geometry(ops, skinner, faces, edges, None)
+    if kind == "patch":
+        full = ImageOperators.for_garment(dataset.garment, int(image_cfg.patch_resolution), pad,
+                                          cache_dir=cache_dir)
+        patch = dataset.cage.patches[int(patch_id)]
+        crop = full.crop(patch, int(image_cfg.crop_size), int(image_cfg.margin))
+        inside = torch.zeros(faces.max().item() + 1, dtype=torch.bool)
+        inside[crop.vertices] = True
+        return Geometry(crop, skinner, faces, edges[inside[edges].all(1)], crop.vertices)
+    if kind == "fc":
+        return Geometry(None, skinner, faces, edges, None)
+    raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
+
+
+class ClothModule(L.LightningModule):
+    """Pose -> cloth (image, crop or per-vertex values), trained with eq. 1-3 (+ edge loss).
+
+    Args:
+        net: Hydra node of the network (``_target_`` ConvDecoder or FCNet).
+        kind: ``whole`` | ``patch`` | ``fc``.
+        space: offset space of the predicted values (``local`` | ``root`` | ``position``).
+        loss: ``{norm, normal_weight, edge_weight}``.
+        lr: Adam learning rate.
+        identity: what a checkpoint must match to be loaded here (garment hash, resolution, patch...).
+        patch_id: patch of a patch model, else None.
+        summary: flat extra hparams for the TensorBoard hparams tab (data size, loss name...).
+    """
+
+    def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict,
+                 patch_id: int | None = None, summary: dict | None = None) -> None:
+        super().__init__()
+        if kind not in KINDS:
+            raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
+        # logger=False: the hparams tab is written once at the end, together with the final metrics
+        self.save_hyperparameters(logger=False)
+        self.net = instantiate(net)
+        self.geom: Geometry | None = None
+
+    # ------------------------------------------------------------------------------ wiring
+    def attach(self, geom: Geometry) -> ClothModule:
+        self.geom = geom
+        return self
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Refuse a checkpoint of another garment / resolution / patch / model kind, naming the difference."""
+        theirs = checkpoint.get("hyper_parameters", {}).get("identity", {})
+        mine = self.hparams.identity
+        diff = {k: (theirs.get(k), mine.get(k)) for k in IDENTITY_KEYS if theirs.get(k) != mine.get(k)}
+        if diff:
+            lines = ", ".join(f"{k}: checkpoint {a!r} vs this run {b!r}" for k, (a, b) in diff.items())
+            raise ValueError(f"refusing checkpoint made for a different setup ({lines})")
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.net.parameters(), lr=self.hparams.lr)
+
+    def forward(self, pose: Tensor) -> Tensor:
+        return self.net(pose.reshape(pose.shape[0], -1))
+
+    # ------------------------------------------------------------------------------ targets
+    def targets(self, batch: dict) -> dict:
+        """Ground truth of a batch: anchors/frames of the posed body, offsets, and the target image."""
+        g = self.geom
+        pose = batch["pose"].reshape(batch["pose"].shape[0], -1, 3, 3)
+        verts = batch["verts"]
+        anchors, frames = g.skinner(pose)
+        offsets = to_offsets(verts, anchors, frames, self.hparams.space)
+        out = {"anchors": anchors, "frames": frames, "offsets": offsets, "verts": verts}
+        if self.hparams.kind != "fc":
+            out["image"] = g.ops.render(offsets)
+            out["mask"] = g.ops.image_mask(verts.device, verts.dtype)
+        return out
+
+    def positions(self, pred: Tensor, t: dict) -> Tensor:
+        """Prediction -> 3D positions (B, V, 3); outside a patch model's patch, ground truth."""
+        kind, space = self.hparams.kind, self.hparams.space
+        if kind == "fc":
+            return from_offsets(pred, t["anchors"], t["frames"], space)
+        values = self.geom.ops.sample(pred)
+        if kind == "whole":
+            return from_offsets(values, t["anchors"], t["frames"], space)
+        ids = self.geom.vertices.to(pred.device)
+        inner = from_offsets(values, t["anchors"][:, ids], t["frames"][:, ids], space)
+        return t["verts"].index_copy(1, ids, inner)
+
+    def step(self, batch: dict, split: str, batch_idx: int) -> tuple[Tensor, dict]:
+        t = self.targets(batch)
+        pred = self(batch["pose"])
+        lc = self.hparams.loss
+        logs: dict[str, Tensor] = {}
+        if self.hparams.kind == "fc":
+            base = vertex_value_loss(pred, t["offsets"], lc["norm"])
+        else:
+            base = image_loss(pred, t["image"], t["mask"], lc["norm"])
+        logs["image_loss"] = base
+        total = base
+        # 3D is always built: the cm metric needs it; only the optional losses add graph work
+        pos = self.positions(pred, t)
+        ids = self.geom.vertices
+        n_pred = n_gt = None
+        if lc["normal_weight"] > 0 or split != "train":
+            n_pred = vertex_normals(pos, self.geom.faces)
+            n_gt = vertex_normals(t["verts"], self.geom.faces)
+        if lc["normal_weight"] > 0:
+            sel = slice(None) if ids is None else ids.to(pos.device)
+            nl = normal_loss(n_pred[:, sel], n_gt[:, sel])
+            logs["normal_loss"] = nl
+            total = total + lc["normal_weight"] * nl
+        if lc["edge_weight"] > 0:
+            el = edge_loss(edge_lengths(pos, self.geom.edges), edge_lengths(t["verts"], self.geom.edges))
+            logs["edge_loss"] = el
+            total = total + lc["edge_weight"] * el
+        logs["loss"] = total
+        with torch.no_grad():
+            idv = None if ids is None else ids.to(pos.device)
+            logs["vertex_error_cm"] = vertex_error_cm(pos, t["verts"], idv)
+            if n_pred is not None:
+                logs["normal_distance"] = normal_cosine_distance(n_pred, n_gt, idv)
+        if not torch.isfinite(total):
+            which = batch.get("index")
+            raise FloatingPointError(
+                f"non-finite {split} loss {total.item()} at global step {self.global_step}, epoch "
+                f"{self.current_epoch}, batch {batch_idx}"
+                + (f" (sample ids {which.tolist()})" if which is not None else "")
+                + "; stopping instead of training a NaN model")
+        bs = batch["pose"].shape[0]
+        self.log_dict({f"{split}/{k}": v.detach() if k != "loss" else v for k, v in logs.items()},
+                      on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=False)
+        return total, {"pred": pred.detach(), **{k: v for k, v in t.items() if k in ("image", "mask")},
+                       "positions": pos.detach()}
+
+    def training_step(self, batch, batch_idx):
+        return self.step(batch, "train", batch_idx)[0]
+
+    def validation_step(self, batch, batch_idx):
+        self.step(batch, "val", batch_idx)
+
+    def test_step(self, batch, batch_idx):
+        self.step(batch, "test", batch_idx)
+
+    # ------------------------------------------------------------------------------ PCA (fc)
+    def on_fit_start(self) -> None:
+        net = self.net
+        if getattr(net, "mode", None) == "pca" and not bool(net.pca_fitted):
+            self.fit_pca(self.trainer.datamodule.train_dataloader())
+
+    @torch.no_grad()
+    def fit_pca(self, loader) -> None:
+        """Fit the FC net's PCA basis on the (whole) train split, in the model's space."""
+        from pbc.models.fc import fit_pca
+
+        rows = []
+        for batch in loader:
+            batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
+            rows.append(self.targets(batch)["offsets"].reshape(batch["verts"].shape[0], -1).cpu())
+        mean, comps, scale = fit_pca(torch.cat(rows), self.net.pca_components.shape[0])
+        self.net.set_pca(mean.to(self.device), comps.to(self.device), scale.to(self.device))
+        log.info("fitted PCA on %d train samples", sum(len(r) for r in rows))
+
+
+# ---------------------------------------------------------------------------------- visuals
+def _to_rgb(x: Tensor, scale: float) -> Tensor:
+    """(3, H, W) signed offsets -> [0, 1] RGB, 0.5 = no offset."""
+    return (0.5 + x / (2 * scale)).clamp(0, 1)
+
+
+def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """One pose: pred (C, H, W), gt, mask (C, H, W) -> (3, C/3*H, 3*W) rows = pieces, cols = pred|gt|error."""
+    scale = float(gt.abs().max().clamp_min(1e-6))
+    rows = []
+    for k in range(pred.shape[0] // 3):
+        s = slice(3 * k, 3 * k + 3)
+        err = ((pred[s] - gt[s]).abs().sum(0) * mask[s][0]) / scale
+        rows.append(torch.cat([_to_rgb(pred[s] * mask[s], scale), _to_rgb(gt[s], scale),
+                               err.clamp(0, 1).expand(3, -1, -1)], dim=2))
+    return torch.cat(rows, dim=1)
+
+
+def write_obj(path: Path, vertices: Tensor, faces: Tensor) -> Path:
+    """Plain OBJ (v / f, 1-based)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _tensorboard(trainer):
+    for lg in trainer.loggers:
+        if isinstance(lg, L.pytorch.loggers.TensorBoardLogger):
+            return lg.experiment
+    return None
+
+
+class ImagePanel(L.Callback):
+    """Every ``every_n_epochs`` validation epochs, log pred | gt | error for ``num_poses`` fixed val poses;
+    at the end of fit, log one predicted mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
+
+    def __init__(self, every_n_epochs: int = 5, num_poses: int = 4, mesh_dir: str | None = None) -> None:
+        self.every = max(1, int(every_n_epochs))
+        self.num = int(num_poses)
+        self.mesh_dir = Path(mesh_dir) if mesh_dir else None
+        self._batch: dict | None = None
+
+    def _fixed_batch(self, trainer, pl_module) -> dict | None:
+        if self._batch is None:
+            dm = trainer.datamodule
+            if dm is None:
+                return None
+            # the first val samples, always the same ones, so panels are comparable across epochs
+            for b in dm.val_dataloader():
+                self._batch = {k: v[: self.num] if torch.is_tensor(v) else v for k, v in b.items()}
+                break
+        if self._batch is None:
+            return None
+        return {k: v.to(pl_module.device) if torch.is_tensor(v) else v for k, v in self._batch.items()}
+
+    @torch.no_grad()
+    def _predict(self, trainer, pl_module):
+        batch = self._fixed_batch(trainer, pl_module)
+        if batch is None:
+            return None
+        was = pl_module.training
+        pl_module.eval()
+        t = pl_module.targets(batch)
+        pred = pl_module(batch["pose"])
+        pos = pl_module.positions(pred, t)
+        pl_module.train(was)
+        return batch, t, pred, pos
+
+    def on_validation_epoch_end(self, trainer, pl_module) -> None:
+        tb = _tensorboard(trainer)
+        epoch = trainer.current_epoch
+        if tb is None or trainer.sanity_checking or pl_module.hparams.kind == "fc":
+            return
+        if (epoch + 1) % self.every:
+            return
+        out = self._predict(trainer, pl_module)
+        if out is None:
+            return
+        _, t, pred, _ = out
+        mask = t["mask"].expand_as(pred)
+        panels = [image_panel(pred[i].float().cpu(), t["image"][i].float().cpu(), mask[i].float().cpu())
+                  for i in range(pred.shape[0])]
+        tb.add_image("val/panel_pred_gt_error", torch.cat(panels, dim=1), global_step=trainer.global_step)
+
+    def on_fit_end(self, trainer, pl_module) -> None:
+        if not trainer.is_global_zero:
+            return
+        out = self._predict(trainer, pl_module)
+        if out is None:
+            return
+        pos = out[3][0].float().cpu()
+        faces = pl_module.geom.faces.cpu()
+        if self.mesh_dir is not None:
+            write_obj(self.mesh_dir / "pred_val0.obj", pos, faces)
+            write_obj(self.mesh_dir / "gt_val0.obj", out[1]["verts"][0].float().cpu(), faces)
+        tb = _tensorboard(trainer)
+        if tb is not None:
+            tb.add_mesh("val/pred_mesh", vertices=pos[None], faces=faces[None].int(),
+                        global_step=trainer.global_step)
+
+
+def flat_summary(cfg: DictConfig | dict) -> dict:
+    """Scalars of a nested config as 'a/b' keys (the TensorBoard hparams tab accepts only scalars)."""
+    d = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    out = {}
+
+    def walk(prefix, v):
+        if isinstance(v, dict):
+            for k, x in v.items():
+                walk(f"{prefix}/{k}" if prefix else str(k), x)
+        elif isinstance(v, bool | int | float | str) or v is None:
+            out[prefix] = "none" if v is None else v
+        else:
+            out[prefix] = str(v)
+
+    walk("", d)
+    return {k: v for k, v in out.items() if not (isinstance(v, float) and math.isnan(v))}
+
+
+class SplitDataModule(L.LightningDataModule):
+    """Fallback batches {pose (B, J, 3, 3), verts (B, V, 3), index (B,)} straight from a ClothDataset's
+    splits, used by ``pbc.train`` only when no ``datamodule`` is configured (images are rendered by the
+    module either way)."""
+
+    def __init__(self, dataset, batch_size: int = 8) -> None:
+        super().__init__()
+        self.dataset, self.batch_size = dataset, int(batch_size)
+
+    def _loader(self, split: str, shuffle: bool):
+        ids = torch.as_tensor(self.dataset.split(split))
+        pose = torch.as_tensor(self.dataset.poses[ids.numpy()]).float()
+        verts = torch.as_tensor(self.dataset.verts[ids.numpy()]).float()
+        ds = torch.utils.data.TensorDataset(pose, verts, ids)
+        return torch.utils.data.DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle,
+                                           collate_fn=_collate)
+
+    def train_dataloader(self):
+        return self._loader("train", True)
+
+    def val_dataloader(self):
+        return self._loader("val", False)
+
+    def test_dataloader(self):
+        return self._loader("test", False)
+
+
+def _collate(items: list) -> dict:
+    pose, verts, index = (torch.stack(x) for x in zip(*items, strict=True))
+    return {"pose": pose, "verts": verts, "index": index}
