@@ -42,6 +42,26 @@ def scaled_pixels(n: int, resolution: int, reference: int = REFERENCE_RESOLUTION
     return max(1, int(round(n * resolution / reference)))
 
 
+def image_sizes(image_cfg) -> dict[str, int]:
+    """Pixel sizes from the `image` config: crop_size, margin and pad are given at
+    `reference_resolution` (512) and scale with the resolution they are used at.
+
+    -> {whole_resolution, patch_resolution, whole_pad, patch_pad, crop_size, margin} (crop/margin at
+    the patch resolution).
+    """
+    ref = int(image_cfg.get("reference_resolution", REFERENCE_RESOLUTION))
+    whole, patch = int(image_cfg["whole_resolution"]), int(image_cfg["patch_resolution"])
+    pad = int(image_cfg["pad"])
+    return {
+        "whole_resolution": whole,
+        "patch_resolution": patch,
+        "whole_pad": scaled_pixels(pad, whole, ref),
+        "patch_pad": scaled_pixels(pad, patch, ref),
+        "crop_size": scaled_pixels(int(image_cfg["crop_size"]), patch, ref),
+        "margin": scaled_pixels(int(image_cfg["margin"]), patch, ref),
+    }
+
+
 # ----------------------------------------------------------------------------------------- build
 def rasterize(tri_uv: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel centres covered by UV triangles, vectorised over all triangles.
@@ -207,14 +227,24 @@ def load_or_build(
 # ----------------------------------------------------------------------------------------- apply
 @dataclass
 class _Ell:
-    """A sparse matrix as padded rows (ELL): out[row[i]] = sum_k w[i, k] * x[col[i, k]]."""
+    """A sparse matrix as row buckets of padded rows (ELL): out[row] = sum_k w[:, k] * x[col[:, k]].
 
-    row: Tensor  # (P,) long, output index
-    col: Tensor  # (P, K) long
-    w: Tensor  # (P, K) float
+    Rows are bucketed by their entry count (3 for plain rasterised pixels, more for the few corrected
+    ones) so the common rows do not pay for the widest one.
+    """
+
+    row: Tensor  # (P,) long, output index of every row, buckets concatenated
+    cols: list[Tensor]  # per bucket (Pb, Kb) long
+    ws: list[Tensor]  # per bucket (Pb, Kb) float
 
     def to(self, device) -> _Ell:
-        return _Ell(self.row.to(device), self.col.to(device), self.w.to(device))
+        return _Ell(self.row.to(device), [c.to(device) for c in self.cols], [w.to(device) for w in self.ws])
+
+    def apply(self, xt: Tensor) -> Tensor:
+        """xt (B, C, V) -> (B, C, P) row values, in `row` order."""
+        return torch.cat(
+            [(xt[:, :, c] * w.to(xt.dtype)).sum(-1) for c, w in zip(self.cols, self.ws, strict=True)], -1
+        )
 
 
 def _csr_to_ell(
@@ -222,14 +252,22 @@ def _csr_to_ell(
 ) -> _Ell:
     counts = np.diff(indptr)
     nz = np.nonzero(counts)[0] if rows is None else rows[counts[rows] > 0]
-    K = int(counts[nz].max()) if len(nz) else 1
-    col = np.zeros((len(nz), K), np.int64)
-    w = np.zeros((len(nz), K), np.float32)
-    for k in range(K):  # K is small (3 for plain rasterisation, a few more for corrected rows)
-        has = counts[nz] > k
-        pos = indptr[nz[has]] + k
-        col[has, k], w[has, k] = indices[pos], data[pos]
-    return _Ell(torch.from_numpy(nz.astype(np.int64)), torch.from_numpy(col), torch.from_numpy(w))
+    out_rows, cols, ws = [], [], []
+    for sel in (counts[nz] <= 3, counts[nz] > 3):
+        r = nz[sel]
+        if not len(r) and out_rows:
+            continue
+        K = max(int(counts[r].max()) if len(r) else 1, 1)
+        col = np.zeros((len(r), K), np.int64)
+        w = np.zeros((len(r), K), np.float32)
+        for k in range(K):
+            has = counts[r] > k
+            pos = indptr[r[has]] + k
+            col[has, k], w[has, k] = indices[pos], data[pos]
+        out_rows.append(r)
+        cols.append(torch.from_numpy(col))
+        ws.append(torch.from_numpy(w))
+    return _Ell(torch.from_numpy(np.concatenate(out_rows).astype(np.int64)), cols, ws)
 
 
 class ImageOperators:
@@ -237,7 +275,7 @@ class ImageOperators:
 
     render(x (B, V, 3)) -> (B, 6, H, W);  sample(img (B, 6, H, W)) -> (B, V, 3);
     mask (2, H, W) bool padded chart (eq. 1's W); image_mask(device) (1, 6, H, W) float;
-    crop_window(patch) (r0, c0, size); render_crop / crop_mask / sample_crop for patch crops.
+    crop_window(box, size) (r0, c0, size); crop(patch, crop_size, margin) -> PatchCrop.
     `method` picks the kernel: "gather" (index/weight gathers) or "sparse" (torch sparse CSR matmul).
     """
 
@@ -312,9 +350,7 @@ class ImageOperators:
             y = torch.sparse.mm(d["R6"], x.permute(2, 1, 0).reshape(3 * self.V, B).to(d["R6"].dtype))
             # rows are (c, side, pix): reorder to (side, c, pix)
             return y.reshape(3, 2, res, res, B).permute(4, 1, 0, 2, 3).reshape(B, 6, res, res)
-        ell = d["ell"]
-        xt = x.transpose(1, 2)  # (B, 3, V)
-        vals = (xt[:, :, ell.col] * ell.w.to(x.dtype)).sum(-1)  # (B, 3, P)
+        vals = d["ell"].apply(x.transpose(1, 2))  # (B, 3, P)
         out = x.new_zeros(B, 6 * res * res)
         out = out.index_copy(1, d["out_idx"], vals.reshape(B, -1))
         return out.view(B, 6, res, res)
@@ -371,7 +407,7 @@ class ImageOperators:
             patch_id=int(patch.id),
             side=side,
             window=(r0, c0, size),
-            ell=_Ell(local, ell.col, ell.w),
+            ell=_Ell(local, ell.cols, ell.ws),
             mask=torch.from_numpy(m),
             vertices=torch.from_numpy(verts),
             s_pix=torch.from_numpy(lr * size + lc),
@@ -395,7 +431,7 @@ class PatchCrop:
     def render(self, x: Tensor) -> Tensor:
         """Per-vertex values (B, V, 3) of the whole garment -> crop (B, 3, size, size)."""
         ell, size = self.ell.to(x.device), self.window[2]
-        vals = (x.transpose(1, 2)[:, :, ell.col] * ell.w.to(x.dtype)).sum(-1)  # (B, 3, P)
+        vals = ell.apply(x.transpose(1, 2))  # (B, 3, P)
         out = x.new_zeros(x.shape[0], 3, size * size)
         out[:, :, ell.row] = vals
         return out.view(x.shape[0], 3, size, size)
