@@ -1,0 +1,252 @@
+"""Random upper-body poses (appendix D.3): Euler angles within joint limits, pruned for arm-torso overlap.
+
+Euler convention (`euler_xzy_to_matrix`): angles are given per axis in (x, y, z) order, like the joint
+limits, and applied in the order x, then z, then y about the joint's *moving* local axes (intrinsic):
+    R = Rx(x) @ Rz(z) @ Ry(y)
+(the same matrix as extrinsic rotations about the fixed axes in the order y, z, x). With the bone along
+local y this makes y a pure twist, and for the arms (local x vertical) x the azimuth and z the altitude,
+so x uniform and sin(z) uniform spread the arm direction uniformly over the sphere.
+
+Sampling is deterministic: candidates are drawn in fixed-size blocks, block b from
+numpy.random.default_rng([seed, b]), and kept in order, so kept sample i depends only on the seed
+(not on n); the first k of sample_poses(n) equal sample_poses(k).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from pbc.geometry.body import Body, body_sdf
+from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
+
+TORSO, LEFT_ARM, RIGHT_ARM = 0, 1, 2
+X, Y, Z = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class SamplingSettings:
+    """The `sampling` block of conf/body/mannequin.yaml (defaults mirror it; a test keeps them equal)."""
+
+    halfnormal_joints: tuple[str, ...] = ("lower_back", "spine", "spine1", "neck", "neck1", "head")
+    halfnormal_sigma: float = 0.5  # std as a fraction of the limit on that side
+    positive_prob: float = 0.5  # mixture weight of the positive half-normal
+    probes_per_arm: int = 53
+    probe_min_distance: float = 0.10  # m from the arm joint
+    prune_tolerance: float = 0.0  # m
+    block_size: int = 1024
+    max_blocks: int = 1000
+
+
+def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
+    """SamplingSettings from a `sampling` config node (missing keys keep their defaults)."""
+    known = {f.name for f in fields(SamplingSettings)}
+    unknown = set(cfg) - known
+    if unknown:
+        raise ValueError(f"unknown sampling settings {sorted(unknown)}; known: {sorted(known)}")
+    kw = {k: (tuple(str(n) for n in v) if k == "halfnormal_joints" else v) for k, v in cfg.items()}
+    return SamplingSettings(**kw)
+
+
+def _axis_rotation(angles_rad: Tensor, axis: int) -> Tensor:
+    """(...,) angles -> (..., 3, 3) right-handed rotations about one coordinate axis."""
+    c, s = torch.cos(angles_rad), torch.sin(angles_rad)
+    one, zero = torch.ones_like(c), torch.zeros_like(c)
+    if axis == X:
+        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
+    elif axis == Y:
+        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
+    else:
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
+
+
+def euler_xzy_to_matrix(angles_deg) -> Tensor:
+    """Euler angles (..., 3) in degrees, per axis (x, y, z) -> rotations (..., 3, 3) = Rx Rz Ry.
+
+    Applied x then z then y about the moving axes (see the module docstring).
+    """
+    a = torch.as_tensor(angles_deg)
+    if not a.is_floating_point():
+        a = a.to(torch.float32)
+    if a.shape[-1:] != (3,):
+        raise ValueError(f"angles_deg: expected shape (..., 3) per axis (x, y, z), got {tuple(a.shape)}")
+    r = torch.deg2rad(a)
+    return _axis_rotation(r[..., X], X) @ _axis_rotation(r[..., Z], Z) @ _axis_rotation(r[..., Y], Y)
+
+
+def sample_angles(skel: Skeleton, n: int, rng: np.random.Generator, settings: SamplingSettings) -> np.ndarray:
+    """(n, J, 3) Euler angles in degrees within the joint limits (no pruning).
+
+    Centre-line joints: per axis a mixture of two half-normals (one per direction, std = sigma x that
+    side's limit), clipped to the limits. Other joints (shoulders, arms): x uniform, sin(z) uniform,
+    y uniform, within limits.
+    """
+    lim = skel.limits_deg.double().numpy()  # (J, 3, 2)
+    lo, hi = lim[..., 0], lim[..., 1]
+    J = skel.num_joints
+    unknown = [name for name in settings.halfnormal_joints if name not in skel.names]
+    if unknown:
+        raise ValueError(f"sampling.halfnormal_joints: unknown joints {unknown}; joints: {list(skel.names)}")
+    centre = np.array([name in settings.halfnormal_joints for name in skel.names])
+    # draw every stream for every joint so the random sequence does not depend on which joints are which
+    mag = np.abs(rng.standard_normal((n, J, 3))) * settings.halfnormal_sigma
+    positive = rng.random((n, J, 3)) < settings.positive_prob
+    u = rng.random((n, J, 3))
+    half = np.clip(np.where(positive, mag * np.maximum(hi, 0.0), -mag * np.maximum(-lo, 0.0)), lo, hi)
+    uniform = lo + u * (hi - lo)
+    s_lo, s_hi = np.sin(np.deg2rad(lo[:, Z])), np.sin(np.deg2rad(hi[:, Z]))
+    altitude = np.rad2deg(np.arcsin(s_lo + u[..., Z] * (s_hi - s_lo)))
+    sphere = uniform.copy()
+    sphere[..., Z] = np.clip(altitude, lo[:, Z], hi[:, Z])  # arcsin round-off must not leave the limits
+    return np.where(centre[None, :, None], half, sphere)
+
+
+def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:
+    """(2 * probes_per_arm,) long body-vertex ids on the arm parts, fixed and deterministic.
+
+    Candidates: arm-part vertices outside the torso part and at least probe_min_distance from their arm
+    joint; chosen by farthest-point sampling (started at the vertex farthest from the joint) so they
+    spread over the whole arm.
+    """
+    skel = body.skeleton
+    out = []
+    for part, joint in ((LEFT_ARM, "l_arm"), (RIGHT_ARM, "r_arm")):
+        joint_pos = skel.rest_heads[skel.index(joint)]
+        dist = (body.vertices - joint_pos).norm(dim=1)
+        cand = (body.parts[part] & ~body.parts[TORSO] & (dist >= settings.probe_min_distance)).nonzero()[:, 0]
+        if len(cand) < settings.probes_per_arm:
+            raise ValueError(
+                f"only {len(cand)} probe candidates on part {part} ({joint}); "
+                f"need {settings.probes_per_arm}: lower sampling.probe_min_distance or use a finer body mesh"
+            )
+        pts = body.vertices[cand].double()
+        chosen = [int(dist[cand].argmax())]
+        gap = (pts - pts[chosen[0]]).norm(dim=1)
+        for _ in range(settings.probes_per_arm - 1):
+            k = int(gap.argmax())
+            chosen.append(k)
+            gap = torch.minimum(gap, (pts - pts[k]).norm(dim=1))
+        out.append(cand[torch.tensor(chosen)])
+    return torch.cat(out)
+
+
+def probes_inside_torso(body: Body, rotations: Tensor, probes: Tensor, settings: SamplingSettings) -> Tensor:
+    """(B,) bool: some arm probe of the posed body lies inside the posed torso. rotations (B, J, 3, 3)."""
+    transforms = forward_kinematics(body.skeleton, rotations)
+    posed = linear_blend_skinning(body.vertices[probes], body.weights[probes], transforms)  # (B, P, 3)
+    sdf = body_sdf(body, rotations, posed, part=TORSO)
+    return (sdf < -settings.prune_tolerance).any(dim=1)
+
+
+def sample_poses(
+    skel: Skeleton, n: int, seed: int, body: Body | None = None, settings: SamplingSettings | None = None
+) -> tuple[Tensor, dict]:
+    """Sample n poses (appendix D.3); with a body, prune poses whose arm probes enter the torso.
+
+    Returns poses (n, J, 3, 3) float32 and stats: requested, kept, candidates (drawn), pruned,
+    probes (count), angles_deg (n, J, 3) float32 Euler angles of the kept poses.
+    (`settings`: addition to docs/interfaces.md; None = the defaults, equal to conf/body/mannequin.yaml.)
+    """
+    if n < 0:
+        raise ValueError(f"n must be >= 0, got {n}")
+    settings = settings or SamplingSettings()
+    probes = arm_probe_indices(body, settings) if body is not None else None
+    kept: list[np.ndarray] = []
+    num_kept = drawn = pruned = 0
+    block = 0
+    while num_kept < n:
+        if block >= settings.max_blocks:
+            raise RuntimeError(
+                f"pose sampling kept only {num_kept} of {n} after {drawn} candidates "
+                f"({pruned} pruned); the limits or pruning are too strict"
+            )
+        angles = sample_angles(skel, settings.block_size, np.random.default_rng([seed, block]), settings)
+        block += 1
+        if probes is not None:
+            with torch.no_grad():
+                bad = probes_inside_torso(
+                    body, euler_xzy_to_matrix(torch.from_numpy(angles)), probes, settings
+                )
+            ok = np.flatnonzero(~bad.numpy())
+        else:
+            ok = np.arange(len(angles))
+        take = ok[: n - num_kept]
+        # the last block is only looked at up to its last kept candidate
+        looked = int(take[-1]) + 1 if num_kept + len(take) == n and len(take) else len(angles)
+        drawn += looked
+        pruned += looked - len(take)
+        kept.append(angles[take])
+        num_kept += len(take)
+    angles = np.concatenate(kept) if kept else np.zeros((0, skel.num_joints, 3))
+    angles_t = torch.from_numpy(angles).to(torch.float32)
+    poses = euler_xzy_to_matrix(torch.from_numpy(angles)).to(torch.float32)
+    stats = {
+        "requested": n,
+        "kept": int(num_kept),
+        "candidates": int(drawn),
+        "pruned": int(pruned),
+        "probes": 0 if probes is None else len(probes),
+        "angles_deg": angles_t,
+    }
+    return poses, stats
+
+
+def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
+    """Write a PNG of per-joint, per-axis angle histograms with the limits marked (like Fig. 12).
+
+    angles (n, J, 3) degrees. Atomic: rendered to a temp file in the same folder, then os.replace.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = np.asarray(torch.as_tensor(angles).detach().cpu())
+    J = skel.num_joints
+    if a.ndim != 3 or a.shape[1:] != (J, 3):
+        raise ValueError(f"angles: expected shape (n, {J}, 3), got {a.shape}")
+    lim = skel.limits_deg.numpy()
+    fig, axes = plt.subplots(J, 3, figsize=(9, 1.6 * J), squeeze=False)
+    for j in range(J):
+        for k, axis in enumerate("xyz"):
+            ax = axes[j, k]
+            ax.hist(a[:, j, k], bins=bins, range=tuple(lim[j, k]), color="tab:blue")
+            ax.axvline(lim[j, k, 0], color="tab:red", lw=0.8)
+            ax.axvline(lim[j, k, 1], color="tab:red", lw=0.8)
+            ax.set_title(f"{skel.names[j]} {axis}", fontsize=8)
+            ax.tick_params(labelsize=6)
+            ax.set_yticks([])
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format="png", dpi=100)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    finally:
+        plt.close(fig)
+
+
+__all__ = [
+    "SamplingSettings",
+    "arm_probe_indices",
+    "euler_xzy_to_matrix",
+    "plot_angle_histograms",
+    "probes_inside_torso",
+    "sample_angles",
+    "sample_poses",
+    "sampling_settings_from_config",
+]
