@@ -1,0 +1,204 @@
+"""pbc.report on synthetic sweep dirs laid out exactly as pbc.train / pbc.evaluate leave them.
+
+No training here: each run dir gets `.hydra/*.yaml`, a `metrics.json` in pbc.train's format and a
+TensorBoard events file, so the report's reading, tables, claims and failure handling are checked in
+a second.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+import yaml
+
+from pbc import report
+from pbc.sweeps import FAILED, INCOMPLETE, OK, load_runs
+
+
+def make_run(
+    root: Path,
+    name: str,
+    choices: dict,
+    metrics: dict | None,
+    curves: dict | None = None,
+    job: str = "train",
+    overrides: list[str] | None = None,
+) -> Path:
+    """One Hydra run dir. metrics=None leaves no metrics.json (a killed job)."""
+    d = root / name
+    (d / ".hydra").mkdir(parents=True)
+    hydra_yaml = {
+        "hydra": {"job": {"name": job}, "runtime": {"choices": {**choices, "hydra/launcher": "joblib"}}}
+    }
+    (d / ".hydra" / "hydra.yaml").write_text(yaml.safe_dump(hydra_yaml))
+    ov = overrides if overrides is not None else [f"{k}={v}" for k, v in choices.items() if k != "experiment"]
+    (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
+    (d / ".hydra" / "config.yaml").write_text(
+        yaml.safe_dump({"data": {"name": "tshirt_tiny", "num_samples": 16}, "trainer": {"max_epochs": 2}})
+    )
+    if metrics is not None:
+        (d / "metrics.json").write_text(json.dumps(metrics))
+    if curves:
+        from torch.utils.tensorboard import SummaryWriter
+
+        w = SummaryWriter(str(d / "tensorboard"))
+        for tag, values in curves.items():
+            for step, v in enumerate(values):
+                w.add_scalar(tag, v, step)
+        w.close()
+    return d
+
+
+def ok_metrics(train_v, train_n, test_v, test_n) -> dict:
+    # pbc.train's layout, plus the "train" block (best checkpoint over the training split).
+    return {
+        "status": "ok",
+        "optimized_metric": "val/vertex_error_cm",
+        "val_best": {"vertex_error_cm": test_v},
+        "train": {"vertex_error_cm": train_v, "normal_distance": train_n},
+        "test": {"vertex_error_cm": test_v, "normal_distance": test_n, "image_loss": 0.01},
+        "epochs": 2,
+        "seconds": 3.5,
+        "config": {"seed": 0},
+        "summary": {"lr": 0.001},
+    }
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("sweep")
+    curves = {"train/loss_step": [1.0, 0.5, 0.3], "val/vertex_error_cm": [3.0, 2.0]}
+    make_run(
+        root, "0_loss=l1", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.30, 0.021, 0.41, 0.026), curves
+    )
+    make_run(
+        root, "1_loss=l2", {"experiment": "whole", "loss": "l2"}, ok_metrics(0.36, 0.018, 0.48, 0.027), curves
+    )
+    make_run(
+        root,
+        "2_loss=l2_normal",
+        {"experiment": "whole", "loss": "l2_normal"},
+        {
+            "status": "failed",
+            "error": "FloatingPointError: non-finite train loss nan at global step 3",
+            "traceback": "Traceback ...\nFloatingPointError: non-finite",
+        },
+    )
+    # l1_normal: never run (missing). An FC pair in one space, and a killed FC job.
+    make_run(
+        root,
+        "3_experiment=fc_direct_local",
+        {"experiment": "fc_direct_local", "loss": "l1"},
+        ok_metrics(0.70, 0.05, 0.75, 0.06),
+    )
+    make_run(
+        root,
+        "4_experiment=fc_pca_local",
+        {"experiment": "fc_pca_local", "loss": "l1"},
+        ok_metrics(0.52, 0.05, 0.57, 0.06),
+    )
+    make_run(root, "5_experiment=fc_pca_root", {"experiment": "fc_pca_root", "loss": "l1"}, None)
+    for i, v in ((0, 0.2), (7, 0.25)):
+        make_run(
+            root,
+            f"{6 + i}_experiment=patch_{i:02d}",
+            {"experiment": f"patch_{i:02d}", "loss": "l1"},
+            ok_metrics(v, 0.02, v + 0.1, 0.03)
+            | {"test": {"vertex_error_cm": v + 0.1, "vertex_error_cm_std": 0.05}},
+        )
+    make_run(
+        root,
+        "evaluate",
+        {"stitch": "all"},
+        job="evaluate",
+        overrides=[],
+        metrics={
+            "whole": {"vertex_error_cm": 0.41, "normal_distance": 0.026},
+            "average": {"vertex_error_cm": 0.45, "seam_jump_cm": 0.2},
+            "pca": {"vertex_error_cm": 0.38, "seam_jump_cm": 0.05},
+        },
+    )
+    return root
+
+
+def test_runs_read_with_status(sweep):
+    runs = {r.name: r for r in load_runs(sweep)}
+    assert runs["0_loss=l1"].status == OK
+    assert runs["0_loss=l1"].get("experiment") == "whole" and runs["0_loss=l1"].get("loss") == "l1"
+    assert runs["0_loss=l1"].metrics["test/vertex_error_cm"] == 0.41
+    assert "config/seed" not in runs["0_loss=l1"].metrics  # config blocks are not metrics
+    assert runs["0_loss=l1"].curves["train/loss_step"] == [(0, 1.0), (1, 0.5), (2, pytest.approx(0.3))]
+    assert runs["2_loss=l2_normal"].status == FAILED
+    assert "non-finite train loss" in runs["2_loss=l2_normal"].error
+    assert runs["5_experiment=fc_pca_root"].status == INCOMPLETE
+
+
+def test_report_tables_equal_metrics_json(sweep, tmp_path):
+    md_path = report.build_report(sweep, tmp_path / "out")
+    data = json.loads((tmp_path / "out" / "report.json").read_text())
+    t1 = {r["label"]: r for r in data["table1"]}
+    for label, name in (("L1", "0_loss=l1"), ("L2", "1_loss=l2")):
+        m = json.loads((sweep / name / "metrics.json").read_text())
+        for split in ("train", "test"):
+            for key in ("vertex_error_cm", "normal_distance"):
+                assert t1[label]["values"][f"{split}/{key}"] == m[split][key]
+    assert t1["L2 + N"]["status"] == FAILED and "non-finite" in t1["L2 + N"]["error"]
+    assert t1["L1 + N"]["status"] == "missing"
+
+    md = md_path.read_text()
+    # The markdown cell shows our number with the paper's beside it.
+    row = next(line for line in md.splitlines() if line.startswith("| L1 |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1] == "0.3 (0.33)" and cells[3] == "0.41 (0.44)" and cells[4] == "0.026 (0.027)"
+    assert re.search(r"\| L2 \+ N \| failed", md)
+    # Failed, killed and missing runs are listed with their reason, not dropped.
+    assert "FloatingPointError: non-finite train loss nan" in md
+    assert "no run with experiment=whole, loss=l1_normal" in md
+    assert "no metrics.json" in md
+    for png in ("table1.png", "table2.png", "hierarchy.png", "learning_curves.png"):
+        assert (tmp_path / "out" / png).stat().st_size > 1000
+    assert not list((tmp_path / "out").glob(".*"))  # no temp files left behind
+
+
+def test_claims_verdicts(sweep, tmp_path):
+    report.build_report(sweep, tmp_path)
+    claims = {c["text"]: c for c in json.loads((tmp_path / "report.json").read_text())["claims"]}
+    assert claims["L1 < L2 on vertex error (train, test)"]["verdict"] == report.HELD
+    assert claims["normal loss lowers normal error (L2+N < L2, train)"]["verdict"] == report.NOT_MEASURED
+    # Only the local space was measured (root killed, position never run): not measured, with what is missing.
+    pca = claims["PCA beats direct (FC, every space, train and test vertex error)"]
+    assert pca["verdict"] == report.NOT_MEASURED and "Off. Root." in pca["ours"]
+    assert claims["CNN beats FC (test vertex error)"]["verdict"] == report.HELD
+    assert claims["patches beat whole (test vertex error)"]["verdict"] == report.HELD
+    assert "stitched (pca)" in claims["patches beat whole (test vertex error)"]["ours"]
+
+
+def test_claim_that_does_not_hold(tmp_path):
+    make_run(tmp_path, "0", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.5, 0.02, 0.6, 0.03))
+    make_run(tmp_path, "1", {"experiment": "whole", "loss": "l2"}, ok_metrics(0.4, 0.02, 0.5, 0.03))
+    report.build_report(tmp_path)
+    claims = json.loads((tmp_path / "report.json").read_text())["claims"]
+    assert claims[0]["verdict"] == report.NOT_HELD
+
+
+def test_train_error_falls_back_to_tensorboard(tmp_path):
+    m = ok_metrics(0, 0, 0.4, 0.03)
+    del m["train"]
+    make_run(
+        tmp_path,
+        "0",
+        {"experiment": "whole", "loss": "l1"},
+        m,
+        {"train/vertex_error_cm_epoch": [0.9, 0.35], "train/vertex_error_cm_step": [1.0, 0.3]},
+    )
+    md = report.build_report(tmp_path).read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| L1 |"))
+    assert "0.35* (0.33)" in row and "from TensorBoard" in md
+
+
+def test_cli_missing_dir(tmp_path, capsys):
+    assert report.main([str(tmp_path / "nope")]) == 2
+    assert "does not exist" in capsys.readouterr().err
