@@ -53,7 +53,7 @@ class PoseVerts(Dataset):
     def __getitem__(self, i: int) -> dict:
         k = int(self.indices[i])
         return {
-            "pose": torch.from_numpy(np.asarray(self.poses[k], np.float32).reshape(-1)),
+            "pose": torch.from_numpy(np.array(self.poses[k], np.float32).reshape(-1)),
             "verts": torch.from_numpy(np.array(self.verts[k], np.float32)),
             "index": torch.tensor(k),
         }
