@@ -73,7 +73,7 @@ def load_npy(path: str | os.PathLike, mmap: bool = True, shape: tuple | None = N
     except (ValueError, OSError, EOFError) as err:
         raise ValueError(f"array {path} is corrupt or truncated ({err}); regenerate the dataset") from err
     if shape is not None:
-        ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
+        ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape, strict=False))
         if not ok:
             raise ValueError(f"array {path} has shape {arr.shape}, expected {shape}; regenerate the dataset")
     return arr
