@@ -30,7 +30,7 @@ from pathlib import Path
 
 import hydra
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 log = logging.getLogger(__name__)
 MONITOR = "val/vertex_error_cm"
@@ -46,30 +46,39 @@ def output_dir(cfg: DictConfig) -> Path:
         return Path(cfg.paths.output_dir)
 
 
-def ensure_dataset(cfg: DictConfig):
-    """Load ``cfg.data.dir``, generating it first when it does not exist yet (first use)."""
-    from pbc.data.dataset import load_dataset
+def datamodule(cfg: DictConfig):
+    """The DataModule, set up (dataset generated on first use). The model is the source of truth for
+    what it serves: target and offset space follow ``model.kind`` / ``model.space``."""
+    from pbc.data.datamodule import from_config
 
-    if not (Path(cfg.data.dir) / "manifest.json").is_file():
-        from pbc.data.generate import generate
+    kind = cfg.model.kind
+    if kind not in ("whole", "patch", "fc"):
+        raise ValueError(f"model.kind must be whole | patch | fc, got {kind!r}")
+    with open_dict(cfg):
+        cfg.datamodule.target = "patch" if kind == "patch" else "whole"
+        cfg.datamodule.patch_id = cfg.model.patch_id if kind == "patch" else None
+        cfg.datamodule.space = cfg.model.space
+        cfg.datamodule.render = kind != "fc"  # the FC baselines need no images
+    dm = from_config(cfg)
+    dm.prepare_data()
+    dm.setup("fit")
+    return dm
 
-        log.info("dataset %s missing: generating it first", cfg.data.dir)
-        generate(cfg)
-    return load_dataset(cfg.data.dir)
 
-
-def run_identity(cfg: DictConfig, dataset) -> dict:
+def run_identity(cfg: DictConfig, dm) -> dict:
     """What a checkpoint must match to be loaded by this run (see ClothModule.on_load_checkpoint)."""
     kind = cfg.model.kind
-    res = {"whole": cfg.image.whole_resolution, "patch": cfg.image.patch_resolution}.get(kind)
+    res = getattr(dm.ops, "res", None)
+    if kind == "patch":
+        res = int(cfg.image.patch_resolution)
     return {
-        "garment_hash": str(dataset.manifest.get("garment_hash", "")),
-        "num_vertices": int(dataset.verts.shape[1]),
+        "garment_hash": str(dm.data.manifest.get("garment_hash", "")),
+        "num_vertices": int(dm.data.verts.shape[1]),
         "kind": str(kind),
-        "resolution": None if res is None else int(res),
+        "resolution": None if kind == "fc" else int(res),
         "patch_id": None if kind != "patch" else int(cfg.model.patch_id),
         "space": str(cfg.model.space),
-        "crop_size": None if kind != "patch" else int(cfg.image.crop_size),
+        "crop_size": None if kind != "patch" else int(dm.ops.window[2]),
     }
 
 
@@ -97,30 +106,28 @@ def resolve_ckpt_path(spec: str | None, out_dir: Path, identity: dict) -> str | 
     raise FileNotFoundError(f"ckpt_path=last: no last.ckpt of this setup in {out_dir} or {out_dir.parent}/*/")
 
 
-def _datamodule(cfg: DictConfig, dataset):
-    """The configured DataModule; falls back to plain (pose, verts) batches when none is configured."""
-    if "datamodule" in cfg and cfg.datamodule is not None:
-        return hydra.utils.instantiate(cfg.datamodule, _recursive_=False)
-    from pbc.models.module import SplitDataModule
-
-    return SplitDataModule(dataset, batch_size=8)
-
-
 def train(cfg: DictConfig) -> dict:
     """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict."""
     import lightning as L
 
-    from pbc.models.module import ClothModule, build_geometry, flat_summary
+    from pbc.models.module import ClothModule, flat_summary, geometry_from_datamodule
 
     t0 = time.time()
     out = output_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     L.seed_everything(int(cfg.seed), workers=True)
-    dataset = ensure_dataset(cfg)
-    identity = run_identity(cfg, dataset)
+    dm = datamodule(cfg)
+    dataset = dm.data
+    identity = run_identity(cfg, dm)
     net_cfg = OmegaConf.to_container(cfg.model.net, resolve=True)
     if cfg.model.kind == "fc":
         net_cfg["num_vertices"] = identity["num_vertices"]
+    else:
+        # the image size the DataModule really serves (crop_size scales with patch_resolution)
+        size = [identity["crop_size"]] * 2 if cfg.model.kind == "patch" else [dm.ops.res] * 2
+        if list(net_cfg["output_size"]) != size:
+            log.info("decoder output_size %s -> %s (the served image size)", net_cfg["output_size"], size)
+            net_cfg["output_size"] = size
     summary = {
         "model": str(cfg.model.net._target_).rsplit(".", 1)[-1], "kind": cfg.model.kind,
         "patch_id": -1 if cfg.model.patch_id is None else int(cfg.model.patch_id), "space": cfg.model.space,
@@ -131,9 +138,7 @@ def train(cfg: DictConfig) -> dict:
     module = ClothModule(net=net_cfg, kind=cfg.model.kind, space=cfg.model.space,
                          loss=OmegaConf.to_container(cfg.loss, resolve=True), lr=float(cfg.model.lr),
                          identity=identity, patch_id=identity["patch_id"], summary=summary)
-    module.attach(build_geometry(dataset, cfg.model.kind, cfg.model.patch_id, cfg.image,
-                                 cache_dir=Path(cfg.paths.data_dir) / "cache"))
-    dm = _datamodule(cfg, dataset)
+    module.attach(geometry_from_datamodule(dm, cfg.model.kind))
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
     loggers = [hydra.utils.instantiate(c) for c in (cfg.get("logger") or {}).values()]
     trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)

@@ -51,30 +51,21 @@ class Geometry:
     vertices: Tensor | None
 
 
-def build_geometry(dataset, kind: str, patch_id: int | None, image_cfg, cache_dir=None) -> Geometry:
-    """Operators of ``dataset``'s garment for a model ``kind`` (resolutions/crop from ``image_cfg``)."""
-    from pbc.pixels.operators import ImageOperators
+def geometry_from_datamodule(dm, kind: str) -> Geometry:
+    """Geometry of a set-up ``pbc.data.datamodule.ClothDataModule`` (its operators and skinner are reused,
+    so images are rendered once per batch, by the DataModule)."""
     from pbc.pixels.reconstruct import Skinner
 
-    faces = torch.as_tensor(dataset.garment.faces).long()
+    data = dm.data
+    faces = torch.as_tensor(data.garment.faces).long()
     edges = mesh_edges(faces)
-    skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
-    pad = int(image_cfg.get("pad", image_cfg.margin))
-    if kind == "whole":
-        ops = ImageOperators.for_garment(dataset.garment, int(image_cfg.whole_resolution), pad,
-                                         cache_dir=cache_dir)
-        return Geometry(ops, skinner, faces, edges, None)
+    skinner = dm.skinner or Skinner(data.body, data.garment, data.embedding)
     if kind == "patch":
-        full = ImageOperators.for_garment(dataset.garment, int(image_cfg.patch_resolution), pad,
-                                          cache_dir=cache_dir)
-        patch = dataset.cage.patches[int(patch_id)]
-        crop = full.crop(patch, int(image_cfg.crop_size), int(image_cfg.margin))
-        inside = torch.zeros(faces.max().item() + 1, dtype=torch.bool)
-        inside[crop.vertices] = True
-        return Geometry(crop, skinner, faces, edges[inside[edges].all(1)], crop.vertices)
-    if kind == "fc":
-        return Geometry(None, skinner, faces, edges, None)
-    raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
+        ids = dm.ops.vertices
+        inside = torch.zeros(len(data.garment.vertices), dtype=torch.bool)
+        inside[ids] = True
+        return Geometry(dm.ops, skinner, faces, edges[inside[edges].all(1)], ids)
+    return Geometry(dm.ops if kind == "whole" else None, skinner, faces, edges, None)
 
 
 class ClothModule(L.LightningModule):
@@ -123,7 +114,14 @@ class ClothModule(L.LightningModule):
 
     # ------------------------------------------------------------------------------ targets
     def targets(self, batch: dict) -> dict:
-        """Ground truth of a batch: anchors/frames of the posed body, offsets, and the target image."""
+        """Ground truth of a batch: anchors/frames of the posed body, offsets, and the target image.
+
+        Uses what the DataModule already rendered on the device (``anchors``, ``frames``, ``offsets``,
+        ``image``, ``mask``) and computes only what is missing.
+        """
+        if all(k in batch for k in ("anchors", "frames", "offsets")) and (
+                self.hparams.kind == "fc" or "image" in batch):
+            return batch
         g = self.geom
         pose = batch["pose"].reshape(batch["pose"].shape[0], -1, 3, 3)
         verts = batch["verts"]
@@ -342,34 +340,3 @@ def flat_summary(cfg: DictConfig | dict) -> dict:
     walk("", d)
     return {k: v for k, v in out.items() if not (isinstance(v, float) and math.isnan(v))}
 
-
-class SplitDataModule(L.LightningDataModule):
-    """Fallback batches {pose (B, J, 3, 3), verts (B, V, 3), index (B,)} straight from a ClothDataset's
-    splits, used by ``pbc.train`` only when no ``datamodule`` is configured (images are rendered by the
-    module either way)."""
-
-    def __init__(self, dataset, batch_size: int = 8) -> None:
-        super().__init__()
-        self.dataset, self.batch_size = dataset, int(batch_size)
-
-    def _loader(self, split: str, shuffle: bool):
-        ids = torch.as_tensor(self.dataset.split(split))
-        pose = torch.as_tensor(self.dataset.poses[ids.numpy()]).float()
-        verts = torch.as_tensor(self.dataset.verts[ids.numpy()]).float()
-        ds = torch.utils.data.TensorDataset(pose, verts, ids)
-        return torch.utils.data.DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle,
-                                           collate_fn=_collate)
-
-    def train_dataloader(self):
-        return self._loader("train", True)
-
-    def val_dataloader(self):
-        return self._loader("val", False)
-
-    def test_dataloader(self):
-        return self._loader("test", False)
-
-
-def _collate(items: list) -> dict:
-    pose, verts, index = (torch.stack(x) for x in zip(*items, strict=True))
-    return {"pose": pose, "verts": verts, "index": index}
