@@ -1,0 +1,124 @@
+"""PNG figures of the cloth images (paper section 4) for looking at a dataset.
+
+One job: draw, for a few samples of a dataset, the front/back cloth images (one diverging colour map
+per channel, symmetric about 0), the padded chart mask, the patch crop windows on the 512 image, and
+the round-trip error map of plain bilinear sampling (per vertex, at its UV).
+
+    python -m pbc.pixels.preview DATASET_DIR [OUT_DIR] [--samples 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+from omegaconf import OmegaConf  # noqa: E402
+
+from pbc.pixels.frames import to_offsets  # noqa: E402
+from pbc.pixels.operators import ImageOperators, image_sizes  # noqa: E402
+
+CHANNELS = ("du", "dv", "dn")
+
+
+def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles: list[str]) -> None:
+    """images (N, 6, H, W), mask (2, H, W) -> rows = samples x side, columns = du, dv, dn (+ mask)."""
+    n = len(images)
+    fig, axes = plt.subplots(2 * n, 4, figsize=(12, 6 * n), squeeze=False)
+    for c in range(3):  # one symmetric scale per channel across samples, so pose changes are visible
+        lim = max(float(np.abs(images[:, [c, c + 3]]).max()), 1e-9)
+        for i in range(n):
+            for s in range(2):
+                ax = axes[2 * i + s, c]
+                im = np.where(mask[s], images[i, 3 * s + c], np.nan)
+                h = ax.imshow(im, cmap="RdBu_r", vmin=-lim, vmax=lim)
+                ax.set_title(f"{titles[i]} {'front' if s == 0 else 'back'} {CHANNELS[c]} (m)", fontsize=8)
+                ax.axis("off")
+        fig.colorbar(h, ax=axes[:, c].tolist(), shrink=0.3)
+    for i in range(n):
+        for s in range(2):
+            axes[2 * i + s, 3].imshow(mask[s], cmap="gray")
+            axes[2 * i + s, 3].set_title("padded chart mask", fontsize=8)
+            axes[2 * i + s, 3].axis("off")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def crop_windows_figure(ops512: ImageOperators, image: np.ndarray, cage, crop_size: int, path: Path) -> None:
+    """The 512 image's dn channel per side with every patch's crop window drawn on it."""
+    fig, axes = plt.subplots(1, 2, figsize=(14, 7))
+    for s in range(2):
+        ax = axes[s]
+        ax.imshow(np.where(ops512.mask[s].numpy(), image[3 * s + 2], np.nan), cmap="RdBu_r")
+        for p in cage.patches:
+            if p.side != s:
+                continue
+            r0, c0, size = ops512.crop_window(p.box_512, crop_size)
+            ax.add_patch(Rectangle((c0 - 0.5, r0 - 0.5), size, size, fill=False, lw=1, ec=f"C{p.id % 10}"))
+            ax.text(c0 + size / 2, r0 + size / 2, str(p.id), ha="center", va="center", fontsize=7)
+        ax.set_title(f"{'front' if s == 0 else 'back'}: crop windows ({crop_size} px)")
+        ax.axis("off")
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def round_trip_figure(garment, plain: ImageOperators, x: torch.Tensor, path: Path) -> float:
+    """Per-vertex |S R x - x| (cm) of plain (uncorrected) operators at each vertex's UV; returns the mean."""
+    err = ((plain.sample(plain.render(x)) - x).norm(dim=-1) * 100).mean(0).numpy()
+    uv, side = np.asarray(garment.vertex_uv), np.asarray(garment.vertex_side)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6))
+    for s in range(2):
+        m = side == s
+        h = axes[s].scatter(uv[m, 0], uv[m, 1], c=err[m], cmap="magma", s=12, vmin=0, vmax=err.max())
+        axes[s].set_xlim(0, 1)
+        axes[s].set_ylim(1, 0)
+        axes[s].set_aspect("equal")
+        axes[s].set_title(f"{'front' if s == 0 else 'back'}: plain round-trip error at {plain.res} (cm)")
+    fig.colorbar(h, ax=axes.tolist(), shrink=0.6)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return float(err.mean())
+
+
+def preview(dataset_dir: str | Path, out_dir: str | Path, image_cfg, samples: int = 3) -> list[Path]:
+    """Write the PNGs for the first `samples` samples of a dataset; returns their paths."""
+    from pbc.data.dataset import load_dataset
+    from pbc.pixels.reconstruct import Skinner
+
+    data = load_dataset(dataset_dir)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sizes = image_sizes(image_cfg)
+    idx = np.arange(min(samples, len(data)))
+    anchors, frames = Skinner(data.body, data.garment, data.embedding)(torch.from_numpy(np.array(data.poses[idx])))
+    x = to_offsets(torch.from_numpy(np.array(data.verts[idx])), anchors, frames, "local")
+    cache = Path(data.dir) / "operators"
+    whole = ImageOperators.for_garment(data.garment, sizes["whole_resolution"], sizes["whole_pad"], cache_dir=cache)
+    ops512 = ImageOperators.for_garment(data.garment, sizes["patch_resolution"], sizes["patch_pad"], cache_dir=cache)
+    plain = ImageOperators.for_garment(data.garment, sizes["patch_resolution"], sizes["patch_pad"], exact=False)
+    paths = [out / "cloth_images.png", out / "crop_windows.png", out / "round_trip_error.png"]
+    cloth_image_figure(whole.render(x).numpy(), whole.mask.numpy(), paths[0], [f"sample {i}" for i in idx])
+    crop_windows_figure(ops512, ops512.render(x[:1]).numpy()[0], data.cage, sizes["crop_size"], paths[1])
+    round_trip_figure(data.garment, plain, x, paths[2])
+    return paths
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("dataset")
+    ap.add_argument("out", nargs="?", default=None)
+    ap.add_argument("--samples", type=int, default=3)
+    args = ap.parse_args()
+    cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf/image/default.yaml")
+    for p in preview(args.dataset, args.out or Path(args.dataset) / "preview_pixels", cfg, args.samples):
+        print(p)
+
+
+if __name__ == "__main__":
+    main()
