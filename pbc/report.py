@@ -23,7 +23,7 @@ from pathlib import Path
 
 import yaml
 
-from pbc.sweeps import FAILED, INCOMPLETE, OK, Run, load_runs
+from pbc.sweeps import FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
 
 PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
 
@@ -138,9 +138,12 @@ def _patch_id(run: Run) -> int | None:
     return pid if isinstance(pid, int) and run.cfg("model.kind") == "patch" else None
 
 
-def patch_rows(runs: list[Run]) -> list[Row]:
-    """Each patch model's own test error (over the vertices inside its patch), by patch id."""
-    ids = sorted({p for r in runs if (p := _patch_id(r)) is not None})
+def patch_rows(runs: list[Run], expected: dict[str, list[str]] | None = None) -> list[Row]:
+    """Each patch model's own test error (over the vertices inside its patch), by patch id; the patches
+    the sweep was launched with but that left no run dir are listed as missing."""
+    ids = {p for r in runs if (p := _patch_id(r)) is not None}
+    ids |= {int(e[6:]) for e in (expected or {}).get("experiment", []) if e[:6] == "patch_" and e[6:].isdigit()}
+    ids = sorted(ids)
     keys = [f"{s}/{m}" for s in ("train", "test") for m in (VERTEX, NORMAL)] + [f"test/{VERTEX}_std"]
     return [make_row(f"patch_{i:02d}", runs, {"experiment": f"patch_{i:02d}"}, keys) for i in ids]
 
@@ -166,9 +169,7 @@ def hierarchy_rows(runs: list[Run]) -> list[Row]:
         vals = {}
         for k, v in ev.metrics.items():
             parts = k.split("/")
-            if parts[0] == method or (
-                len(parts) > 1 and parts[0] in ("methods", "stitched") and parts[1] == method
-            ):
+            if parts[0] == method or (len(parts) > 1 and parts[0] in ("methods", "stitched") and parts[1] == method):
                 vals[parts[-1]] = v
         if vals:
             label = method if method in ("whole", "floor") else f"stitched ({method})"
@@ -196,11 +197,7 @@ def _compare(pairs, what: str) -> tuple[str, str]:
 
 def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[Claim]:
     by = {r.select.get("loss"): r for r in t1}
-    fc = {
-        r.select.get("experiment"): r
-        for r in t2
-        if "experiment" in r.select and r.select["experiment"] != "whole"
-    }
+    fc = {r.select.get("experiment"): r for r in t2 if "experiment" in r.select and r.select["experiment"] != "whole"}
     cnn = t2[-1]
     out = []
 
@@ -237,9 +234,7 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
     )
     pairs = [("L1+N vs L1, train", v(by["l1_normal"], f"train/{NORMAL}"), v(by["l1"], f"train/{NORMAL}"))]
     ours, verdict = _compare(pairs, NORMAL)
-    out.append(
-        Claim("normal loss lowers normal error (L1+N < L1, train; beyond the paper)", "—", ours, verdict)
-    )
+    out.append(Claim("normal loss lowers normal error (L1+N < L1, train; beyond the paper)", "—", ours, verdict))
     # 3. PCA beats direct prediction in every space, train and test.
     pairs = []
     for space, label in FC_SPACES:
@@ -263,25 +258,17 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
     fc_test = [v(r, f"test/{VERTEX}") for r in fc.values()]
     best_fc = min((x for x in fc_test if x is not None), default=None)
     ours, verdict = _compare([("CNN vs best FC, test", v(cnn, f"test/{VERTEX}"), best_fc)], VERTEX)
-    paper_fc = min(
-        (x["test_vertex"] for x in t2p.values() if isinstance(x, dict) and "test_vertex" in x), default=None
-    )
-    out.append(
-        Claim("CNN beats FC (test vertex error)", f"{p('l1', 'test_vertex')} < {paper_fc}", ours, verdict)
-    )
+    paper_fc = min((x["test_vertex"] for x in t2p.values() if isinstance(x, dict) and "test_vertex" in x), default=None)
+    out.append(Claim("CNN beats FC (test vertex error)", f"{p('l1', 'test_vertex')} < {paper_fc}", ours, verdict))
     # 5. Patches beat the whole-shirt model: the best seam method against the whole model.
     h = {r.select.get("method"): r for r in hier if r.status == OK}
     whole = h.get("whole")
-    stitched = [
-        (m, r.value(VERTEX)) for m, r in h.items() if m in SEAM_METHODS and r.value(VERTEX) is not None
-    ]
+    stitched = [(m, r.value(VERTEX)) for m, r in h.items() if m in SEAM_METHODS and r.value(VERTEX) is not None]
     best = min(stitched, key=lambda t: t[1]) if stitched else (None, None)
     ours, verdict = _compare(
         [(f"stitched ({best[0]}) vs whole, test", best[1], whole.value(VERTEX) if whole else None)], VERTEX
     )
-    out.append(
-        Claim("patches beat whole (test vertex error)", "sec. 4.1 / 8.3 (qualitative here)", ours, verdict)
-    )
+    out.append(Claim("patches beat whole (test vertex error)", "sec. 4.1 / 8.3 (qualitative here)", ours, verdict))
     return out
 
 
@@ -356,9 +343,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         means = [r.value(f"test/{VERTEX}") or 0.0 for r in ok]
         errs = [r.value(f"test/{VERTEX}_std") or 0.0 for r in ok]
         if ok:
-            ax.bar(
-                ids, means, yerr=errs if any(errs) else None, capsize=2, label="patch model (own vertices)"
-            )
+            ax.bar(ids, means, yerr=errs if any(errs) else None, capsize=2, label="patch model (own vertices)")
         for r, style in zip(hier, ("-", "--", ":", "-.", (0, (1, 3)), (0, (5, 1))), strict=False):
             if r.status == OK and r.value(VERTEX) is not None:
                 ax.axhline(
@@ -372,9 +357,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
                 ax.text(int(r.label[6:]), 0, "x", ha="center", color="red")
         ax.set_xlabel("patch id")
         ax.set_ylabel("test vertex error (cm)")
-        ax.set_title(
-            "Hierarchy: per-patch error (bars, ±std over test poses) vs whole / stitched", fontsize=9
-        )
+        ax.set_title("Hierarchy: per-patch error (bars, ±std over test poses) vs whole / stitched", fontsize=9)
         ax.legend(fontsize=7)
         _atomic_savefig(fig, out / "hierarchy.png")
         plt.close(fig)
@@ -458,7 +441,16 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
         f"Generated {datetime.now():%Y-%m-%d %H:%M} by `python -m pbc.report`. {len(runs)} runs: "
         f"{n[OK]} ok, {n[FAILED]} failed, {n[INCOMPLETE]} incomplete."
     )
-    if cmd := _command(sweep_dir):
+    rec = sweep_dir / SWEEP_RECORD
+    if rec.exists():
+        r = json.loads(rec.read_text())
+        md.append(
+            f"Command: `{' '.join(r['argv'])}` (started {r['started']}, wall time "
+            f"{r['seconds'] / 60:.1f} min; steps: "
+            + ", ".join(f"{s['step']} {s['seconds']:.0f} s exit {s['returncode']}" for s in r["steps"])
+            + ")"
+        )
+    elif cmd := _command(sweep_dir):
         md.append(f"Command: `{cmd}`")
     sizes = sorted(
         {
@@ -470,8 +462,7 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     )
     if sizes:
         md.append(
-            "Data / schedule: "
-            + "; ".join(f"{d} ({ns} samples requested), max_epochs {e}" for d, ns, e in sizes)
+            "Data / schedule: " + "; ".join(f"{d} ({ns} samples requested), max_epochs {e}" for d, ns, e in sizes)
         )
     md += [
         "",
@@ -481,9 +472,7 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     ]
 
     md += ["## The paper's claims on our data", ""]
-    md.append(
-        _md_table(["claim", "paper", "ours", "verdict"], [[c.text, c.paper, c.ours, c.verdict] for c in cl])
-    )
+    md.append(_md_table(["claim", "paper", "ours", "verdict"], [[c.text, c.paper, c.ours, c.verdict] for c in cl]))
 
     md += ["", "## Table 1: loss functions (whole-shirt CNN)", ""]
     if any(r.runs for r in t1):
@@ -626,7 +615,7 @@ def build_report(sweep_dir: Path, out_dir: Path | None = None, paper_file: Path 
     paper = load_paper(paper_file)
     t1 = table1(runs, paper["table1"])
     t2 = table2(runs, paper["table2"])
-    patches = patch_rows(runs)
+    patches = patch_rows(runs, expected_jobs(sweep_dir))
     hier = hierarchy_rows(runs)
     cl = claims(t1, t2, hier, paper)
     figs = figures(out, runs, t1, t2, patches, hier)
@@ -651,9 +640,7 @@ def build_report(sweep_dir: Path, out_dir: Path | None = None, paper_file: Path 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pbc.report", description=__doc__.splitlines()[0])
     ap.add_argument("sweep_dir", type=Path, help="a Hydra multirun dir (or a folder of them, or one run dir)")
-    ap.add_argument(
-        "--out", type=Path, default=None, help="where to write report.md and PNGs (default: sweep_dir)"
-    )
+    ap.add_argument("--out", type=Path, default=None, help="where to write report.md and PNGs (default: sweep_dir)")
     args = ap.parse_args(argv)
     try:
         path = build_report(args.sweep_dir, args.out)

@@ -1,15 +1,22 @@
-"""Read Hydra run dirs into `Run` records: the one place that knows how a run dir looks on disk.
+"""Sweeps on disk: run a named sweep end to end, and read run dirs back into `Run` records.
 
-A run dir is what one `python -m pbc.train` / `pbc.evaluate` job leaves behind: `.hydra/{config,hydra,
-overrides}.yaml`, `metrics.json` (numbers, or the job's error when it failed) and TensorBoard event
-files. `load_runs(sweep_dir)` finds every run dir below a sweep dir (or the dir itself), so the report
-never needs a global database. Nothing here plots or formats.
+`python -m pbc.sweeps NAME [overrides]` makes the data once, runs the training multirun of
+`sweeps/sweep/NAME.yaml`, then (for `hierarchy`) the stitched evaluation, then `pbc.report`; it records
+the exact commands and wall time in `<sweep dir>/sweep.json`. `load_runs(sweep_dir)` is the one place
+that knows how a run dir looks: what a `python -m pbc.train` / `pbc.evaluate` job leaves behind,
+`.hydra/{config,hydra,overrides}.yaml`, `metrics.json` (numbers, or the job's error when it failed) and
+TensorBoard event files, so the report never needs a global database. Nothing here plots or formats.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import shlex
+import subprocess
+import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +34,17 @@ EVENTS_PREFIX = "events.out.tfevents."
 _SKIP_DIRS = {".hydra", "checkpoints", "__pycache__", "meshes", "figures"}
 
 OK, FAILED, INCOMPLETE = "ok", "failed", "incomplete"
+# Jobs that leave a run dir but are no experiment (the runner's data step).
+IGNORED_JOBS = ("generate",)
+
+ROOT = Path(__file__).resolve().parents[1]
+SWEEPS_DIR = ROOT / "sweeps"
+SWEEP_NAMES = tuple(sorted(p.stem for p in (SWEEPS_DIR / "sweep").glob("*.yaml")))
+DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every sweeps/sweep/*.yaml
+SWEEP_RECORD = "sweep.json"
+# Overrides that decide the data set: the data step gets these and no others (launcher keys, losses...
+# are not in a single run's config).
+_DATA_KEYS = ("data", "garment", "body", "sim", "paths", "seed")
 
 
 @dataclass
@@ -171,9 +189,7 @@ def load_run(run_dir: Path, root: Path, events: bool = True) -> Run:
             run.status, run.error = FAILED, (lines[-1] if lines else "failed")
     else:
         run.status = INCOMPLETE
-        run.error = f"no {METRICS_FILE}" + (
-            f": {t}" if (t := _log_tail(run_dir)) else " (killed, or still running)"
-        )
+        run.error = f"no {METRICS_FILE}" + (f": {t}" if (t := _log_tail(run_dir)) else " (killed, or still running)")
 
     if events:
         run.curves = read_events(run_dir)
@@ -217,4 +233,150 @@ def load_runs(root: Path, events: bool = True) -> list[Run]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"sweep dir {root} does not exist")
-    return [load_run(p, root, events=events) for p in find_run_dirs(root)]
+    runs = [load_run(p, root, events=events) for p in find_run_dirs(root)]
+    return [r for r in runs if r.job not in IGNORED_JOBS]
+
+
+def sweep_values(key: str, value: str, conf_dir: Path = ROOT / "conf") -> list[str]:
+    """What one `hydra.sweeper.params` entry expands to, with Hydra's own override grammar: a comma list,
+    a range, or `glob(...)` over the options of config group `key` (read from conf/<key>/*.yaml)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    ovr = OverridesParser.create().parse_overrides([f"{key}={value}"])[0]
+    if not ovr.is_sweep_override():
+        return [str(ovr.value())]
+    val = ovr.value()
+    if type(val).__name__ == "Glob":
+        return val.filter(sorted(p.stem for p in (conf_dir / key.lstrip("+")).glob("*.yaml")))
+    return [str(v) for v in ovr.sweep_string_iterator()]
+
+
+def expected_jobs(sweep_dir: Path) -> dict[str, list[str]]:
+    """{key: values} the sweep was launched with (from Hydra's multirun.yaml), for naming missing runs."""
+    cfg = _read_yaml(Path(sweep_dir) / "multirun.yaml")
+    params = (((cfg or {}).get("hydra") or {}).get("sweeper") or {}).get("params") or {}
+    out = {}
+    for key, value in params.items():
+        try:
+            out[key.lstrip("+")] = sweep_values(key, str(value))
+        except Exception:  # an unparsable or Optuna-style search space: nothing to enumerate
+            continue
+    return out
+
+
+# ------------------------------------------------------------------------------------------ the runner
+def _scale_of(overrides: list[str]) -> str:
+    vals = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("scale=")]
+    return vals[-1] if vals else DEFAULT_SCALE
+
+
+def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable):
+    """The commands of one sweep, in order: [(step, argv)]."""
+    if name not in SWEEP_NAMES:
+        raise ValueError(f"unknown sweep {name!r}; choose one of {', '.join(SWEEP_NAMES)}")
+    scale = _scale_of(overrides)
+    data_ovr = [o for o in overrides if o.lstrip("+").split("=", 1)[0].split(".")[0] in _DATA_KEYS]
+    cmds = [
+        # Made once before the parallel jobs, which would otherwise all generate the same data at once.
+        (
+            "data",
+            [
+                python,
+                "-m",
+                "pbc.generate",
+                f"+scale={scale}",
+                *data_ovr,
+                f"hydra.run.dir={sweep_dir}/.generate",
+            ],
+        ),
+        (
+            "train",
+            [
+                python,
+                "-m",
+                "pbc.train",
+                "-m",
+                "-cd",
+                str(SWEEPS_DIR),
+                f"+sweep={name}",
+                f"scale={scale}",
+                *[o for o in overrides if not o.lstrip("+").startswith("scale=")],
+                f"hydra.sweep.dir={sweep_dir}",
+            ],
+        ),
+    ]
+    if name == "hierarchy":
+        cmds.append(
+            (
+                "evaluate",
+                [
+                    python,
+                    "-m",
+                    "pbc.evaluate",
+                    f"+scale={scale}",
+                    *data_ovr,
+                    f"runs={sweep_dir}",
+                    f"hydra.run.dir={sweep_dir}/evaluate",
+                ],
+            )
+        )
+    return cmds
+
+
+def run_sweep(
+    name: str,
+    overrides: list[str],
+    sweep_dir: Path | None = None,
+    report: bool = True,
+    python: str = sys.executable,
+) -> tuple[Path, int]:
+    """Run every step (a failed step is recorded and the rest still run); returns (sweep dir, rc)."""
+    if sweep_dir is None:
+        base = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "sweeps" / name
+        sweep_dir = base / f"{_scale_of(overrides)}_{time.strftime('%Y-%m-%d_%H-%M-%S')}"
+    sweep_dir = Path(sweep_dir).resolve()
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    record = {
+        "name": name,
+        "argv": ["python", "-m", "pbc.sweeps", name, *overrides],
+        "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "steps": [],
+    }
+    t0 = time.time()
+    rc = 0
+    for step, argv in sweep_commands(name, overrides, sweep_dir, python):
+        ts = time.time()
+        print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
+        code = subprocess.call(argv, cwd=ROOT)
+        record["steps"].append({"step": step, "argv": argv, "returncode": code, "seconds": round(time.time() - ts, 1)})
+        rc = rc or code
+        if step == "data" and code != 0:
+            break  # no data, no runs: the train step would fail the same way in every job
+    record["seconds"] = round(time.time() - t0, 1)
+    tmp = sweep_dir / f".{SWEEP_RECORD}.tmp"
+    tmp.write_text(json.dumps(record, indent=1))
+    tmp.replace(sweep_dir / SWEEP_RECORD)
+    if report:
+        from pbc.report import build_report
+
+        print(f"[pbc.sweeps] report: {build_report(sweep_dir)}", flush=True)
+    return sweep_dir, rc
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m pbc.sweeps",
+        description="Run a named sweep end to end (data, training multirun, evaluation, report).",
+    )
+    ap.add_argument("name", choices=SWEEP_NAMES)
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scale=smoke hydra.launcher.n_jobs=2")
+    ap.add_argument("--dir", type=Path, default=None, help="sweep dir (default runs/sweeps/NAME/SCALE_TIME)")
+    ap.add_argument("--no-report", action="store_true")
+    args = ap.parse_args(argv)
+    sweep_dir, rc = run_sweep(args.name, args.overrides, args.dir, report=not args.no_report)
+    print(f"[pbc.sweeps] {sweep_dir} (exit {rc})")
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())
