@@ -604,7 +604,9 @@ def load_paper(path: Path = PAPER_FILE) -> dict:
     return paper
 
 
-def build_report(sweep_dir: Path, out_dir: Path | None = None, paper_file: Path = PAPER_FILE) -> Path:
+def build_report(
+    sweep_dir: Path, out_dir: Path | None = None, paper_file: Path = PAPER_FILE, plots: bool = True
+) -> Path:
     """Read the runs under sweep_dir, write report.md/report.json/PNGs into out_dir (default: sweep_dir)."""
     sweep_dir = Path(sweep_dir)
     runs = load_runs(sweep_dir)
@@ -618,7 +620,7 @@ def build_report(sweep_dir: Path, out_dir: Path | None = None, paper_file: Path 
     patches = patch_rows(runs, expected_jobs(sweep_dir))
     hier = hierarchy_rows(runs)
     cl = claims(t1, t2, hier, paper)
-    figs = figures(out, runs, t1, t2, patches, hier)
+    figs = figures(out, runs, t1, t2, patches, hier) if plots else {}
     _atomic_write(out / "report.md", render(sweep_dir, runs, t1, t2, patches, hier, cl, figs))
     data = {
         "sweep_dir": str(sweep_dir),

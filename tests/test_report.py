@@ -30,9 +30,7 @@ def make_run(
     """One Hydra run dir. metrics=None leaves no metrics.json (a killed job)."""
     d = root / name
     (d / ".hydra").mkdir(parents=True)
-    hydra_yaml = {
-        "hydra": {"job": {"name": job}, "runtime": {"choices": {**choices, "hydra/launcher": "joblib"}}}
-    }
+    hydra_yaml = {"hydra": {"job": {"name": job}, "runtime": {"choices": {**choices, "hydra/launcher": "joblib"}}}}
     (d / ".hydra" / "hydra.yaml").write_text(yaml.safe_dump(hydra_yaml))
     ov = overrides if overrides is not None else [f"{k}={v}" for k, v in choices.items() if k != "experiment"]
     (d / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(ov))
@@ -71,12 +69,8 @@ def ok_metrics(train_v, train_n, test_v, test_n) -> dict:
 def sweep(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("sweep")
     curves = {"train/loss_step": [1.0, 0.5, 0.3], "val/vertex_error_cm": [3.0, 2.0]}
-    make_run(
-        root, "0_loss=l1", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.30, 0.021, 0.41, 0.026), curves
-    )
-    make_run(
-        root, "1_loss=l2", {"experiment": "whole", "loss": "l2"}, ok_metrics(0.36, 0.018, 0.48, 0.027), curves
-    )
+    make_run(root, "0_loss=l1", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.30, 0.021, 0.41, 0.026), curves)
+    make_run(root, "1_loss=l2", {"experiment": "whole", "loss": "l2"}, ok_metrics(0.36, 0.018, 0.48, 0.027), curves)
     make_run(
         root,
         "2_loss=l2_normal",
@@ -106,8 +100,7 @@ def sweep(tmp_path_factory) -> Path:
             root,
             f"{6 + i}_experiment=patch_{i:02d}",
             {"experiment": f"patch_{i:02d}", "loss": "l1"},
-            ok_metrics(v, 0.02, v + 0.1, 0.03)
-            | {"test": {"vertex_error_cm": v + 0.1, "vertex_error_cm_std": 0.05}},
+            ok_metrics(v, 0.02, v + 0.1, 0.03) | {"test": {"vertex_error_cm": v + 0.1, "vertex_error_cm_std": 0.05}},
         )
     make_run(
         root,
@@ -136,9 +129,16 @@ def test_runs_read_with_status(sweep):
     assert runs["5_experiment=fc_pca_root"].status == INCOMPLETE
 
 
-def test_report_tables_equal_metrics_json(sweep, tmp_path):
-    md_path = report.build_report(sweep, tmp_path / "out")
-    data = json.loads((tmp_path / "out" / "report.json").read_text())
+@pytest.fixture(scope="module")
+def built(sweep, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("report")
+    report.build_report(sweep, out)
+    return out
+
+
+def test_report_tables_equal_metrics_json(sweep, built):
+    md_path = built / "report.md"
+    data = json.loads((built / "report.json").read_text())
     t1 = {r["label"]: r for r in data["table1"]}
     for label, name in (("L1", "0_loss=l1"), ("L2", "1_loss=l2")):
         m = json.loads((sweep / name / "metrics.json").read_text())
@@ -159,13 +159,12 @@ def test_report_tables_equal_metrics_json(sweep, tmp_path):
     assert "no run with experiment=whole, loss=l1_normal" in md
     assert "no metrics.json" in md
     for png in ("table1.png", "table2.png", "hierarchy.png", "learning_curves.png"):
-        assert (tmp_path / "out" / png).stat().st_size > 1000
-    assert not list((tmp_path / "out").glob(".*"))  # no temp files left behind
+        assert (built / png).stat().st_size > 1000
+    assert not list(built.glob(".*"))  # no temp files left behind
 
 
-def test_claims_verdicts(sweep, tmp_path):
-    report.build_report(sweep, tmp_path)
-    claims = {c["text"]: c for c in json.loads((tmp_path / "report.json").read_text())["claims"]}
+def test_claims_verdicts(built):
+    claims = {c["text"]: c for c in json.loads((built / "report.json").read_text())["claims"]}
     assert claims["L1 < L2 on vertex error (train, test)"]["verdict"] == report.HELD
     assert claims["normal loss lowers normal error (L2+N < L2, train)"]["verdict"] == report.NOT_MEASURED
     # Only the local space was measured (root killed, position never run): not measured, with what is missing.
@@ -179,7 +178,7 @@ def test_claims_verdicts(sweep, tmp_path):
 def test_claim_that_does_not_hold(tmp_path):
     make_run(tmp_path, "0", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.5, 0.02, 0.6, 0.03))
     make_run(tmp_path, "1", {"experiment": "whole", "loss": "l2"}, ok_metrics(0.4, 0.02, 0.5, 0.03))
-    report.build_report(tmp_path)
+    report.build_report(tmp_path, plots=False)
     claims = json.loads((tmp_path / "report.json").read_text())["claims"]
     assert claims[0]["verdict"] == report.NOT_HELD
 
@@ -194,7 +193,7 @@ def test_train_error_falls_back_to_tensorboard(tmp_path):
         m,
         {"train/vertex_error_cm_epoch": [0.9, 0.35], "train/vertex_error_cm_step": [1.0, 0.3]},
     )
-    md = report.build_report(tmp_path).read_text()
+    md = report.build_report(tmp_path, plots=False).read_text()
     row = next(line for line in md.splitlines() if line.startswith("| L1 |"))
     assert "0.35* (0.33)" in row and "from TensorBoard" in md
 
