@@ -263,6 +263,7 @@ def save_cage(cage: Cage, path, num_vertices: int | None = None) -> None:
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; the file is shared data
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

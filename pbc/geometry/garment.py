@@ -370,6 +370,7 @@ def _atomic_write_text(path: Path, text: str) -> None:
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; the file is shared data
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
