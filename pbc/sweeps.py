@@ -329,6 +329,7 @@ def run_sweep(
     sweep_dir: Path | None = None,
     report: bool = True,
     python: str = sys.executable,
+    report_dir: Path | None = None,
 ) -> tuple[Path, int]:
     """Run every step (a failed step is recorded and the rest still run); returns (sweep dir, rc)."""
     if sweep_dir is None:
@@ -359,7 +360,7 @@ def run_sweep(
     if report:
         from pbc.report import build_report
 
-        print(f"[pbc.sweeps] report: {build_report(sweep_dir)}", flush=True)
+        print(f"[pbc.sweeps] report: {build_report(sweep_dir, report_dir)}", flush=True)
     return sweep_dir, rc
 
 
@@ -372,8 +373,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scale=smoke hydra.launcher.n_jobs=2")
     ap.add_argument("--dir", type=Path, default=None, help="sweep dir (default runs/sweeps/NAME/SCALE_TIME)")
     ap.add_argument("--no-report", action="store_true")
+    ap.add_argument("--report-dir", type=Path, default=None, help="write the report here (default: sweep dir)")
     args = ap.parse_args(argv)
-    sweep_dir, rc = run_sweep(args.name, args.overrides, args.dir, report=not args.no_report)
+    sweep_dir, rc = run_sweep(
+        args.name, args.overrides, args.dir, report=not args.no_report, report_dir=args.report_dir
+    )
     print(f"[pbc.sweeps] {sweep_dir} (exit {rc})")
     return rc
 
