@@ -19,7 +19,7 @@ import numpy as np
 from pbc.config import load_config
 from pbc.data.generate import build_scene, drape_pose
 from pbc.data.store import atomic_path
-from pbc.sim.poses import sample_poses
+from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 
 def main(argv: list[str]) -> dict:
@@ -31,7 +31,8 @@ def main(argv: list[str]) -> dict:
     t_scene = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    poses, _, _ = sample_poses(scene.body.skeleton, n, int(cfg.data.seed), scene.body)
+    settings = sampling_settings_from_config(cfg.body.sampling)
+    poses, _ = sample_poses(scene.body.skeleton, n, int(cfg.data.seed), scene.body, settings)
     t_pose = (time.perf_counter() - t0) / n
     poses = poses.numpy().astype(np.float32)
 

@@ -33,8 +33,8 @@ from pbc.geometry.body import Body, build_body, pose_body, save_body
 from pbc.geometry.cage import Cage, load_cage, save_cage
 from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.sim.drape import check_sample, drape
-from pbc.sim.poses import sample_poses
+from pbc.sim.drape import check_sample, drape, pattern_triangles, rest_triangle_areas
+from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 
 @dataclass
@@ -46,6 +46,8 @@ class Scene:
     cage: Cage
     embedding: Embedding
     sim: DictConfig
+    rest_triangles: np.ndarray  # (F, 3, 2) the flat pattern: stress-free shape of every face
+    rest_areas: np.ndarray  # (F,)
 
 
 def dataset_dir(cfg: DictConfig) -> Path:
@@ -56,7 +58,8 @@ def garment_from_config(gcfg: DictConfig) -> tuple[Garment, Cage]:
     """The garment through one door: a user's OBJ + cage file when `obj` is set, else the procedural shirt."""
     if gcfg.get("obj"):
         garment = load_garment_obj(gcfg.obj)
-        return garment, load_cage(gcfg.cage, garment)
+        image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
+        return garment, load_cage(gcfg.cage, garment, *image)
     return make_tshirt(gcfg)
 
 
@@ -77,7 +80,8 @@ def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     body = build_body(cfg.body)
     garment, cage = garment_from_config(cfg.garment)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
-    return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats
+    rest = pattern_triangles(garment.uv.numpy(), garment.face_uv.numpy(), garment.uv_scale)
+    return Scene(body, garment, cage, embedding, cfg.sim, rest, rest_triangle_areas(rest)), wrap_stats
 
 
 def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
@@ -87,9 +91,13 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
     body_v = pose_body(scene.body, rot)  # (1, Vb, 3)
     start = embedded_points(body_v, scene.body.faces, scene.embedding)[0]
     t1 = time.perf_counter()
-    res = drape(scene.garment, start.numpy(), body_v[0].numpy(), scene.body, scene.embedding, scene.sim)
+    faces = scene.garment.faces.numpy()
+    res = drape(
+        scene.rest_triangles, faces, start.numpy(), body_v[0].numpy(), scene.body.faces.numpy(),
+        scene.embedding.part.numpy(), scene.body.parts.numpy(), scene.sim,
+    )
     t2 = time.perf_counter()
-    ok, reason = check_sample(res, scene.garment, scene.sim)
+    ok, reason = check_sample(res.positions, faces, scene.rest_areas, scene.sim, res.converged)
     return {
         "positions": res.positions.astype(np.float32),
         "ok": ok,
@@ -168,8 +176,10 @@ def generate(cfg: DictConfig) -> Path:
     _check_or_write_fingerprint(out, fp)
 
     t0 = time.perf_counter()
-    poses, angles, pose_stats = sample_poses(scene.body.skeleton, int(data.num_samples), int(data.seed), scene.body)
+    settings = sampling_settings_from_config(cfg.body.sampling)
+    poses, pose_stats = sample_poses(scene.body.skeleton, int(data.num_samples), int(data.seed), scene.body, settings)
     poses = poses.numpy().astype(np.float32)
+    angles = np.asarray(pose_stats.pop("angles_deg"), dtype=np.float32)
     timings["sample_poses"] = time.perf_counter() - t0
 
     n_shards = int(data.num_shards)
