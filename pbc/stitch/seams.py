@@ -287,3 +287,33 @@ class Stitcher:
                 raise ValueError("stitch=hierarchy needs the whole-shirt model's prediction")
             return blend_in_band(self.average(crops), whole, self.vertex_band)
         raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
+
+
+def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) -> Stitcher:
+    """A `Stitcher` for one garment at the patch resolution.
+
+    ops: `ImageOperators` at the patch resolution; crops: its 28 `PatchCrop`s (id order);
+    cfg: a `conf/stitch/*.yaml` node (feather_ramp, band_width, pca_components, pca_band_only).
+    """
+    from pbc.stitch.assemble import feather_weights
+
+    H = W = ops.res
+    masks = torch.stack([c.mask for c in crops])
+    windows = torch.tensor([c.window[:2] for c in crops])
+    sides = torch.tensor([c.side for c in crops])
+    asm = Assembler.build(feather_weights(masks, float(cfg.feather_ramp)), windows, sides, (H, W))
+    vp = vertex_patch_ids([p.vertices for p in cage.patches], garment.vertices.shape[0])
+    curves = seam_curve_mask(garment.faces, garment.face_uv, garment.face_side, garment.uv, vp, (H, W))
+    weight = band_weight(curves, float(cfg.band_width))  # (2, H, W)
+    image_band = (weight.numpy() > 0) & ops.mask.numpy()
+    weight6 = weight[:, None].expand(2, 3, H, W).reshape(1, 6, H, W)
+    vertex_band = ops.sample(weight6)[0, :, 0]
+    st = Stitcher(asm, ops.sample, vertex_band, image_band,
+                  fill_index=nearest_fill_index(asm.coverage().numpy()), pca=pca,
+                  pca_band_only=bool(cfg.pca_band_only),
+                  pca_components=None if cfg.pca_components is None else int(cfg.pca_components))
+    S = ops.scipy_S().tocoo()
+    st.fold(torch.sparse_coo_tensor(torch.from_numpy(np.stack([S.row, S.col]).astype(np.int64)),
+                                    torch.from_numpy(S.data.astype(np.float32)), S.shape, check_invariants=False))
+    st.curves, st.vertex_patch = curves, vp
+    return st

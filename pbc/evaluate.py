@@ -1,0 +1,236 @@
+"""`python -m pbc.evaluate whole_run=... patch_runs=...`: whole-shirt model vs. stitched patch models.
+
+One job: score, on a split of the dataset (test by default), the whole-shirt model, the 28 patch
+models stitched under every seam method, the same stitcher fed ground-truth crops, and the
+representation floor S(R(x)) at both resolutions; then write into the Hydra run dir:
+
+    metrics.json    per entry: vertex error (cm), normal error (1 - cos), seam jump (cm), interior jump;
+                    plus the patches' disagreement across seams before blending
+    metrics.md      the same as a markdown table
+    error_maps.png  per-vertex error rendered on the front/back cloth images, one row per entry
+    preview_*.png   gt / whole / stitched meshes side by side for a few poses
+    meshes/*.obj    those meshes
+    pca.pt          the PCA basis fitted on the training split (with the dataset hash)
+
+Seam jump: mean over cage-seam edges of |(p_a - p_b) - (g_a - g_b)| (what the edge carries that the
+ground truth does not); "interior jump" is the same over all other edges, for scale.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+CM = 100.0
+
+
+def _offsets_of(predictor, poses: torch.Tensor, verts: torch.Tensor):
+    from pbc.pixels.frames import to_offsets
+
+    anchors, frames = predictor.skinner(poses)
+    return to_offsets(verts, anchors, frames, predictor.space), anchors, frames
+
+
+def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int = 64):
+    """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
+    from pbc.stitch.pca import dataset_hash, fit_pca
+
+    ds = predictor.dataset
+    idx = ds.split("train")[:max_samples]
+    offs = []
+    with torch.inference_mode():
+        for i in range(0, len(idx), batch):
+            j = idx[i:i + batch]
+            offs.append(_offsets_of(predictor, torch.from_numpy(ds.poses[j]).float(),
+                                    torch.from_numpy(ds.verts[j]).float())[0])
+    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir))
+
+
+def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
+    """Per-sample scores (B,) of positions pos against gt (B, V, 3)."""
+    from pbc.pixels.reconstruct import vertex_normals
+    from pbc.stitch.seams import edge_jump
+
+    n_p, n_g = vertex_normals(pos, faces), vertex_normals(gt, faces)
+    return {
+        "vertex_error_cm": (pos - gt).norm(dim=-1).mean(1) * CM,
+        "normal_error": (1 - (n_p * n_g).sum(-1)).mean(1),
+        "seam_jump_cm": edge_jump(pos, gt, seam) * CM,
+        "interior_jump_cm": edge_jump(pos, gt, interior) * CM,
+    }
+
+
+def evaluate(cfg: DictConfig, out: Path) -> dict:
+    from pbc.pixels.frames import from_offsets
+    from pbc.pixels.reconstruct import mesh_edges
+    from pbc.predict import ClothPredictor
+    from pbc.stitch.pca import dataset_hash, load_pca, save_pca
+    from pbc.stitch.seams import METHODS, patch_disagreement, seam_edges, uv_to_pixel
+
+    t0 = time.time()
+    unknown = [m for m in cfg.methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown seam methods {unknown}; choose from {METHODS}")
+    patch_runs = OmegaConf.to_container(cfg.patch_runs) if OmegaConf.is_list(cfg.patch_runs) else cfg.patch_runs
+    pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch)
+    ds = pred.dataset
+    if cfg.pca_path:
+        basis = load_pca(cfg.pca_path, dataset_hash(ds.dir))
+    else:
+        basis = fit_training_pca(pred, int(cfg.stitch.pca_components), int(cfg.pca_fit_max))
+        save_pca(basis, out / "pca.pt")
+    pred.stitcher.pca = basis
+
+    faces = pred.faces
+    vp = pred.stitcher.vertex_patch
+    seam = seam_edges(faces, vp)
+    all_e = mesh_edges(faces)
+    is_seam = (vp[all_e[:, 0]] != vp[all_e[:, 1]])
+    interior = all_e[~is_seam]
+    sides = torch.tensor([p.side for p in ds.cage.patches])
+    same_side = sides[vp[seam[:, 0]]] == sides[vp[seam[:, 1]]]
+    vpix = uv_to_pixel(torch.as_tensor(ds.garment.vertex_uv).float(), (pred.ops_patch.res,) * 2)
+    origins = torch.tensor([c.window[:2] for c in pred.crops]).float()
+
+    idx = ds.split(cfg.split)
+    if cfg.max_samples:
+        idx = idx[: int(cfg.max_samples)]
+    if len(idx) == 0:
+        raise ValueError(f"split {cfg.split!r} of {ds.dir} is empty")
+    acc: dict[str, dict[str, list]] = {}
+    disagreement = []
+    keep = {}  # the first batch's positions, for the figures
+
+    def add(name, pos, gt):
+        for k, v in _scores(pos, gt, faces, seam, interior).items():
+            acc.setdefault(name, {}).setdefault(k, []).append(v)
+
+    with torch.inference_mode():
+        for i in range(0, len(idx), int(cfg.batch_size)):
+            j = idx[i:i + int(cfg.batch_size)]
+            poses = torch.from_numpy(ds.poses[j]).float()
+            gt = torch.from_numpy(ds.verts[j]).float()
+            gt_off, anchors, frames = _offsets_of(pred, poses, gt)
+
+            def pos_of(off, anchors=anchors, frames=frames):
+                return from_offsets(off, anchors, frames, pred.space)
+
+            batch = {"gt": gt}
+            batch["floor_256"] = pos_of(pred.ops_whole.sample(pred.ops_whole.render(gt_off)))
+            batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
+            whole_off = pred.whole_offsets(poses) if pred.whole_net is not None else None
+            if whole_off is not None:
+                batch["whole"] = pos_of(whole_off)
+            crops = pred.patch_crops(poses)
+            gt_crops = torch.stack([c.render(gt_off) for c in pred.crops], 1)
+            gt_whole = pred.ops_whole.sample(pred.ops_whole.render(gt_off))
+            for m in cfg.methods:
+                if m == "hierarchy" and whole_off is None:
+                    continue
+                batch[f"patches_{m}"] = pos_of(pred.stitcher(crops, m, whole_off))
+                batch[f"gt_crops_{m}"] = pos_of(pred.stitcher(gt_crops, m, gt_whole))
+            for name, pos in batch.items():
+                if name != "gt":
+                    add(name, pos, gt)
+            disagreement.append(patch_disagreement(crops, origins, vpix, seam[same_side], vp) * CM)
+            if not keep:
+                keep = {k: v[: int(cfg.num_previews)] for k, v in batch.items()}
+
+    entries = {name: {k: float(torch.cat(v).mean()) for k, v in d.items()} for name, d in acc.items()}
+    metrics = {
+        "split": cfg.split, "num_samples": len(idx), "dataset": str(ds.dir),
+        "whole_run": str(cfg.whole_run), "patch_runs": patch_runs if isinstance(patch_runs, list)
+        else str(patch_runs),
+        "stitch": OmegaConf.to_container(cfg.stitch), "pca": {"components": basis.num_components,
+                                                               "dataset_hash": basis.dataset_hash},
+        "seam_edges": int(seam.shape[0]),
+        "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()),
+        "entries": entries, "seconds": round(time.time() - t0, 2),
+    }
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    (out / "metrics.md").write_text(markdown_table(metrics))
+    write_figures(out, pred, keep, faces, cfg.stitch.method)
+    return metrics
+
+
+def markdown_table(metrics: dict) -> str:
+    cols = ["vertex_error_cm", "normal_error", "seam_jump_cm", "interior_jump_cm"]
+    lines = [f"# Whole vs. stitched patches ({metrics['split']}, {metrics['num_samples']} samples)", "",
+             "| entry | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for name, d in metrics["entries"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{d[c]:.4f}" for c in cols) + " |")
+    lines += ["", f"Patch disagreement across seams before blending: "
+              f"{metrics['patch_disagreement_before_blend_cm']:.4f} cm over {metrics['seam_edges']} seam edges.", ""]
+    return "\n".join(lines)
+
+
+def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str) -> None:
+    """error_maps.png, preview_<i>.png and meshes/*.obj from the first batch's positions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+
+    from pbc.models.module import write_obj
+
+    gt = keep["gt"]
+    names = [n for n in keep if n != "gt" and not n.startswith("gt_crops")]
+    ops = pred.ops_patch
+    fig, axes = plt.subplots(len(names), 2, figsize=(6, 3 * len(names)), squeeze=False)
+    vmax = max(float((keep[n][0] - gt[0]).norm(dim=-1).max()) * CM for n in names) or 1.0
+    for r, n in enumerate(names):
+        err = (keep[n][:1] - gt[:1]).norm(dim=-1, keepdim=True).expand(-1, -1, 3) * CM
+        img = ops.render(err)[0]
+        for s in range(2):
+            ax = axes[r, s]
+            im = ax.imshow(np.ma.masked_where(~ops.mask[s].numpy(), img[3 * s].numpy()), cmap="magma",
+                           vmin=0, vmax=vmax)
+            ax.set_title(f"{n} {'front' if s == 0 else 'back'}", fontsize=7)
+            ax.axis("off")
+    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="cm")
+    fig.savefig(out / "error_maps.png", dpi=80)
+    plt.close(fig)
+
+    shown = [n for n in ("gt", "whole", f"patches_{method}") if n in keep]
+    f = faces.numpy()
+    for i in range(gt.shape[0]):
+        fig, axes = plt.subplots(1, len(shown), figsize=(3.2 * len(shown), 3.6), squeeze=False)
+        for a, n in zip(axes[0], shown, strict=True):
+            v = keep[n][i].numpy()
+            tri = v[f]
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            nrm /= np.linalg.norm(nrm, axis=1, keepdims=True) + 1e-12
+            order = np.argsort(tri[:, :, 2].mean(1))  # painter's algorithm, front view along +z
+            shade = 0.25 + 0.75 * np.abs(nrm[order, 2])
+            a.add_collection(PolyCollection(tri[order][:, :, :2], facecolors=plt.cm.gray(shade), linewidths=0))
+            a.set_xlim(v[:, 0].min(), v[:, 0].max())
+            a.set_ylim(v[:, 1].min(), v[:, 1].max())
+            a.set_aspect("equal")
+            a.set_title(n, fontsize=8)
+            a.axis("off")
+            write_obj(out / "meshes" / f"pose{i}_{n}.obj", keep[n][i], faces)
+        fig.savefig(out / f"preview_{i}.png", dpi=80)
+        plt.close(fig)
+
+
+@hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
+def main(cfg: DictConfig) -> float:
+    from hydra.core.hydra_config import HydraConfig
+
+    out = Path(HydraConfig.get().runtime.output_dir)
+    metrics = evaluate(cfg, out)
+    log.info("\n%s", markdown_table(metrics))
+    return metrics["entries"].get(f"patches_{cfg.stitch.method}", {}).get("vertex_error_cm", float("nan"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,321 @@
+"""Fast inference: pose -> garment vertices, from the whole-shirt model or the 28 patch models + stitch.
+
+One job: load the 29 checkpoints once (`ClothPredictor.from_runs`) and answer `predictor(pose)` with
+`(V, 3)` (or `(B, V, 3)` for a batch) garment positions in metres.
+
+The 28 patch decoders are identical networks, so they run as one stacked network
+(`StackedPatchNet`): BatchNorm folded into the transpose convolutions, the 28 first linear layers as
+one matmul, and per group either a batched matmul + `fold` (col2im; best for the weight-bound first
+groups at small batch) or one grouped transpose convolution holding all 28 models in channels-last
+layout (best for the large late groups). `bench/predict.py` measures the alternatives; the defaults
+here are what measured fastest on the 2-core CPU.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from pbc.models.decoder import ConvDecoder
+
+NUM_PATCHES = 28
+# measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
+DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
+
+
+# ----------------------------------------------------------------------------- runs
+
+
+@dataclass
+class RunInfo:
+    """What a training run dir holds: its model kind, patch id, garment and best checkpoint."""
+
+    dir: Path
+    kind: str
+    patch_id: int | None
+    garment_hash: str
+    checkpoint: Path
+    config: dict
+
+
+def _best_checkpoint(run_dir: Path, metrics: dict) -> Path | None:
+    best = metrics.get("best_checkpoint")
+    if best and Path(best).is_file():
+        return Path(best)
+    ck = run_dir / "checkpoints"
+    cands = sorted(p for p in ck.glob("*.ckpt") if p.name != "last.ckpt") if ck.is_dir() else []
+    if cands:
+        return cands[-1]
+    return ck / "last.ckpt" if (ck / "last.ckpt").is_file() else None
+
+
+def read_run(run_dir: str | Path) -> RunInfo:
+    """Read a run dir (metrics.json + checkpoints/); raises ValueError saying what is missing."""
+    d = Path(run_dir)
+    mpath = d / "metrics.json"
+    if not mpath.is_file():
+        raise ValueError(f"{d}: not a finished training run (no metrics.json)")
+    metrics = json.loads(mpath.read_text())
+    if metrics.get("status") not in (None, "ok"):
+        raise ValueError(f"{d}: the run failed ({metrics.get('error', 'status ' + str(metrics.get('status')))})")
+    ckpt = _best_checkpoint(d, metrics)
+    if ckpt is None:
+        raise ValueError(f"{d}: no checkpoint under {d / 'checkpoints'}")
+    ident = metrics.get("identity") or {}
+    if not ident:  # older runs: the identity lives in the checkpoint's hparams
+        ident = torch.load(ckpt, map_location="cpu", weights_only=False)["hyper_parameters"]["identity"]
+    pid = ident.get("patch_id")
+    return RunInfo(d, str(ident.get("kind")), None if pid is None else int(pid),
+                   str(ident.get("garment_hash", "")), ckpt, metrics.get("config") or {})
+
+
+def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
+    """Run dirs from a list of run dirs and/or sweep dirs (any dir holding */metrics.json below it)."""
+    if isinstance(paths, str | Path):
+        paths = [paths]
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if (p / "metrics.json").is_file():
+            out.append(p)
+        elif p.is_dir():
+            found = sorted(m.parent for m in p.rglob("metrics.json"))
+            if not found:
+                raise ValueError(f"{p}: no training runs (metrics.json) found below it")
+            out += found
+        else:
+            raise ValueError(f"{p}: no such run or sweep directory")
+    return out
+
+
+def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) -> list[RunInfo]:
+    """Exactly one patch run per patch id 0..num_patches-1 for this garment, in id order.
+
+    Raises one ValueError listing every problem: unreadable runs, runs of another kind or garment,
+    unknown patch ids, patches claimed by two runs, and missing patches.
+    """
+    problems: list[str] = []
+    by_id: dict[int, list[RunInfo]] = {}
+    for d in find_runs(paths):
+        try:
+            r = read_run(d)
+        except ValueError as e:
+            problems.append(str(e))
+            continue
+        if r.kind != "patch":
+            problems.append(f"{d}: a {r.kind!r} run, not a patch run")
+        elif r.garment_hash != garment_hash:
+            problems.append(f"{d}: trained on garment {r.garment_hash!r}, not {garment_hash!r}")
+        elif r.patch_id is None or not 0 <= r.patch_id < num_patches:
+            problems.append(f"{d}: patch id {r.patch_id} is not in 0..{num_patches - 1}")
+        else:
+            by_id.setdefault(r.patch_id, []).append(r)
+    for k, rs in sorted(by_id.items()):
+        if len(rs) > 1:
+            problems.append(f"patch {k} is claimed by {len(rs)} runs: " + ", ".join(str(r.dir) for r in rs))
+    missing = [k for k in range(num_patches) if k not in by_id]
+    if missing:
+        problems.append(f"missing patch runs for patch ids {missing}")
+    if problems:
+        raise ValueError("cannot assemble the patch models:\n  - " + "\n  - ".join(problems))
+    return [by_id[k][0] for k in range(num_patches)]
+
+
+def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
+    """The network of a ClothModule checkpoint, in eval mode, and the checkpoint's hparams."""
+    from hydra.utils import instantiate
+
+    ck = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    hp = ck["hyper_parameters"]
+    net = instantiate(hp["net"])
+    state = {k[4:]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
+    net.load_state_dict(state)
+    return net.eval(), hp
+
+
+# ----------------------------------------------------------------------------- stacked patches
+
+
+def _fold_bn(conv: nn.ConvTranspose2d, bn: nn.BatchNorm2d) -> tuple[Tensor, Tensor]:
+    """Eval-mode BatchNorm folded into the preceding transpose conv: weight (cin, cout, k, k), bias (cout,)."""
+    s = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    w = conv.weight * s[None, :, None, None]
+    b = (conv.bias - bn.running_mean) * s + bn.bias
+    return w.detach(), b.detach()
+
+
+class StackedPatchNet(nn.Module):
+    """P identical `ConvDecoder`s (linear first layer, k4/s2/p1 groups) evaluated as one network.
+
+    forward: pose (B, in_features) -> crops (B, P, C, h, w), equal to stacking the decoders' outputs
+    in eval mode. layer_modes: per group "bmm" (batched matmul + fold) or "grouped" (grouped conv).
+    """
+
+    def __init__(self, decoders: Sequence[ConvDecoder], layer_modes: Sequence[str] = DEFAULT_LAYER_MODES,
+                 channels_last: bool = True):
+        super().__init__()
+        d0 = decoders[0]
+        if d0.first_layer != "linear" or len(d0.mlp) > 0:
+            raise ValueError("StackedPatchNet needs decoders with a linear first layer and no hidden MLP")
+        self.P = len(decoders)
+        self.c0, self.s0 = d0.start_channels, d0.start_size
+        self.channels_last = channels_last
+        self.first_w = nn.Parameter(torch.cat([d.first.weight.detach() for d in decoders]), False)
+        self.first_b = nn.Parameter(torch.cat([d.first.bias.detach() for d in decoders]), False)
+        groups = [list(d.groups) for d in decoders]
+        n = len(groups[0]) // 3
+        if len(layer_modes) < n:
+            layer_modes = tuple(layer_modes) + (layer_modes[-1],) * (n - len(layer_modes))
+        self.modes = tuple(layer_modes[:n])
+        self.weights, self.biases, self.bmm_weights = nn.ParameterList(), nn.ParameterList(), []
+        for i in range(n):
+            convs = [g[3 * i] for g in groups]
+            if any(c.stride != (2, 2) or c.kernel_size != (4, 4) or c.padding != (1, 1) for c in convs):
+                raise ValueError("StackedPatchNet supports square k4/s2/p1 groups only")
+            wb = [_fold_bn(g[3 * i], g[3 * i + 1]) for g in groups]
+            w = torch.stack([x[0] for x in wb])  # (P, cin, cout, 4, 4)
+            self.weights.append(nn.Parameter(w.flatten(0, 1).contiguous(), False))  # grouped layout
+            self.biases.append(nn.Parameter(torch.stack([x[1] for x in wb]), False))  # (P, cout)
+        # bmm layout: (P, cout*16, cin), made lazily for the groups that use it
+        self._bmm = {i: self.weights[i].view(self.P, -1, self.weights[i].shape[1] * 16).transpose(1, 2)
+                     .contiguous() for i in range(n) if self.modes[i] == "bmm"}
+        self.head_w = nn.Parameter(torch.cat([d.head.weight.detach() for d in decoders]), False)
+        self.head_b = nn.Parameter(torch.cat([d.head.bias.detach() for d in decoders]), False)
+        self.head_pad = d0.head.padding
+        self.out_channels = d0.out_channels
+
+    def forward(self, pose: Tensor) -> Tensor:
+        B, P = pose.shape[0], self.P
+        h0, w0 = self.s0
+        x = torch.relu(F.linear(pose.reshape(B, -1), self.first_w, self.first_b))
+        x = x.view(B, P * self.c0, h0, w0)
+        for i, mode in enumerate(self.modes):
+            w, b = self.weights[i], self.biases[i]
+            cin, cout = w.shape[0] // P, w.shape[1]
+            s = x.shape[-1]
+            if mode == "bmm":
+                x3 = x.reshape(B, P, cin, s * s).permute(1, 2, 0, 3).reshape(P, cin, B * s * s)
+                cols = torch.bmm(self._bmm[i], x3)  # (P, cout*16, B*s*s)
+                cols = cols.view(P, cout * 16, B, s * s).permute(2, 0, 1, 3).reshape(B * P, cout * 16, s * s)
+                x = F.fold(cols, (2 * s, 2 * s), 4, stride=2, padding=1).view(B, P * cout, 2 * s, 2 * s)
+                x = torch.relu(x + b.reshape(1, P * cout, 1, 1))
+            else:
+                if self.channels_last:
+                    x = x.contiguous(memory_format=torch.channels_last)
+                x = torch.relu(F.conv_transpose2d(x, w, b.reshape(-1), stride=2, padding=1, groups=P))
+        y = F.conv2d(x, self.head_w, self.head_b, padding=self.head_pad, groups=P)
+        return y.reshape(B, P, self.out_channels, y.shape[-2], y.shape[-1])
+
+
+class LoopPatchNet(nn.Module):
+    """The reference: the P decoders one after the other -> (B, P, C, h, w)."""
+
+    def __init__(self, decoders: Sequence[ConvDecoder]):
+        super().__init__()
+        self.nets = nn.ModuleList(decoders)
+
+    def forward(self, pose: Tensor) -> Tensor:
+        return torch.stack([n(pose.reshape(pose.shape[0], -1)) for n in self.nets], 1)
+
+
+# ----------------------------------------------------------------------------- predictor
+
+
+class ClothPredictor:
+    """pose (J, 3, 3) -> (V, 3), or (B, J, 3, 3) -> (B, V, 3), garment positions in metres.
+
+    Built by `from_runs`. `model="patches"` (28 patch models + the seam method `method`) or "whole".
+    """
+
+    def __init__(self, dataset, image_cfg, whole_net: ConvDecoder | None, patch_nets: Sequence[ConvDecoder],
+                 stitch_cfg, space: str = "local", pca=None, cache_dir=None, backend: str = "stacked",
+                 layer_modes: Sequence[str] = DEFAULT_LAYER_MODES, threads: int | None = None):
+        from pbc.pixels.operators import ImageOperators
+        from pbc.pixels.reconstruct import Skinner
+        from pbc.stitch.seams import build_stitcher
+
+        if threads:
+            torch.set_num_threads(int(threads))
+        self.dataset, self.space = dataset, space
+        pad = int(image_cfg.get("pad", image_cfg.margin))
+        self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
+        self.faces = torch.as_tensor(dataset.garment.faces).long()
+        self.ops_whole = ImageOperators.for_garment(dataset.garment, int(image_cfg.whole_resolution), pad,
+                                                    cache_dir=cache_dir)
+        self.ops_patch = ImageOperators.for_garment(dataset.garment, int(image_cfg.patch_resolution), pad,
+                                                    cache_dir=cache_dir)
+        self.crops = [self.ops_patch.crop(p, int(image_cfg.crop_size), int(image_cfg.margin))
+                      for p in dataset.cage.patches]
+        self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
+                                       pca=pca)
+        self.method = str(stitch_cfg.method)
+        self.whole_net = whole_net
+        self.patch_nets = list(patch_nets)
+        self.backend = backend
+        self.patch_net = (StackedPatchNet(self.patch_nets, layer_modes) if backend == "stacked"
+                          else LoopPatchNet(self.patch_nets)).eval()
+
+    @classmethod
+    def from_runs(cls, whole_run, patch_runs, stitch_cfg, pca=None, **kw) -> ClothPredictor:
+        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches)."""
+        from omegaconf import OmegaConf
+
+        from pbc.data.dataset import load_dataset
+
+        whole = read_run(whole_run) if whole_run else None
+        if whole is not None and whole.kind != "whole":
+            raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
+        first = whole or read_run(find_runs(patch_runs)[0])
+        cfg = OmegaConf.create(first.config)
+        dataset = load_dataset(OmegaConf.select(cfg, "data.dir"))
+        ghash = str(dataset.manifest.get("garment_hash", ""))
+        if whole is not None and whole.garment_hash != ghash:
+            raise ValueError(f"{whole.dir}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
+        runs = select_patch_runs(patch_runs, ghash, len(dataset.cage.patches))
+        whole_net = load_decoder(whole.checkpoint)[0] if whole is not None else None
+        nets, spaces = [], set()
+        for r in runs:
+            net, hp = load_decoder(r.checkpoint)
+            nets.append(net)
+            spaces.add(hp.get("space", "local"))
+        if len(spaces) > 1:
+            raise ValueError(f"patch runs use different offset spaces {sorted(spaces)}")
+        kw.setdefault("cache_dir", Path(OmegaConf.select(cfg, "paths.data_dir")) / "cache")
+        return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
+
+    # -------------------------------------------------------------------- pieces
+    def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
+        return self.skinner(pose)
+
+    @torch.inference_mode()
+    def patch_crops(self, pose: Tensor) -> Tensor:
+        """pose (B, J, 3, 3) -> crops (B, P, 3, h, w)."""
+        return self.patch_net(pose.reshape(pose.shape[0], -1))
+
+    @torch.inference_mode()
+    def whole_offsets(self, pose: Tensor) -> Tensor:
+        if self.whole_net is None:
+            raise ValueError("no whole-shirt run was given")
+        return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1)))
+
+    @torch.inference_mode()
+    def __call__(self, pose: Tensor, model: str = "patches", method: str | None = None) -> Tensor:
+        from pbc.pixels.frames import from_offsets
+
+        single = pose.ndim == 3
+        pose = pose[None] if single else pose
+        pose = pose.float()
+        if model == "whole":
+            off = self.whole_offsets(pose)
+        else:
+            method = method or self.method
+            whole = self.whole_offsets(pose) if method == "hierarchy" else None
+            off = self.stitcher(self.patch_crops(pose), method, whole)
+        anchors, frames = self.skinner(pose)
+        x = from_offsets(off, anchors, frames, self.space)
+        return x[0] if single else x
