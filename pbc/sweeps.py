@@ -270,6 +270,16 @@ def _scale_of(overrides: list[str]) -> str:
     return vals[-1] if vals else DEFAULT_SCALE
 
 
+def scale_data(scale: str, conf_dir: Path = ROOT / "conf") -> str:
+    """The data set a scale selects (its `override /data:` default). The data step asks for that data set
+    alone: the samples do not depend on the image sizes or the trainer the scale also sets."""
+    cfg = _read_yaml(conf_dir / "scale" / f"{scale}.yaml") or {}
+    for entry in cfg.get("defaults") or []:
+        if isinstance(entry, dict) and "override /data" in entry:
+            return str(entry["override /data"])
+    raise ValueError(f"conf/scale/{scale}.yaml selects no data set (`- override /data: NAME`)")
+
+
 def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable):
     """The commands of one sweep, in order: [(step, argv)]."""
     if name not in SWEEP_NAMES:
@@ -284,7 +294,7 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
                 python,
                 "-m",
                 "pbc.generate",
-                f"+scale={scale}",
+                f"data={scale_data(scale)}",
                 *data_ovr,
                 f"hydra.run.dir={sweep_dir}/.generate",
             ],
