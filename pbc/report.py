@@ -149,14 +149,24 @@ def patch_rows(runs: list[Run], expected: dict[str, list[str]] | None = None) ->
 
 
 def _is_eval(run: Run) -> bool:
-    return run.job == "evaluate" or any(k.split("/")[0] in SEAM_METHODS for k in run.metrics)
+    return run.job == "evaluate" or any(k.startswith("entries/") for k in run.metrics)
+
+
+def _entry_label(name: str) -> str:
+    if name.startswith("patches_"):
+        return f"stitched ({name[8:]})"
+    if name.startswith("gt_crops_"):
+        return f"stitcher on true crops ({name[9:]})"
+    if name.startswith("floor_"):
+        return f"representation floor ({name[6:]} px)"
+    return name
 
 
 def hierarchy_rows(runs: list[Run]) -> list[Row]:
     """Whole vs. stitched per seam method, from the newest `pbc.evaluate` run in the sweep.
 
-    pbc.evaluate writes one block per method ("whole", "average", "pca", ...), each with the test
-    vertex/normal errors and the seam jump; flat ("pca/vertex_error_cm") and nested JSON both read.
+    pbc.evaluate's metrics.json holds "entries": {name: {vertex_error_cm, normal_error, seam_jump_cm,
+    interior_jump_cm}} for "whole", "patches_<method>", "gt_crops_<method>" and "floor_<res>".
     """
     evals = [r for r in runs if _is_eval(r)]
     if not evals:
@@ -164,17 +174,20 @@ def hierarchy_rows(runs: list[Run]) -> list[Row]:
     ev = evals[-1]
     if ev.status != OK:
         return [Row(label=ev.name, select={}, runs=[ev.name], status=ev.status, error=ev.error)]
-    rows = []
-    for method in ("whole", *SEAM_METHODS, "floor"):
-        vals = {}
-        for k, v in ev.metrics.items():
-            parts = k.split("/")
-            if parts[0] == method or (len(parts) > 1 and parts[0] in ("methods", "stitched") and parts[1] == method):
-                vals[parts[-1]] = v
-        if vals:
-            label = method if method in ("whole", "floor") else f"stitched ({method})"
-            rows.append(Row(label=label, select={"method": method}, runs=[ev.name], status=OK, values=vals))
-    return rows
+    entries: dict[str, dict[str, float]] = {}
+    for k, v in ev.metrics.items():
+        parts = k.split("/")
+        if len(parts) == 3 and parts[0] == "entries":
+            entries.setdefault(parts[1], {})[parts[2]] = v
+
+    def order(name):
+        kinds = ("whole", "patches_", "gt_crops_", "floor_")
+        return next(i for i, p in enumerate((*kinds, "")) if name.startswith(p)), name
+
+    return [
+        Row(label=_entry_label(n), select={"method": n}, runs=[ev.name], status=OK, values=vals)
+        for n, vals in sorted(entries.items(), key=lambda t: order(t[0]))
+    ]
 
 
 # ----------------------------------------------------------------------------------------------- claims
@@ -263,11 +276,11 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
     # 5. Patches beat the whole-shirt model: the best seam method against the whole model.
     h = {r.select.get("method"): r for r in hier if r.status == OK}
     whole = h.get("whole")
-    stitched = [(m, r.value(VERTEX)) for m, r in h.items() if m in SEAM_METHODS and r.value(VERTEX) is not None]
-    best = min(stitched, key=lambda t: t[1]) if stitched else (None, None)
-    ours, verdict = _compare(
-        [(f"stitched ({best[0]}) vs whole, test", best[1], whole.value(VERTEX) if whole else None)], VERTEX
-    )
+    stitched = [
+        (r.label, r.value(VERTEX)) for m, r in h.items() if m.startswith("patches_") and r.value(VERTEX) is not None
+    ]
+    best = min(stitched, key=lambda t: t[1]) if stitched else ("stitched", None)
+    ours, verdict = _compare([(f"{best[0]} vs whole, test", best[1], whole.value(VERTEX) if whole else None)], VERTEX)
     out.append(Claim("patches beat whole (test vertex error)", "sec. 4.1 / 8.3 (qualitative here)", ours, verdict))
     return out
 
@@ -345,7 +358,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         if ok:
             ax.bar(ids, means, yerr=errs if any(errs) else None, capsize=2, label="patch model (own vertices)")
         for r, style in zip(hier, ("-", "--", ":", "-.", (0, (1, 3)), (0, (5, 1))), strict=False):
-            if r.status == OK and r.value(VERTEX) is not None:
+            if r.status == OK and r.value(VERTEX) is not None and not r.select["method"].startswith("gt_"):
                 ax.axhline(
                     r.value(VERTEX),
                     linestyle=style,
@@ -450,6 +463,7 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
             + ", ".join(f"{s['step']} {s['seconds']:.0f} s exit {s['returncode']}" for s in r["steps"])
             + ")"
         )
+        md += [f"- step **{st['step']}** failed: {st.get('error')}" for st in r["steps"] if st["returncode"]]
     elif cmd := _command(sweep_dir):
         md.append(f"Command: `{cmd}`")
     sizes = sorted(

@@ -316,21 +316,48 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
         ),
     ]
     if name == "hierarchy":
-        cmds.append(
-            (
-                "evaluate",
-                [
-                    python,
-                    "-m",
-                    "pbc.evaluate",
-                    f"+scale={scale}",
-                    *data_ovr,
-                    f"runs={sweep_dir}",
-                    f"hydra.run.dir={sweep_dir}/evaluate",
-                ],
-            )
-        )
+        # Its argv names the runs, known only once training is over: see evaluate_command.
+        cmds.append(("evaluate", None))
     return cmds
+
+
+def _quote(path: Path) -> str:
+    # Hydra run-dir names hold "=" and ","; quoted, the override grammar reads them as one string.
+    return "'" + str(path) + "'"
+
+
+def evaluate_command(sweep_dir: Path, python: str = sys.executable) -> tuple[list[str] | None, str | None]:
+    """`pbc.evaluate` on the sweep's successful whole run and patch runs -> (argv, None) or (None, why)."""
+    runs = [r for r in load_runs(sweep_dir, events=False) if r.status == OK and r.job == "train"]
+    whole = [r for r in runs if r.get("experiment") == "whole"]
+    patches = [r for r in runs if (r.get("experiment") or "").startswith("patch_")]
+    if not whole or not patches:
+        return None, f"nothing to evaluate: {len(whole)} successful whole runs, {len(patches)} patch runs"
+    argv = [
+        python,
+        "-m",
+        "pbc.evaluate",
+        f"whole_run={_quote(whole[-1].path)}",
+        "patch_runs=[" + ",".join(_quote(r.path) for r in patches) + "]",
+        f"hydra.run.dir={sweep_dir / 'evaluate'}",
+    ]
+    return argv, None
+
+
+def _run_logged(argv: list[str], log: Path) -> tuple[int, str | None]:
+    """Run argv, echoing its output and keeping it in log; -> (exit code, last error line or None)."""
+    last_err = None
+    with (
+        open(log, "w") as f,
+        subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
+    ):
+        for line in proc.stdout:
+            sys.stdout.write(line)
+            f.write(line)
+            if "Error" in line or "Exception" in line:
+                last_err = line.strip()
+        code = proc.wait()
+    return code, (last_err or f"exit {code}, see {log.name}") if code else None
 
 
 def run_sweep(
@@ -357,9 +384,17 @@ def run_sweep(
     rc = 0
     for step, argv in sweep_commands(name, overrides, sweep_dir, python):
         ts = time.time()
-        print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
-        code = subprocess.call(argv, cwd=ROOT)
-        record["steps"].append({"step": step, "argv": argv, "returncode": code, "seconds": round(time.time() - ts, 1)})
+        error = None
+        if argv is None:
+            argv, error = evaluate_command(sweep_dir, python)
+        if argv is None:
+            code = 1
+        else:
+            print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
+            code, error = _run_logged(argv, sweep_dir / f"{step}.log")
+        record["steps"].append(
+            {"step": step, "argv": argv, "returncode": code, "error": error, "seconds": round(time.time() - ts, 1)}
+        )
         rc = rc or code
         if step == "data" and code != 0:
             break  # no data, no runs: the train step would fail the same way in every job

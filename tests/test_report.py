@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pbc import report
+from pbc import report, sweeps
 from pbc.sweeps import FAILED, INCOMPLETE, OK, load_runs
 
 
@@ -102,17 +102,21 @@ def sweep(tmp_path_factory) -> Path:
             {"experiment": f"patch_{i:02d}", "loss": "l1"},
             ok_metrics(v, 0.02, v + 0.1, 0.03) | {"test": {"vertex_error_cm": v + 0.1, "vertex_error_cm_std": 0.05}},
         )
+    # pbc.evaluate's layout
+    entries = {
+        "whole": {"vertex_error_cm": 0.41, "normal_error": 0.026, "seam_jump_cm": 0.01},
+        "patches_average": {"vertex_error_cm": 0.45, "normal_error": 0.03, "seam_jump_cm": 0.2},
+        "patches_pca": {"vertex_error_cm": 0.38, "normal_error": 0.027, "seam_jump_cm": 0.05},
+        "gt_crops_pca": {"vertex_error_cm": 0.02, "normal_error": 0.001, "seam_jump_cm": 0.001},
+        "floor_256": {"vertex_error_cm": 0.01, "normal_error": 0.001, "seam_jump_cm": 0.0},
+    }
     make_run(
         root,
         "evaluate",
-        {"stitch": "all"},
+        {"stitch": "pca"},
         job="evaluate",
         overrides=[],
-        metrics={
-            "whole": {"vertex_error_cm": 0.41, "normal_distance": 0.026},
-            "average": {"vertex_error_cm": 0.45, "seam_jump_cm": 0.2},
-            "pca": {"vertex_error_cm": 0.38, "seam_jump_cm": 0.05},
-        },
+        metrics={"split": "test", "num_samples": 3, "entries": entries, "seconds": 2.0},
     )
     return root
 
@@ -201,3 +205,17 @@ def test_train_error_falls_back_to_tensorboard(tmp_path):
 def test_cli_missing_dir(tmp_path, capsys):
     assert report.main([str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_hierarchy_rows_and_evaluate_command(sweep, built):
+    rows = {r["label"]: r for r in json.loads((built / "report.json").read_text())["hierarchy"]}
+    assert list(rows)[:3] == ["whole", "stitched (average)", "stitched (pca)"]
+    assert rows["stitched (pca)"]["values"]["vertex_error_cm"] == 0.38
+    assert rows["stitcher on true crops (pca)"]["values"]["seam_jump_cm"] == 0.001
+    patches = {r["label"]: r for r in json.loads((built / "report.json").read_text())["patches"]}
+    assert patches["patch_07"]["values"]["test/vertex_error_cm"] == pytest.approx(0.35)
+    # The runner's evaluation step: the newest whole run and every successful patch run, quoted.
+    argv, why = sweeps.evaluate_command(sweep, python="py")
+    assert why is None and argv[:3] == ["py", "-m", "pbc.evaluate"]
+    assert argv[3] == f"whole_run='{sweep / '1_loss=l2'}'"
+    assert argv[4].startswith("patch_runs=[") and argv[4].count("patch_0") == 2
