@@ -1,0 +1,114 @@
+"""Latency of pose -> garment on this machine: whole model, 28 patches (loop vs stacked forms), seam methods.
+
+    .venv/bin/python bench/predict.py                        # paper-size random decoders, stand-in shirt
+    .venv/bin/python bench/predict.py --whole RUN --patches SWEEP_DIR   # trained runs
+Prints a markdown table of the best-of-N milliseconds at batch 1 and batch 32 (full pose -> (B, V, 3),
+skinning included). Timings are only comparable on a quiet machine; say when it is shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def best_ms(fn, reps: int) -> float:
+    fn()  # warm-up: allocations, oneDNN primitive caches
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return 1000 * min(ts)
+
+
+def paper_predictor(stitch_cfg):
+    """Random paper-size decoders (3.79M whole, 28 x 3.96M patches) on the stand-in coarse T-shirt."""
+    import tempfile
+
+    from hydra.utils import instantiate
+
+    from pbc.predict import ClothPredictor
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_evaluate import IMAGE, fake_dataset
+
+    ds = fake_dataset(Path(tempfile.mkdtemp()) / "fake")
+    patch_cfg = OmegaConf.to_container(OmegaConf.load(ROOT / "conf/model/patch.yaml").net)
+    patch_cfg["output_size"] = [int(IMAGE.crop_size)] * 2
+    whole_cfg = OmegaConf.load(ROOT / "conf/model/whole.yaml").net
+    whole_cfg = OmegaConf.to_container(OmegaConf.merge({"image": IMAGE}, {"n": whole_cfg}), resolve=True)["n"]
+    torch.manual_seed(0)
+    whole = instantiate(whole_cfg).eval()
+    patches = [instantiate(patch_cfg).eval() for _ in range(28)]
+    return ClothPredictor(ds, IMAGE, whole, patches, stitch_cfg)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--whole")
+    ap.add_argument("--patches", nargs="*")
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--batches", type=int, nargs="*", default=[1, 32])
+    ap.add_argument("--skip-loop", action="store_true")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    from pbc.predict import LoopPatchNet, StackedPatchNet
+
+    stitch_cfg = OmegaConf.load(ROOT / "conf/stitch/average.yaml")
+    if args.patches:
+        from pbc.predict import ClothPredictor
+
+        pred = ClothPredictor.from_runs(args.whole, args.patches, stitch_cfg)
+    else:
+        pred = paper_predictor(stitch_cfg)
+    from pbc.evaluate import fit_training_pca
+
+    pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
+    print(f"threads {torch.get_num_threads()}, V = {pred.faces.max().item() + 1}, torch {torch.__version__}")
+
+    forms = {"stacked (default: bmm x2, grouped CL x3)": pred.patch_net}
+    if not args.skip_loop:
+        forms["loop of 28"] = LoopPatchNet(pred.patch_nets).eval()
+    forms["stacked, all bmm"] = StackedPatchNet(pred.patch_nets, ("bmm",) * 5).eval()
+    forms["stacked, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5).eval()
+    forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5, False).eval()
+
+    rows = []
+    for B in args.batches:
+        pose = torch.from_numpy(pred.dataset.poses[:1]).float().expand(B, -1, -1, -1).contiguous()
+        reps = args.reps if B == 1 else max(1, args.reps // 2)
+        with torch.inference_mode():
+            x = pose.reshape(B, -1)
+            rows.append((B, "whole: pose -> mesh", best_ms(lambda pose=pose: pred(pose, model="whole"), reps)))
+            for name, net in forms.items():
+                if name.startswith("loop") and B > 1 and args.skip_loop:
+                    continue
+                rows.append((B, f"28 patch nets, {name}", best_ms(lambda net=net, x=x: net(x), reps)))
+            crops = pred.patch_crops(pose)
+            whole_off = pred.whole_offsets(pose)
+            for m in ("average", "pca", "inpaint", "hierarchy"):
+                if m == "inpaint" and B > 1:
+                    continue  # seconds per sample: biharmonic solves on the CPU
+                fn = lambda m=m, c=crops, w=whole_off: pred.stitcher(c, m, w)  # noqa: E731
+                rows.append((B, f"stitch only: {m}", best_ms(fn, reps if m != "inpaint" else 1)))
+            for m in ("average", "pca", "hierarchy"):
+                fn = lambda m=m, pose=pose: pred(pose, method=m)  # noqa: E731
+                rows.append((B, f"pose -> mesh: 28 patches + {m}", best_ms(fn, reps)))
+    print("\n| batch | what | ms |\n|---|---|---|")
+    for B, what, ms in rows:
+        print(f"| {B} | {what} | {ms:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
