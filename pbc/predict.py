@@ -84,7 +84,8 @@ def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
         if (p / "metrics.json").is_file():
             out.append(p)
         elif p.is_dir():
-            found = sorted(m.parent for m in p.rglob("metrics.json"))
+            # a sweep dir: training runs only (an evaluate run below it has no checkpoints/)
+            found = sorted(m.parent for m in p.rglob("metrics.json") if (m.parent / "checkpoints").is_dir())
             if not found:
                 raise ValueError(f"{p}: no training runs (metrics.json) found below it")
             out += found
@@ -101,6 +102,7 @@ def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) 
     """
     problems: list[str] = []
     by_id: dict[int, list[RunInfo]] = {}
+    named = {Path(p) for p in ([paths] if isinstance(paths, str | Path) else paths)}
     for d in find_runs(paths):
         try:
             r = read_run(d)
@@ -108,7 +110,8 @@ def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) 
             problems.append(str(e))
             continue
         if r.kind != "patch":
-            problems.append(f"{d}: a {r.kind!r} run, not a patch run")
+            if d in named:  # a whole/fc run found inside a sweep dir is simply not a patch run
+                problems.append(f"{d}: a {r.kind!r} run, not a patch run")
         elif r.garment_hash != garment_hash:
             problems.append(f"{d}: trained on garment {r.garment_hash!r}, not {garment_hash!r}")
         elif r.patch_id is None or not 0 <= r.patch_id < num_patches:
