@@ -5,7 +5,6 @@ report (end to end, when the training pipeline runs here)."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -23,9 +22,9 @@ SCALES = sorted(p.stem for p in (CONF / "scale").glob("*.yaml"))
 SEARCH = [f"hydra.searchpath=[file://{ROOT / 'sweeps'}]"]
 
 
-@pytest.fixture(scope="module", autouse=True)
+@pytest.fixture
 def _hydra():
-    # One initialisation for the module: composing is then ~0.1 s a config.
+    # One initialisation per compose test (not per config); cleared after, so load_config works elsewhere.
     with initialize_config_dir(str(CONF), version_base="1.3"):
         yield
 
@@ -41,6 +40,7 @@ def test_sweep_names_and_scales():
     assert len(sweeps.sweep_values("experiment", "glob([whole,patch_*])")) == 29
 
 
+@pytest.mark.usefixtures("_hydra")
 @pytest.mark.parametrize("name", ["losses", "architectures", "patches", "hierarchy"])
 def test_every_sweep_composes_for_every_value(name):
     base = _compose([*SEARCH, f"+sweep={name}", "scale=smoke"])
@@ -65,6 +65,7 @@ def test_every_sweep_composes_for_every_value(name):
     assert f"sweeps/{name}/smoke_" in sweep_dir
 
 
+@pytest.mark.usefixtures("_hydra")
 @pytest.mark.parametrize("scale", SCALES)
 def test_scales_compose_in_sweeps_and_single_runs(scale):
     cfg = _compose([*SEARCH, "+sweep=losses", f"scale={scale}"])
@@ -75,12 +76,14 @@ def test_scales_compose_in_sweeps_and_single_runs(scale):
     assert cfg.data.name == {"smoke": "tshirt_tiny", "cpu": "tshirt_small", "paper": "tshirt_paper"}[scale]
 
 
+@pytest.mark.usefixtures("_hydra")
 def test_slurm_launcher_replaces_joblib():
     pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     cfg = _compose([*SEARCH, "+sweep=patches", "scale=paper", "hydra/launcher=submitit_slurm"])
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
 
 
+@pytest.mark.usefixtures("_hydra")
 def test_optuna_search_composes():
     pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
     cfg = _compose(["+experiment=whole", "+scale=smoke", "+hparams_search=optuna"])
@@ -113,14 +116,42 @@ def test_runner_commands(tmp_path):
         sweeps.sweep_commands("nope", [], tmp_path)
 
 
-# Draping even the tiny data set takes minutes on this machine, so the smoke sweep reuses the one made
-# by `python -m pbc.generate data=tshirt_tiny` (paths.data_dir) instead of making its own.
-DATA_DIR = Path(os.environ.get("PBC_ROOT", ROOT)) / "data"
-TINY_READY = (DATA_DIR / "tshirt_tiny_seed0" / "manifest.json").is_file()
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory) -> Path:
+    """A real-format tshirt_tiny data set whose drape is the skinned cloth plus a smooth offset: the physics
+    takes minutes a sample here and is not what a sweep test checks (as tests/test_train.py does)."""
+    gen = pytest.importorskip("pbc.data.generate")
+    import numpy as np
+    import torch
+
+    from pbc.config import load_config
+
+    root = tmp_path_factory.mktemp("sweep_data")
+
+    def quick_drape(scene, pose):
+        body_v = gen.pose_body(scene.body, torch.from_numpy(pose)[None].float())
+        start = gen.embedded_points(body_v, scene.body.faces, scene.embedding)[0].numpy()
+        pos = start + 0.01 * np.sin(7.0 * start + pose.reshape(-1)[:3]) + 0.005
+        return {
+            "positions": pos.astype(np.float32),
+            "ok": True,
+            "reason": "",
+            "residual": 0.0,
+            "iterations": 0,
+            "t_skin": 0.0,
+            "t_drape": 0.0,
+        }
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(gen, "drape_pose", quick_drape)
+    try:
+        gen.generate(load_config(["data=tshirt_tiny", f"paths.data_dir={root}", "data.workers=1"]))
+    finally:
+        mp.undo()
+    return root
 
 
-@pytest.mark.skipif(not TINY_READY, reason="no tiny data set: run `python -m pbc.generate data=tshirt_tiny` once")
-def test_smoke_losses_multirun_with_joblib(tmp_path):
+def test_smoke_losses_multirun_with_joblib(tmp_path, tiny_data):
     """`python -m pbc.sweeps losses scale=smoke hydra.launcher.n_jobs=2`: four run dirs and a report."""
     t0 = time.time()
     r = subprocess.run(
@@ -131,7 +162,7 @@ def test_smoke_losses_multirun_with_joblib(tmp_path):
             "losses",
             "scale=smoke",
             "hydra.launcher.n_jobs=2",
-            f"paths.data_dir={DATA_DIR}",
+            f"paths.data_dir={tiny_data}",
             "--dir",
             str(tmp_path / "sweep"),
         ],
