@@ -71,7 +71,9 @@ def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
         "num_samples": int(cfg.data.num_samples),
         "garment_hash": hash_arrays(scene.garment.vertices, scene.garment.faces, scene.garment.uv),
         "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights),
-        "sim": OmegaConf.to_container(scene.sim, resolve=True),
+        # machine-specific keys (where kernels are cached, which device) do not change the data
+        "sim": {k: v for k, v in OmegaConf.to_container(scene.sim, resolve=True).items()
+                if k not in ("kernel_cache_dir", "device")},
     }
 
 
@@ -103,6 +105,7 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
         "ok": ok,
         "reason": reason,
         "residual": float(res.residual),
+        "residual_max": float(res.residual_max),
         "iterations": int(res.iterations),
         "t_skin": t1 - t0,
         "t_drape": t2 - t1,
@@ -236,10 +239,10 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     positions = []
     for i in range(len(poses)):
         pos, meta = _read_sample(_sample_path(work, i))
-        residuals.append(meta["residual"])
         stage["skin"] += meta["t_skin"]
         stage["drape"] += meta["t_drape"]
         if meta["ok"]:
+            residuals.append(meta["residual"])
             kept.append(i)
             positions.append(pos)
         else:
@@ -270,6 +273,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         splits=splits,
         shrinkwrap=_plain(wrap_stats),
         poses=_plain(pose_stats),
+        # of the kept samples: max vertex speed at the end of the drape, m/s
         drape_residual={"mean": float(np.mean(residuals)), "max": float(np.max(residuals))},
     )
     timings = dict(timings, **{f"{k}_cpu_total": v for k, v in stage.items()})

@@ -116,7 +116,8 @@ def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_sample
     paths = [plot_uv_layout(ds, out / "uv_layout.png"), plot_samples(ds, indices, out / "samples.png")]
     angles_path = Path(directory) / "angles.npy"
     if angles_path.is_file():
-        paths.append(plot_angle_histograms(np.load(angles_path), ds.body.skeleton, out / "pose_angles.png"))
+        plot_angle_histograms(np.load(angles_path), ds.body.skeleton, out / "pose_angles.png")
+        paths.append(out / "pose_angles.png")
     paths += export_objs(ds, indices, out)
     try:  # the cloth-image figures live with the pixels stage
         from pbc.pixels.preview import write_cloth_image_preview

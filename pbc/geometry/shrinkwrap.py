@@ -40,15 +40,26 @@ def _sw_cfg(cfg):
 # garment-side helpers
 
 
-def vertex_parts(cage, num_vertices: int) -> np.ndarray:
-    """(V,) primary collision part per vertex from the cage: patches named ``*sleeve_left*`` -> 1 (left
-    arm), ``*sleeve_right*`` -> 2 (right arm), every other patch -> 0 (torso)."""
+def vertex_parts(cage, num_vertices: int, wrapped: np.ndarray | None = None, body: Body | None = None) -> np.ndarray:
+    """(V,) primary collision part per vertex (appendix D.6): 0 torso, 1 left arm, 2 right arm.
+
+    Sleeve patches (``*sleeve_left*`` / ``*sleeve_right*``) collide with their arm. With the wrapped rest
+    positions (V, 3) and the body, torso-panel vertices lying beyond an arm joint (|x| past the ``l_arm``
+    / ``r_arm`` head) collide with that arm too: they cover the upper arm, and a torso-only collider would
+    let them sink into it once the arm moves.
+    """
     part = np.zeros(num_vertices, np.int64)
     for p in cage.patches:
         if "sleeve_left" in p.name:
             part[p.vertices] = 1
         elif "sleeve_right" in p.name:
             part[p.vertices] = 2
+    if wrapped is not None and body is not None:
+        names = list(body.skeleton.names)
+        heads = body.skeleton.rest_heads.numpy()
+        x = np.asarray(wrapped)[:, 0]
+        part[(part == 0) & (x > heads[names.index("l_arm"), 0])] = 1
+        part[(part == 0) & (x < heads[names.index("r_arm"), 0])] = 2
     return part
 
 
@@ -300,7 +311,7 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     sw = _sw_cfg(cfg)
     t0 = time.perf_counter()
     surface = _RestSurface(body, int(sw.nearest_triangles))
-    part = vertex_parts(cage, garment.num_vertices)
+    part = vertex_parts(cage, garment.num_vertices)  # rays start from the bone under each patch
     x0 = garment.vertices.double().cpu().numpy()
     # (a) cage-guided Laplace morph of the displacements
     ids, targets = cage_targets(garment, cage, body, surface, part, int(sw.ray_bisection_steps))
@@ -344,7 +355,7 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     """
     t0 = time.perf_counter()
     x, stats = wrap_positions(garment, cage, body, cfg)
-    part = vertex_parts(cage, garment.num_vertices)
+    part = vertex_parts(cage, garment.num_vertices, x, body)
     emb = embed_points(x, body, part, int(_sw_cfg(cfg).nearest_triangles))
     rest = embedded_points(body.vertices[None].double(), body.faces, emb)[0].numpy()
     stats["embed_max_distance"] = float(np.linalg.norm(rest - x, axis=1).max())

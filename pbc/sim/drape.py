@@ -37,7 +37,10 @@ class DrapeResult:
     """Outcome of one drape.
 
     positions: (V, 3) float32 final positions.
-    residual: max vertex speed over the last frame (m/s) = max |x_k - x_{k-1}| / frame_dt.
+    residual: speed over the last frame (m/s) of the vertex at quantile cfg.residual_quantile (0.95) of
+        |x_k - x_{k-1}| / frame_dt. Not the max: a few vertices in contact chatter by ~1 mm a frame
+        forever (contact/self-collision projection), while the cloth as a whole has settled.
+    residual_max: the max vertex speed over the last frame (m/s), reported beside it.
     iterations: frames run (each frame = `substeps` solver steps of `iterations` PD iterations).
     seconds: wall time of the whole call (model build + stepping; kernels already compiled).
     cpu_seconds: CPU time of the call (equals `seconds` on an idle core; warp CPU kernels are serial).
@@ -50,6 +53,7 @@ class DrapeResult:
     seconds: float
     converged: bool
     cpu_seconds: float = float("nan")  # process CPU time of the call: the per-core cost under contention
+    residual_max: float = float("nan")
 
 
 def _get(cfg, key, default=None):
@@ -358,8 +362,9 @@ def drape(
     # kinetic energy shortens the settle without changing the equilibrium
     keep = 1.0 - float(_get(cfg, "velocity_damping", 0.0))
 
+    quantile = float(_get(cfg, "residual_quantile", 1.0))
     x_prev = s0.particle_q.numpy().copy()
-    residual = float("inf")
+    residual = residual_max = float("inf")
     frames = 0
     converged = False
     for frames in range(1, max_frames + 1):  # noqa: B007
@@ -372,9 +377,10 @@ def drape(
             s0.particle_qd.assign(s0.particle_qd.numpy() * keep)
         x = s0.particle_q.numpy()
         if not np.all(np.isfinite(x)):
-            residual = float("nan")
+            residual = residual_max = float("nan")
             break
-        residual = float(np.sqrt(((x - x_prev) ** 2).sum(axis=1).max())) / frame_dt
+        speed = np.sqrt(((x - x_prev) ** 2).sum(axis=1)) / frame_dt
+        residual, residual_max = float(np.quantile(speed, quantile)), float(speed.max())
         x_prev = x.copy()
         if frames >= min_frames and residual < tol:
             converged = True
@@ -383,6 +389,7 @@ def drape(
     return DrapeResult(
         positions=np.asarray(x_prev if np.isfinite(residual) else s0.particle_q.numpy(), dtype=np.float32),
         residual=residual,
+        residual_max=residual_max,
         iterations=frames,
         seconds=time.perf_counter() - t0,
         converged=converged,
