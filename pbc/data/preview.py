@@ -71,7 +71,8 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
     for col, i in enumerate(indices):
         for row, sign in enumerate((1.0, -1.0)):  # front view looks along -z, back view along +z
             ax = axes[row, col]
-            for verts, faces, base in ((body_v[col], bf, (0.8, 0.7, 0.6)), (np.asarray(ds.verts[i]), gf, (0.3, 0.5, 0.9))):
+            garment = (np.asarray(ds.verts[i]), gf, (0.3, 0.5, 0.9))
+            for verts, faces, base in ((body_v[col], bf, (0.8, 0.7, 0.6)), garment):
                 tri = verts[faces] * np.array([sign, 1.0, sign])
                 n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
                 n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
