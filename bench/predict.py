@@ -20,6 +20,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+class Rows(list):
+    """Rows printed as they are measured (a long run killed midway still shows what it has)."""
+
+    def append(self, row) -> None:
+        super().append(row)
+        print(f"| {row[0]} | {row[1]} | {row[2]:.1f} |", flush=True)
+
+
 def best_ms(fn, reps: int) -> float:
     fn()  # warm-up: allocations, oneDNN primitive caches
     ts = []
@@ -84,7 +92,8 @@ def main() -> None:
     forms["stacked, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5).eval()
     forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5, False).eval()
 
-    rows = []
+    rows = Rows()
+    print("\n| batch | what | ms |\n|---|---|---|", flush=True)
     for B in args.batches:
         pose = torch.from_numpy(pred.dataset.poses[:1]).float().expand(B, -1, -1, -1).contiguous()
         reps = args.reps if B == 1 else max(1, args.reps // 2)
@@ -105,9 +114,6 @@ def main() -> None:
             for m in ("average", "pca", "hierarchy"):
                 fn = lambda m=m, pose=pose: pred(pose, method=m)  # noqa: E731
                 rows.append((B, f"pose -> mesh: 28 patches + {m}", best_ms(fn, reps)))
-    print("\n| batch | what | ms |\n|---|---|---|")
-    for B, what, ms in rows:
-        print(f"| {B} | {what} | {ms:.1f} |")
 
 
 if __name__ == "__main__":
