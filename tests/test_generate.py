@@ -13,22 +13,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import TINY_SAMPLES as N
+from conftest import tiny_overrides
+
 from pbc.config import load_config
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import generate
 
 ROOT = Path(__file__).resolve().parent.parent
-N = 6  # poses per test dataset: enough for a resume to matter, few enough to be quick
 
 
 def tiny_cfg(data_dir: Path, *extra: str):
-    return load_config(["data=tshirt_tiny", f"paths.data_dir={data_dir}", f"data.num_samples={N}", *extra])
+    return load_config(tiny_overrides(data_dir, *extra))
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> Path:
-    """An uninterrupted run, the yardstick for the resumed and sharded ones."""
-    return generate(tiny_cfg(tmp_path_factory.mktemp("ref"), "data.workers=1"))
+def reference(tiny_dataset: Path) -> Path:
+    """The session's uninterrupted run (2 workers), the yardstick for the resumed and sharded ones."""
+    return tiny_dataset
 
 
 def test_finished_dataset_is_complete(reference: Path):
@@ -48,7 +50,7 @@ def test_finished_dataset_is_complete(reference: Path):
 
 
 def test_resume_after_sigkill_is_byte_identical(reference: Path, tmp_path: Path):
-    cfg_args = ["data=tshirt_tiny", f"paths.data_dir={tmp_path}", f"data.num_samples={N}", "data.workers=1"]
+    cfg_args = tiny_overrides(tmp_path, "data.workers=1")
     proc = subprocess.Popen([sys.executable, "-m", "pbc.generate", *cfg_args], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     out = Path(load_config(cfg_args).data.dir)
@@ -70,7 +72,7 @@ def test_resume_after_sigkill_is_byte_identical(reference: Path, tmp_path: Path)
 
 
 def test_shards_then_merge_equal_single_run(reference: Path, tmp_path: Path):
-    args = [f"data.num_samples={N}", "data.num_shards=2", "data.workers=1"]
+    args = ["data.num_shards=2", "data.workers=1"]
     for shard in (0, 1):
         generate(tiny_cfg(tmp_path, *args, f"data.shard={shard}"))
     out = Path(tiny_cfg(tmp_path).data.dir)
