@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import TINY_SAMPLES as N
 from conftest import tiny_overrides
 
@@ -113,3 +112,12 @@ def test_manifest_records_provenance(reference: Path):
     for key in ("format_version", "seed", "garment_hash", "body_hash", "splits", "counts", "shrinkwrap"):
         assert key in m
     assert json.loads((reference / "timings.json").read_text())["drape_wall"] > 0
+
+
+def test_split_sizes_never_leave_a_split_empty():
+    from pbc.data.generate import split_sizes
+
+    assert split_sizes(20011) == (16009, 2001)
+    for n in range(3, 40):
+        n_train, n_val = split_sizes(n)
+        assert n_train >= 1 and n_val >= 1 and n - n_train - n_val == n_val

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import TINY_SAMPLES
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -78,14 +79,12 @@ def test_scales_compose_in_sweeps_and_single_runs(scale):
 
 @pytest.mark.usefixtures("_hydra")
 def test_slurm_launcher_replaces_joblib():
-    pytest.importorskip("hydra_plugins.hydra_submitit_launcher")
     cfg = _compose([*SEARCH, "+sweep=patches", "scale=paper", "hydra/launcher=submitit_slurm"])
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher")
 
 
 @pytest.mark.usefixtures("_hydra")
 def test_optuna_search_composes():
-    pytest.importorskip("hydra_plugins.hydra_optuna_sweeper")
     cfg = _compose(["+experiment=whole", "+scale=smoke", "+hparams_search=optuna"])
     sw = cfg.hydra.sweeper
     assert sw._target_.endswith("OptunaSweeper") and sw.direction == "minimize"
@@ -117,38 +116,9 @@ def test_runner_commands(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory) -> Path:
-    """A real-format tshirt_tiny data set whose drape is the skinned cloth plus a smooth offset: the physics
-    takes minutes a sample here and is not what a sweep test checks (as tests/test_train.py does)."""
-    gen = pytest.importorskip("pbc.data.generate")
-    import numpy as np
-    import torch
-
-    from pbc.config import load_config
-
-    root = tmp_path_factory.mktemp("sweep_data")
-
-    def quick_drape(scene, pose):
-        body_v = gen.pose_body(scene.body, torch.from_numpy(pose)[None].float())
-        start = gen.embedded_points(body_v, scene.body.faces, scene.embedding)[0].numpy()
-        pos = start + 0.01 * np.sin(7.0 * start + pose.reshape(-1)[:3]) + 0.005
-        return {
-            "positions": pos.astype(np.float32),
-            "ok": True,
-            "reason": "",
-            "residual": 0.0,
-            "iterations": 0,
-            "t_skin": 0.0,
-            "t_drape": 0.0,
-        }
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(gen, "drape_pose", quick_drape)
-    try:
-        gen.generate(load_config(["data=tshirt_tiny", f"paths.data_dir={root}", "data.workers=1"]))
-    finally:
-        mp.undo()
-    return root
+def tiny_data(tiny_dataset: Path) -> Path:
+    """The data root holding the session's real tiny dataset."""
+    return tiny_dataset.parent
 
 
 def test_smoke_losses_multirun_with_joblib(tmp_path, tiny_data):
@@ -163,6 +133,7 @@ def test_smoke_losses_multirun_with_joblib(tmp_path, tiny_data):
             "scale=smoke",
             "hydra.launcher.n_jobs=2",
             f"paths.data_dir={tiny_data}",
+            f"data.num_samples={TINY_SAMPLES}",
             "--dir",
             str(tmp_path / "sweep"),
         ],

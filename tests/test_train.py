@@ -112,14 +112,11 @@ def _group_options(group: str) -> list[str]:
 
 
 def test_every_config_composes_and_instantiates():
-    pytest.importorskip("hydra")
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
     from pbc.config import load_config
 
-    if not (CONF / "image").is_dir():
-        pytest.skip("conf/image not there yet")
     for exp in _group_options("experiment"):
         cfg = load_config([f"+experiment={exp}", "paths.output_dir=/tmp/x"])
         OmegaConf.resolve(cfg.model)
@@ -145,59 +142,27 @@ def test_unknown_experiment_lists_choices():
 
 
 # ------------------------------------------------------------------------------------ end to end
-def _can_run_e2e() -> bool:
-    try:
-        import pbc.data.dataset  # noqa: F401
-        import pbc.data.generate  # noqa: F401
-    except ImportError:
-        return False
-    return (CONF / "image").is_dir() and (CONF / "data" / "tshirt_tiny.yaml").is_file()
-
-
-e2e = pytest.mark.skipif(not _can_run_e2e(), reason="data pipeline / conf/image not available yet")
 # crop_size / margin / pad are given at the reference resolution and scale with it: 40 px crops at 128
 TINY = ["data=tshirt_tiny", "trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128",
         "callbacks.image_panel.every_n_epochs=1"]
 
 
-def _train(tmp: Path, *args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PBC_ROOT=str(tmp))
-    data = f"data.dir={next((tmp / 'data').glob('tshirt_tiny*'))}"
-    return subprocess.run([sys.executable, "-m", "pbc.train", *TINY, data, *args], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=300)
+def _train(root: Path, data_dir: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PBC_ROOT=str(root))
+    return subprocess.run([sys.executable, "-m", "pbc.train", *TINY, f"data.dir={data_dir}", *args], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
 def e2e_root(tmp_path_factory):
-    """A run root holding a real-format tshirt_tiny dataset whose drape is replaced by the skinned cloth
-    plus a smooth offset: the physics takes minutes a sample here and is not what these tests check."""
-    import pbc.data.generate as gen
-    from pbc.config import load_config
-
-    root = tmp_path_factory.mktemp("train_e2e")
-
-    def quick_drape(scene, pose):
-        body_v = gen.pose_body(scene.body, torch.from_numpy(pose)[None].float())
-        start = gen.embedded_points(body_v, scene.body.faces, scene.embedding)[0].numpy()
-        pos = start + 0.01 * np.sin(7.0 * start + pose.reshape(-1)[:3]) + 0.005
-        return {"positions": pos.astype(np.float32), "ok": True, "reason": "", "residual": 0.0,
-                "iterations": 0, "t_skin": 0.0, "t_drape": 0.0}
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(gen, "drape_pose", quick_drape)
-    try:
-        gen.generate(load_config(["data=tshirt_tiny", f"paths.data_dir={root}/data", "data.workers=1",
-                                  "data.num_samples=24"]))
-    finally:
-        mp.undo()
-    return root
+    """A run root of its own; the data is the session's real tiny dataset."""
+    return tmp_path_factory.mktemp("train_e2e")
 
 
-@e2e
 @pytest.mark.parametrize("exp", ["patch_07", "whole"])
-def test_experiment_end_to_end(e2e_root, exp):
+def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     t0 = time.time()
-    r = _train(e2e_root, f"+experiment={exp}", f"hydra.run.dir={e2e_root}/runs/{exp}")
+    r = _train(e2e_root, tiny_dataset, f"+experiment={exp}", f"hydra.run.dir={e2e_root}/runs/{exp}")
     assert r.returncode == 0, r.stderr[-3000:]
     run = e2e_root / "runs" / exp
     metrics = json.loads((run / "metrics.json").read_text())
@@ -208,12 +173,11 @@ def test_experiment_end_to_end(e2e_root, exp):
     print(f"{exp}: {time.time() - t0:.1f} s")
 
 
-@e2e
-def test_resume_from_last(e2e_root):
+def test_resume_from_last(e2e_root, tiny_dataset):
     run = e2e_root / "runs" / "patch_07"
-    if not (run / "checkpoints" / "last.ckpt").is_file():
-        pytest.skip("needs test_experiment_end_to_end[patch_07]")
-    r = _train(e2e_root, "+experiment=patch_07", f"hydra.run.dir={run}", "ckpt_path=last",
+    if not (run / "checkpoints" / "last.ckpt").is_file():  # run alone: make the run to resume first
+        assert _train(e2e_root, tiny_dataset, "+experiment=patch_07", f"hydra.run.dir={run}").returncode == 0
+    r = _train(e2e_root, tiny_dataset, "+experiment=patch_07", f"hydra.run.dir={run}", "ckpt_path=last",
                "trainer.max_epochs=3")
     assert r.returncode == 0, r.stderr[-3000:]
     assert "resuming from" in r.stderr + r.stdout

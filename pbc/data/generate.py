@@ -252,7 +252,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         raise RuntimeError(f"every sample of {out} was discarded ({reasons}); check the sim config")
     rng = np.random.default_rng(fp["seed"])
     order = rng.permutation(len(kept))
-    n_train, n_val = int(round(0.8 * len(kept))), int(round(0.1 * len(kept)))
+    n_train, n_val = split_sizes(len(kept))
     splits = {
         "train": sorted(order[:n_train].tolist()),
         "val": sorted(order[n_train : n_train + n_val].tolist()),
@@ -286,6 +286,12 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     write_json(out / "timings.json", _plain(timings))
     write_json(out / "manifest.json", manifest)  # last: its presence marks a finished dataset
     shutil.rmtree(work, ignore_errors=True)
+
+
+def split_sizes(n: int) -> tuple[int, int]:
+    """Train and validation counts of an 80/10/10 split; with 3 or more samples no split is empty."""
+    n_held = max(1, round(0.1 * n)) if n >= 3 else 0
+    return n - 2 * n_held, n_held
 
 
 def _plain(obj):
