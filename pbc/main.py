@@ -1,7 +1,8 @@
-"""The README's main job: make the default dataset with its previews, then train and test on it.
+"""The README's main job: make the default dataset with its previews, train the whole-shirt model and one
+patch model on it (CPU schedule), and print their test metrics.
 
-Each step is the command a user would type, run as its own process so that each gets its own Hydra run
-dir; extra arguments are passed to every step (e.g. `python -m pbc.main data=tshirt_tiny`).
+Each step is the command a user would type, run as its own process with its own Hydra run dir under
+`runs/main/`. Extra arguments go to every step, e.g. `python -m pbc.main data=tshirt_tiny trainer=smoke`.
 """
 
 from __future__ import annotations
@@ -12,26 +13,29 @@ import sys
 import time
 from pathlib import Path
 
+RUNS = Path("runs/main")
 STEPS = [
-    ("generate the dataset and its preview figures", ["pbc.generate", "preview=true"]),
+    ("make the dataset and its preview figures", ["pbc.generate", "preview=true", f"hydra.run.dir={RUNS}/generate"]),
+    ("train the whole-shirt model", ["pbc.train", "+experiment=whole", f"hydra.run.dir={RUNS}/whole"]),
+    ("train patch model 7", ["pbc.train", "+experiment=patch_07", f"hydra.run.dir={RUNS}/patch_07"]),
 ]
-
-
-def run(step: list[str], extra: list[str]) -> None:
-    cmd = [sys.executable, "-m", *step, *extra]
-    print("$", " ".join(cmd[2:]), flush=True)
-    subprocess.run(cmd, check=True)
+SHOWN = ("vertex_error_cm", "normal_distance", "image_loss")
 
 
 def main(argv: list[str] | None = None) -> None:
     extra = list(sys.argv[1:] if argv is None else argv)
-    t0 = time.time()
+    t_start = time.time()
     for title, step in STEPS:
         print(f"== {title}", flush=True)
-        run(step, extra)
-    print(f"== done in {time.time() - t0:.0f} s")
-    for metrics in sorted(Path("runs").glob("train/*/metrics.json"))[-2:]:
-        print(metrics.parent.name, json.dumps(json.loads(metrics.read_text()).get("test", {}), indent=1))
+        t0 = time.time()
+        subprocess.run([sys.executable, "-m", *step, *extra], check=True)
+        print(f"   ({time.time() - t0:.0f} s)", flush=True)
+    print(f"== test metrics (done in {(time.time() - t_start) / 60:.1f} min)")
+    print(f"{'run':<10}" + "".join(f"{k:>18}" for k in SHOWN))
+    for run in ("whole", "patch_07"):
+        test = json.loads((RUNS / run / "metrics.json").read_text())["test"]
+        print(f"{run:<10}" + "".join(f"{test.get(k, float('nan')):>18.4f}" for k in SHOWN))
+    print(f"TensorBoard: tensorboard --logdir {RUNS}")
 
 
 if __name__ == "__main__":

@@ -152,14 +152,20 @@ def train(cfg: DictConfig) -> dict:
     best_path = ck.best_model_path if ck is not None else ""
     score = ck.best_model_score if ck is not None else None
     best_val = float(score) if score is not None else float("inf")
-    test = {}
+    test, train_metrics = {}, {}
     if cfg.get("test", True):
         res = trainer.test(module, datamodule=dm, ckpt_path=best_path or None)
         test = {k.split("/", 1)[1]: float(v) for k, v in (res[0] if res else {}).items()
                 if k.startswith("test/")}
+        # the same metrics of the best model on the training split (the paper's "training error")
+        module.test_prefix = "train_final"
+        res = trainer.test(module, dataloaders=dm.loader("train", shuffle=False), ckpt_path=best_path or None)
+        module.test_prefix = "test"
+        train_metrics = {k.split("/", 1)[1]: float(v) for k, v in (res[0] if res else {}).items()
+                         if k.startswith("train_final/")}
     metrics = {
         "status": "ok", "optimized_metric": MONITOR, "val_best": {"vertex_error_cm": best_val},
-        "test": test, "best_checkpoint": best_path, "epochs": trainer.current_epoch,
+        "test": test, "train": train_metrics, "best_checkpoint": best_path, "epochs": trainer.current_epoch,
         "seconds": round(time.time() - t0, 2), "summary": summary, "identity": identity,
         "config": OmegaConf.to_container(cfg, resolve=False),
     }

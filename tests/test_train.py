@@ -167,6 +167,8 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     run = e2e_root / "runs" / exp
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
+    # the best model is also scored on the training split (Table 1's training error), normals included
+    assert np.isfinite(metrics["train"]["vertex_error_cm"]) and np.isfinite(metrics["train"]["normal_distance"])
     assert (run / "checkpoints" / "last.ckpt").is_file()
     assert list((run / "tensorboard").glob("events.out.tfevents.*"))
     assert (run / "meshes" / "pred_val0.obj").is_file()

@@ -160,7 +160,8 @@ class ClothDataModule(L.LightningDataModule):
                     f"{where}: {what} holds non-finite values; it is corrupt, regenerate the dataset"
                 )
 
-    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+    def loader(self, split: str, shuffle: bool = False) -> DataLoader:
+        """A DataLoader over any split ('train', 'val', 'test'), e.g. to score a model on the train split."""
         if self.data is None:
             self.setup()
         return DataLoader(
@@ -174,13 +175,13 @@ class ClothDataModule(L.LightningDataModule):
         )
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
+        return self.loader("train", shuffle=True)
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
+        return self.loader("val", shuffle=False)
 
     def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)
+        return self.loader("test", shuffle=False)
 
     # ----------------------------------------------------------------------------------- rendering
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
