@@ -328,8 +328,12 @@ class ImageOperators:
             d = {"ell": ell, "out_idx": out_idx.reshape(-1), "s_idx": in_idx, "s_w": self._s_w.to(device)}
             if self.method == "sparse":
                 R = self.scipy_R().tocoo()
-                # block-diagonal over the 3 channels so one matmul renders all 6 image channels
-                r6 = sp.kron(sp.identity(3), R).tocsr()  # rows (c, side, pix), cols (c, v)
+                # block-diagonal over the 3 channels so one matmul renders all 6 image channels; rows are
+                # ordered (side, channel, pixel), i.e. already the (6, H, W) image layout
+                side, pix = R.row // hw, R.row % hw
+                rows = np.concatenate([(3 * side + c) * hw + pix for c in range(3)])
+                cols = np.concatenate([c * self.V + R.col for c in range(3)])
+                r6 = sp.csr_matrix((np.tile(R.data, 3), (rows, cols)), shape=(6 * hw, 3 * self.V))
                 with warnings.catch_warnings():  # torch flags sparse CSR as beta on every construction
                     warnings.simplefilter("ignore", UserWarning)
                     d["R6"] = torch.sparse_csr_tensor(
@@ -348,8 +352,10 @@ class ImageOperators:
         d = self._on(x.device)
         if self.method == "sparse":
             y = torch.sparse.mm(d["R6"], x.permute(2, 1, 0).reshape(3 * self.V, B).to(d["R6"].dtype))
-            # rows are (c, side, pix): reorder to (side, c, pix)
-            return y.reshape(3, 2, res, res, B).permute(4, 1, 0, 2, 3).reshape(B, 6, res, res)
+            # y is (6HW, B): its transpose is the batch as a view with the batch innermost in memory.
+            # Not made contiguous on purpose: that copy cost 2x the matmul at 512 (bench/render.py), and
+            # every consumer (masks, losses, crops, convolutions) accepts strided tensors.
+            return y.t().reshape(B, 6, res, res)
         vals = d["ell"].apply(x.transpose(1, 2))  # (B, 3, P)
         out = x.new_zeros(B, 6 * res * res)
         out = out.index_copy(1, d["out_idx"], vals.reshape(B, -1))
