@@ -18,7 +18,7 @@ import numpy as np
 
 from pbc.config import load_config
 from pbc.data.generate import build_scene, drape_pose
-from pbc.data.store import atomic_path
+from pbc.io import atomic_path
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 

@@ -13,16 +13,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import statistics
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
 import yaml
 
+from pbc.io import save_figure, write_text
 from pbc.sweeps import FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
 
 PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
@@ -287,15 +286,8 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
 
 # ---------------------------------------------------------------------------------------------- figures
 def _atomic_savefig(fig, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=path.suffix, prefix=f".{path.stem}.")
-    os.close(fd)
-    try:
-        fig.tight_layout()
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    fig.tight_layout()
+    save_figure(fig, path)
 
 
 def _bars(ax, labels, ours, theirs, ylabel, title):
@@ -596,16 +588,6 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     return "\n".join(md)
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
 
 def load_paper(path: Path = PAPER_FILE) -> dict:
     paper = yaml.safe_load(Path(path).read_text()) or {}
@@ -635,7 +617,7 @@ def build_report(
     hier = hierarchy_rows(runs)
     cl = claims(t1, t2, hier, paper)
     figs = figures(out, runs, t1, t2, patches, hier) if plots else {}
-    _atomic_write(out / "report.md", render(sweep_dir, runs, t1, t2, patches, hier, cl, figs))
+    write_text(out / "report.md", render(sweep_dir, runs, t1, t2, patches, hier, cl, figs))
     data = {
         "sweep_dir": str(sweep_dir),
         "runs": [
@@ -649,7 +631,7 @@ def build_report(
         "claims": [c.__dict__ for c in cl],
         "figures": figs,
     }
-    _atomic_write(out / "report.json", json.dumps(data, indent=1, default=str, allow_nan=True))
+    write_text(out / "report.json", json.dumps(data, indent=1, default=str, allow_nan=True))
     return out / "report.md"
 
 

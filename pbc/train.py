@@ -32,6 +32,8 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from pbc.io import write_json
+
 log = logging.getLogger(__name__)
 MONITOR = "val/vertex_error_cm"
 
@@ -180,11 +182,9 @@ def train(cfg: DictConfig) -> dict:
 
 
 def write_metrics(out: Path, metrics: dict) -> Path:
-    path = out / "metrics.json"
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(metrics, indent=1, default=str))
-    tmp.replace(path)
-    return path
+    """metrics.json of a run (what pbc.evaluate, pbc.report and the main job read), atomically."""
+    write_json(out / "metrics.json", metrics)
+    return out / "metrics.json"
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pbc.data.store import atomic_path, load_npy, read_json
 from pbc.geometry.body import Body, load_body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, load_garment_obj
 from pbc.geometry.shrinkwrap import Embedding
+from pbc.io import atomic_path, load_npy, read_json
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")

@@ -28,11 +28,11 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from pbc.data.dataset import FORMAT_VERSION, save_embedding
-from pbc.data.store import atomic_path, hash_arrays, read_json, save_npy, write_json
 from pbc.geometry.body import Body, build_body, pose_body, save_body
 from pbc.geometry.cage import Cage, load_cage, save_cage
 from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
+from pbc.io import atomic_path, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_sample, drape, pattern_triangles, rest_triangle_areas
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 

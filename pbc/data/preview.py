@@ -18,17 +18,10 @@ from matplotlib.collections import PolyCollection  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
 
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
-from pbc.data.store import atomic_path  # noqa: E402
 from pbc.geometry.body import pose_body  # noqa: E402
+from pbc.io import atomic_path, save_figure  # noqa: E402
 
 SIDE_NAMES = ("front", "back")
-
-
-def _save(fig, path: Path) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
-    return path
 
 
 def plot_uv_layout(ds: ClothDataset, path: Path) -> Path:
@@ -58,7 +51,7 @@ def plot_uv_layout(ds: ClothDataset, path: Path) -> Path:
         ax.set_ylim(512, 0)  # image convention: row 0 at the top
         ax.set_aspect("equal")
         ax.set_title(f"{SIDE_NAMES[side]} chart (512 px), patches and boxes")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
@@ -86,7 +79,7 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
             ax.set_aspect("equal")
             ax.axis("off")
             ax.set_title(f"sample {i} {'front' if row == 0 else 'back'}", fontsize=9)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def export_objs(ds: ClothDataset, indices: list[int], out: Path) -> list[Path]:

@@ -8,8 +8,6 @@ joints; the analytic SDF of the *posed* primitives serves collision tests and po
 
 from __future__ import annotations
 
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +23,7 @@ from pbc.geometry.skeleton import (
     linear_blend_skinning,
     skeleton_from_config,
 )
+from pbc.io import atomic_path
 
 CAPSULE, ELLIPSOID = 0, 1
 KINDS = {"capsule": CAPSULE, "ellipsoid": ELLIPSOID}
@@ -307,16 +306,8 @@ def save_body(body: Body, path) -> None:
         "prim_parts": prims.parts.numpy(),
         "blend_radius": np.float64(prims.blend),
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)  # a file object, so numpy does not append its own ".npz"
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, **arrays)
 
 
 def load_body(path) -> Body:

@@ -9,12 +9,12 @@ The atlas is plain JSON in ``patches/`` so a person can edit it and re-run; it i
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from pbc.io import write_text
 
 FORMAT_VERSION = 1
 SIDE_NAMES = ("front", "back")
@@ -257,18 +257,7 @@ def save_cage(cage: Cage, path, num_vertices: int | None = None) -> None:
         num_vertices = 1 + max(int(np.max(p.vertices)) for p in cage.patches if len(p.vertices))
     if cage.resolution is None:
         raise ValueError("save_cage: cage.resolution is unset (the resolution its boxes were computed at)")
-    text = cage_to_json(cage, cage.resolution, num_vertices)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; the file is shared data
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text(path, cage_to_json(cage, cage.resolution, num_vertices))
 
 
 def load_cage(path, garment, resolution: int | None = None, crop_size: int | None = None,

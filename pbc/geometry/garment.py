@@ -13,7 +13,6 @@ both charts are seen from outside the garment and have the same winding as the o
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +23,7 @@ import torch
 from torch import Tensor
 
 from pbc.geometry.cage import Cage, load_cage, save_cage, tshirt_cage, validate_cage
+from pbc.io import write_text
 
 # The repository root: relative cage paths in the garment config are resolved against it when they do
 # not exist relative to the working directory (Hydra runs keep the cwd, tests may not).
@@ -364,20 +364,6 @@ def write_tshirt_cage(cfg) -> Path:
 _SIDES = ("front", "back")
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; the file is shared data
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def save_garment_obj(garment: Garment, path) -> None:
     """Write the garment as OBJ: v, vt, `g front`/`g back` groups of `f v/vt`; uv_scale in a header
     comment, vertex_side in `# vs` comments. Floats are written with repr so a round trip is exact."""
@@ -396,7 +382,7 @@ def save_garment_obj(garment: Garment, path) -> None:
         lines.append(f"g {name}")
         for (a, b, c), (ta, tb, tc) in zip(f[side == s].tolist(), fuv[side == s].tolist(), strict=True):
             lines.append(f"f {a}/{ta} {b}/{tb} {c}/{tc}")
-    _atomic_write_text(path, "\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def load_garment_obj(path) -> Garment:

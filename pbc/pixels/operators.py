@@ -33,6 +33,8 @@ import torch
 from scipy import ndimage
 from torch import Tensor
 
+from pbc.io import atomic_path
+
 OPERATOR_VERSION = 1
 REFERENCE_RESOLUTION = 512  # crop_size, margin and pad in conf/image are pixels at this resolution
 
@@ -217,7 +219,6 @@ def load_or_build(
         except (OSError, ValueError, KeyError):
             pass  # a corrupt cache is only a cache: rebuild it below
     arrays = build_operators(garment, resolution, pad, exact)
-    from pbc.data.store import atomic_path  # local import: pixels must not need data at import time
 
     with atomic_path(path, suffix=".npz") as tmp:
         np.savez(tmp, **arrays)

@@ -1,7 +1,7 @@
-"""Safe file I/O for everything pbc writes: atomic writes, hashes, and readable errors for bad files.
+"""Safe file I/O for every stage: atomic writes, content hashes, and one clear error for a bad file.
 
-Every writer goes through a temporary file in the target's directory and `os.replace`, so a crash or a
-SIGKILL leaves either the old file or the new one, never half of one.
+Every writer in pbc goes through `atomic_path`: a temporary file in the target's directory, then
+`os.replace`, so a crash or a SIGKILL leaves either the old file or the new one, never half of one.
 """
 
 from __future__ import annotations
@@ -31,16 +31,32 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     tmp = Path(tmp)
     try:
         yield tmp
+        os.chmod(tmp, 0o644)  # mkstemp makes files private; what pbc writes is shared data
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
 
 
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write a text file, atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
 def write_json(path: str | os.PathLike, obj: Any) -> None:
     """Write `obj` as sorted, indented JSON, atomically (byte-identical for equal objects)."""
+    write_text(path, json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
+    """Save a matplotlib figure as PNG, atomically, and close it."""
+    import matplotlib.pyplot as plt
+
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format="png")
+    plt.close(fig)
+    return Path(path)
 
 
 def read_json(path: str | os.PathLike, what: str = "file") -> dict:
