@@ -21,3 +21,33 @@ def tiny_dataset(tmp_path_factory) -> Path:
     from pbc.data.generate import generate
 
     return generate(load_config(tiny_overrides(tmp_path_factory.mktemp("tiny_data"))))
+
+
+# --- body and skeleton (conf/body/mannequin.yaml), meshed coarsely so the session pays well under a second
+BODY_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "body" / "mannequin.yaml"
+COARSE_VOXEL = 0.03  # m; the default mesh is ~0.014
+
+
+@pytest.fixture(scope="session")
+def body_cfg():
+    """The mannequin config with a coarse marching-cubes voxel; shared, so copy it before changing it."""
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.load(BODY_CONFIG)
+    cfg.mesh.voxel_size = COARSE_VOXEL
+    return cfg
+
+
+@pytest.fixture(scope="session")
+def skeleton(body_cfg):
+    from pbc.geometry.skeleton import skeleton_from_config
+
+    return skeleton_from_config(body_cfg)
+
+
+@pytest.fixture(scope="session")
+def body(body_cfg):
+    """The coarse mannequin (~1.5K vertices); treat as read-only."""
+    from pbc.geometry.body import build_body
+
+    return build_body(body_cfg)

@@ -158,8 +158,7 @@ def body_sdf(body: Body, rotations: Tensor, points: Tensor, part: int | None = N
         points = points.expand(transforms.shape[0], *points.shape)
     if points.ndim != 3 or points.shape[-1] != 3 or points.shape[0] != transforms.shape[0]:
         raise ValueError(
-            f"points: expected shape (B, N, 3) with B={transforms.shape[0]} or (N, 3), "
-            f"got {tuple(points.shape)}"
+            f"points: expected shape (B, N, 3) with B={transforms.shape[0]} or (N, 3), got {tuple(points.shape)}"
         )
     d = _posed_distances(prims, transforms, points.to(transforms.dtype))
     if part is not None:
@@ -222,9 +221,7 @@ def _mesh_rest_surface(prims: Primitives, voxel: float, padding: int):
     return mesh
 
 
-def _skinning_weights(
-    prims: Primitives, num_bones: int, d: Tensor, smoothing: float, cutoff: float
-) -> Tensor:
+def _skinning_weights(prims: Primitives, num_bones: int, d: Tensor, smoothing: float, cutoff: float) -> Tensor:
     """(V, J+1) weights from per-primitive distances d (V, K): soft-min over primitives, summed per bone."""
     # clamp inside values: a vertex sunk into a neighbour's volume should not outweigh its own surface
     soft = torch.softmax(-d.clamp_min(0.0) / smoothing, dim=1)
@@ -234,10 +231,20 @@ def _skinning_weights(
     return w / w.sum(dim=1, keepdim=True)
 
 
-def _part_masks(prims: Primitives, d: Tensor, margin: float) -> Tensor:
-    """(P, V) overlapping part masks: within `margin` of the part's union; strays go to the nearest part."""
+def _part_masks(prims: Primitives, d: Tensor, margin: float, exclusive: list[list[int]]) -> Tensor:
+    """(P, V) part masks from per-primitive distances d (V, K).
+
+    A vertex is in a part within `margin` of the part's union, so parts overlap (the torso takes the
+    upper-arm root, an arm its shoulder); within each `exclusive` group (e.g. the two arms, whose
+    shoulder primitives meet at the sternum) it keeps only the nearest; strays go to the nearest part.
+    """
     part_sdf = torch.stack([_smooth_union(d[:, m], prims.blend) for m in prims.parts])  # (P, V)
     masks = part_sdf < margin
+    for group in exclusive:
+        group = torch.tensor(group, dtype=torch.long)
+        nearest = group[part_sdf[group].argmin(dim=0)]  # (V,)
+        for p in group:
+            masks[p] &= nearest == p
     stray = ~masks.any(dim=0)
     masks[part_sdf.argmin(dim=0)[stray], stray.nonzero()[:, 0]] = True
     return masks
@@ -252,10 +259,10 @@ def build_body(cfg) -> Body:
     with torch.no_grad():
         d = rest_primitive_distances(prims, vertices)
         skin = cfg["skinning"]
-        weights = _skinning_weights(
-            prims, skel.num_joints + 1, d, float(skin["smoothing"]), float(skin["cutoff"])
-        )
-        parts = _part_masks(prims, d, float(cfg["parts"]["margin"]))
+        weights = _skinning_weights(prims, skel.num_joints + 1, d, float(skin["smoothing"]), float(skin["cutoff"]))
+        part_names = [str(p) for p in cfg["part_names"]]
+        exclusive = [[part_names.index(str(p)) for p in group] for group in cfg["parts"].get("exclusive", [])]
+        parts = _part_masks(prims, d, float(cfg["parts"]["margin"]), exclusive)
     return Body(
         skeleton=skel,
         vertices=vertices.to(torch.float32),

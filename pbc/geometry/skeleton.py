@@ -71,9 +71,7 @@ def skeleton_from_config(cfg) -> Skeleton:
             parents.append(-1)
         else:
             if parent not in names[:j]:
-                raise ValueError(
-                    f"joint {names[j]!r}: parent {parent!r} must be 'root' or a joint listed before it"
-                )
+                raise ValueError(f"joint {names[j]!r}: parent {parent!r} must be 'root' or a joint listed before it")
             parents.append(names.index(parent))
         heads.append([float(v) for v in joint["head"]])
         lim = joint["limits"]
