@@ -14,11 +14,8 @@ numpy.random.default_rng([seed, b]), and kept in order, so kept sample i depends
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -26,6 +23,7 @@ from torch import Tensor
 
 from pbc.geometry.body import Body, body_sdf
 from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
+from pbc.io import save_figure
 
 TORSO, LEFT_ARM, RIGHT_ARM = 0, 1, 2
 X, Y, Z = 0, 1, 2
@@ -172,9 +170,7 @@ def sample_poses(
         block += 1
         if probes is not None:
             with torch.no_grad():
-                bad = probes_inside_torso(
-                    body, euler_xzy_to_matrix(torch.from_numpy(angles)), probes, settings
-                )
+                bad = probes_inside_torso(body, euler_xzy_to_matrix(torch.from_numpy(angles)), probes, settings)
             ok = np.flatnonzero(~bad.numpy())
         else:
             ok = np.arange(len(angles))
@@ -202,7 +198,7 @@ def sample_poses(
 def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
     """Write a PNG of per-joint, per-axis angle histograms with the limits marked (like Fig. 12).
 
-    angles (n, J, 3) degrees. Atomic: rendered to a temp file in the same folder, then os.replace.
+    angles (n, J, 3) degrees. Written atomically (pbc.io.save_figure).
     """
     import matplotlib
 
@@ -225,19 +221,7 @@ def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
             ax.tick_params(labelsize=6)
             ax.set_yticks([])
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=100)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, dpi=100)
 
 
 __all__ = [
