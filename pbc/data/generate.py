@@ -70,7 +70,9 @@ def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
         "seed": int(cfg.data.seed),
         "num_samples": int(cfg.data.num_samples),
         "garment_hash": hash_arrays(scene.garment.vertices, scene.garment.faces, scene.garment.uv),
-        "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights),
+        "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights, scene.body.parts),
+        # the rest-pose embedding and collision parts: a change to the shrink-wrap changes the data
+        "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part),
         # machine-specific keys (where kernels are cached, which device) do not change the data
         "sim": {k: v for k, v in OmegaConf.to_container(scene.sim, resolve=True).items()
                 if k not in ("kernel_cache_dir", "device")},
