@@ -113,10 +113,8 @@ def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_sample
         plot_angle_histograms(np.load(angles_path), ds.body.skeleton, out / "pose_angles.png")
         paths.append(out / "pose_angles.png")
     paths += export_objs(ds, indices, out)
-    try:  # the cloth-image figures live with the pixels stage
-        from pbc.pixels.preview import write_cloth_image_preview
+    if cfg is not None:  # cloth images, crop windows, round-trip error: the pixels stage's figures
+        from pbc.pixels.preview import preview as cloth_image_preview
 
-        paths += write_cloth_image_preview(ds, out, cfg)
-    except ImportError:
-        pass
+        paths += cloth_image_preview(directory, out, cfg.image)
     return paths
