@@ -192,6 +192,7 @@ class StackedPatchNet(nn.Module):
         self.head_b = nn.Parameter(torch.cat([d.head.bias.detach() for d in decoders]), False)
         self.head_pad = d0.head.padding
         self.out_channels = d0.out_channels
+        self.output_mean = nn.Parameter(torch.cat([d.output_mean for d in decoders], 1), False)  # (1, P*C, h, w)
 
     def forward(self, pose: Tensor) -> Tensor:
         B, P = pose.shape[0], self.P
@@ -214,7 +215,7 @@ class StackedPatchNet(nn.Module):
                 if self.channels_last:
                     x = x.contiguous(memory_format=torch.channels_last)
                 x = torch.relu(F.conv_transpose2d(x, w, b.reshape(-1), stride=2, padding=1, groups=P))
-        y = F.conv2d(x, self.head_w, self.head_b, padding=self.head_pad, groups=P)
+        y = F.conv2d(x, self.head_w, self.head_b, padding=self.head_pad, groups=P) + self.output_mean
         return y.reshape(B, P, self.out_channels, y.shape[-2], y.shape[-1])
 
 

@@ -139,7 +139,8 @@ def train(cfg: DictConfig) -> dict:
     }
     module = ClothModule(net=net_cfg, kind=cfg.model.kind, space=cfg.model.space,
                          loss=OmegaConf.to_container(cfg.loss, resolve=True), lr=float(cfg.model.lr),
-                         identity=identity, patch_id=identity["patch_id"], summary=summary)
+                         identity=identity, patch_id=identity["patch_id"], summary=summary,
+                         mean_image=bool(cfg.model.get("mean_image", True)))
     module.attach(geometry_from_datamodule(dm, cfg.model.kind))
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
     loggers = [hydra.utils.instantiate(c) for c in (cfg.get("logger") or {}).values()]

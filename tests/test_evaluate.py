@@ -187,3 +187,23 @@ def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
     cfg.pca_path = str(tmp_path / "bad_pca.pt")
     with pytest.raises(ValueError, match="fitted on dataset"):
         evaluate(cfg, tmp_path / "again")
+
+
+def test_stacked_patch_net_carries_each_mean_image():
+    """The stacked 28-model form adds every decoder's own output_mean, as the loop does."""
+    from pbc.models.decoder import ConvDecoder
+    from pbc.predict import LoopPatchNet, StackedPatchNet
+
+    torch.manual_seed(0)
+    nets = [ConvDecoder(90, 3, (40, 40), (5, 5), 32, first_layer="linear") for _ in range(3)]
+    for net in nets:
+        net.output_mean.normal_()
+        net.eval()
+    pose = torch.randn(2, 90)
+    with torch.inference_mode():
+        ref, stacked = LoopPatchNet(nets)(pose), StackedPatchNet(nets)(pose)
+    assert torch.allclose(stacked, ref, atol=1e-4)
+    for net in nets:
+        net.output_mean.zero_()
+    with torch.inference_mode():
+        assert not torch.allclose(LoopPatchNet(nets)(pose), ref, atol=0.1)  # the means do matter

@@ -170,6 +170,9 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     # the best model is also scored on the training split (Table 1's training error), normals included
     assert np.isfinite(metrics["train"]["vertex_error_cm"]) and np.isfinite(metrics["train"]["normal_distance"])
     assert (run / "checkpoints" / "last.ckpt").is_file()
+    # an image model starts from (and keeps in its checkpoint) the train split's mean image
+    state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
+    assert state["net.output_mean"].abs().sum() > 0
     assert list((run / "tensorboard").glob("events.out.tfevents.*"))
     assert (run / "meshes" / "pred_val0.obj").is_file()
     print(f"{exp}: {time.time() - t0:.1f} s")

@@ -113,6 +113,11 @@ class ConvDecoder(nn.Module):
             c //= 2
         self.groups = nn.Sequential(*groups)
         self.head = nn.Conv2d(c, self.out_channels, kernel_size=final_kernel, padding=final_kernel // 2)
+        # The training split's mean image, added to the output (zeros: the paper's plain decoder). The
+        # pose-dependent part of a cloth image is small beside its mean (std over poses ~0.8 cm against
+        # ~3 cm mean |offset| on tshirt_small); without it, a few hundred Adam steps do not even reach the
+        # constant mean image's loss. A buffer, so checkpoints and the stacked predictor carry it.
+        self.register_buffer("output_mean", torch.zeros(1, self.out_channels, *self.output_size))
 
     def forward(self, pose: Tensor) -> Tensor:
         """pose (B, in_features) (or (B, J, 3, 3), flattened) -> (B, out_channels, H, W)."""
@@ -123,7 +128,7 @@ class ConvDecoder(nn.Module):
         else:
             x = self.first(x).view(-1, self.start_channels, h0, w0)
         x = torch.relu(x)
-        return self.head(self.groups(x))
+        return self.head(self.groups(x)) + self.output_mean
 
 
 def count_parameters(module: nn.Module) -> int:

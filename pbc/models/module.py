@@ -80,10 +80,12 @@ class ClothModule(L.LightningModule):
         identity: what a checkpoint must match to be loaded here (garment hash, resolution, patch...).
         patch_id: patch of a patch model, else None.
         summary: flat extra hparams for the TensorBoard hparams tab (data size, loss name...).
+        mean_image: image models start from the train split's mean image (``model.mean_image``;
+            false = the paper's plain decoder).
     """
 
     def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict,
-                 patch_id: int | None = None, summary: dict | None = None) -> None:
+                 patch_id: int | None = None, summary: dict | None = None, mean_image: bool = True) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
@@ -209,6 +211,21 @@ class ClothModule(L.LightningModule):
         net = self.net
         if getattr(net, "mode", None) == "pca" and not bool(net.pca_fitted):
             self.fit_pca(self.trainer.datamodule.train_dataloader())
+        # a fresh image model starts from the training split's mean image (a resumed one has it already)
+        if self.hparams.get("mean_image", True) and hasattr(net, "output_mean") and not net.output_mean.any():
+            self.fit_output_mean(self.trainer.datamodule.train_dataloader())
+
+    @torch.no_grad()
+    def fit_output_mean(self, loader) -> None:
+        """Set the decoder's output_mean to the mean target image of the train split."""
+        total, n = None, 0
+        for batch in loader:
+            batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
+            image = self.targets(batch)["image"]
+            total = image.sum(0, keepdim=True) if total is None else total + image.sum(0, keepdim=True)
+            n += image.shape[0]
+        self.net.output_mean.copy_(total / n)
+        log.info("decoder starts from the mean image of %d train samples", n)
 
     @torch.no_grad()
     def fit_pca(self, loader) -> None:
