@@ -36,10 +36,10 @@ from torch import Tensor
 from pbc.io import atomic_path
 
 OPERATOR_VERSION = 1
-REFERENCE_RESOLUTION = 512  # crop_size, margin and pad in conf/image are pixels at this resolution
+BOX_RESOLUTION = 512  # Patch.box_512 is a pixel box in a 512 image: the cage's contract (docs/interfaces.md)
 
 
-def scaled_pixels(n: int, resolution: int, reference: int = REFERENCE_RESOLUTION) -> int:
+def scaled_pixels(n: int, resolution: int, reference: int) -> int:
     """A pixel length given at the reference resolution, at `resolution` (at least 1)."""
     return max(1, int(round(n * resolution / reference)))
 
@@ -51,7 +51,7 @@ def image_sizes(image_cfg) -> dict[str, int]:
     -> {whole_resolution, patch_resolution, whole_pad, patch_pad, crop_size, margin} (crop/margin at
     the patch resolution).
     """
-    ref = int(image_cfg.get("reference_resolution", REFERENCE_RESOLUTION))
+    ref = int(image_cfg["reference_resolution"])
     whole, patch = int(image_cfg["whole_resolution"]), int(image_cfg["patch_resolution"])
     pad = int(image_cfg["pad"])
     return {
@@ -377,7 +377,7 @@ class ImageOperators:
     # ------------------------------------------------------------------------------------ crops
     def crop_window(self, box_512: tuple[int, int, int, int], crop_size: int) -> tuple[int, int, int]:
         """(row0, col0, size): `crop_size` square (at this resolution) centred on the box, clamped inside."""
-        s = self.res / REFERENCE_RESOLUTION
+        s = self.res / BOX_RESOLUTION
         r0, c0, r1, c1 = (v * s for v in box_512)
         size = min(int(crop_size), self.res)
         top = int(math.floor((r0 + r1) / 2 - size / 2 + 0.5))
