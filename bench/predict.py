@@ -9,6 +9,7 @@ skinning included). Timings are only comparable on a quiet machine; say when it 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -114,6 +115,18 @@ def main() -> None:
             for m in ("average", "pca", "hierarchy"):
                 fn = lambda m=m, pose=pose: pred(pose, method=m)  # noqa: E731
                 rows.append((B, f"pose -> mesh: 28 patches + {m}", best_ms(fn, reps)))
+    ms = {f"b{b} {what}": round(t, 2) for b, what, t in rows}
+    figures = {"threads": torch.get_num_threads(), "ms": ms}
+    for B in args.batches:  # side-by-side ratios of the same run
+        stacked = ms.get(f"b{B} 28 patch nets, stacked (default: bmm x2, grouped CL x3)")
+        loop = ms.get(f"b{B} 28 patch nets, loop of 28")
+        if stacked and loop:
+            figures[f"b{B}_loop_over_stacked"] = round(loop / stacked, 3)
+        full = ms.get(f"b{B} pose -> mesh: 28 patches + pca")
+        whole = ms.get(f"b{B} whole: pose -> mesh")
+        if full and whole:
+            figures[f"b{B}_patches_pca_over_whole"] = round(full / whole, 3)
+    print(json.dumps(figures))
 
 
 if __name__ == "__main__":
