@@ -242,22 +242,22 @@ class ClothPredictor:
     def __init__(self, dataset, image_cfg, whole_net: ConvDecoder | None, patch_nets: Sequence[ConvDecoder],
                  stitch_cfg, space: str = "local", pca=None, cache_dir=None, backend: str = "stacked",
                  layer_modes: Sequence[str] = DEFAULT_LAYER_MODES, threads: int | None = None):
-        from pbc.pixels.operators import ImageOperators
+        from pbc.pixels.operators import ImageOperators, image_sizes
         from pbc.pixels.reconstruct import Skinner
         from pbc.stitch.seams import build_stitcher
 
         if threads:
             torch.set_num_threads(int(threads))
         self.dataset, self.space = dataset, space
-        pad = int(image_cfg.get("pad", image_cfg.margin))
+        # crop, margin and pad are given at the reference resolution: scale them as training did
+        sizes = image_sizes(image_cfg)
         self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
-        self.ops_whole = ImageOperators.for_garment(dataset.garment, int(image_cfg.whole_resolution), pad,
+        self.ops_whole = ImageOperators.for_garment(dataset.garment, sizes["whole_resolution"], sizes["whole_pad"],
                                                     cache_dir=cache_dir)
-        self.ops_patch = ImageOperators.for_garment(dataset.garment, int(image_cfg.patch_resolution), pad,
+        self.ops_patch = ImageOperators.for_garment(dataset.garment, sizes["patch_resolution"], sizes["patch_pad"],
                                                     cache_dir=cache_dir)
-        self.crops = [self.ops_patch.crop(p, int(image_cfg.crop_size), int(image_cfg.margin))
-                      for p in dataset.cage.patches]
+        self.crops = [self.ops_patch.crop(p, sizes["crop_size"], sizes["margin"]) for p in dataset.cage.patches]
         self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
                                        pca=pca)
         self.method = str(stitch_cfg.method)

@@ -138,11 +138,13 @@ def test_band_weight_profile():
 
 
 def test_sample_pixels_reads_pixel_centres():
-    img = torch.randn(1, 6, H, W)
+    img = torch.randn(1, 6, H, W, generator=torch.Generator().manual_seed(0))
     pix = torch.tensor([[3.0, 7.0], [10.0, 40.0]])
     side = torch.tensor([0, 1])
     v = sample_pixels(img, pix, side)
-    assert torch.allclose(v[0, 0], img[0, :3, 3, 7]) and torch.allclose(v[0, 1], img[0, 3:, 10, 40])
+    # grid_sample's coordinate round trip costs a few ulps: an absolute tolerance, not exact equality
+    assert torch.allclose(v[0, 0], img[0, :3, 3, 7], atol=1e-5)
+    assert torch.allclose(v[0, 1], img[0, 3:, 10, 40], atol=1e-5)
 
 
 def test_seam_edges_and_jump_metrics():
