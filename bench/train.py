@@ -64,6 +64,14 @@ def main() -> None:
     rows, out = [], {"device": str(dev), "model": args.model, "batch": args.batch, "image": size,
                      "num_vertices": ident["num_vertices"]}
 
+    def optimise(loss, opt) -> None:
+        """The part both steps share: backward, Adam, and a sync so GPU timings are real."""
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+
     def full(normal_weight: float):
         m = ClothModule(net_cfg, args.model, cfg.model.space, {"norm": "l1", "normal_weight": normal_weight,
                                                                 "edge_weight": 0.0}, 1e-3, ident)
@@ -75,12 +83,7 @@ def main() -> None:
         def step():
             b = batches[next(it) % len(batches)]
             b = dm.on_after_batch_transfer({k: v.to(dev) for k, v in b.items()}, 0)
-            loss, _ = m.step(b, "train", 0)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if dev.type == "cuda":
-                torch.cuda.synchronize()
+            optimise(m.step(b, "train", 0)[0], opt)
         return step
 
     def bare():
@@ -92,12 +95,7 @@ def main() -> None:
         mask = torch.ones(1, m.net.out_channels, *size, device=dev)
 
         def step():
-            loss = image_loss(m(pose), target, mask, "l1")
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            if dev.type == "cuda":
-                torch.cuda.synchronize()
+            optimise(image_loss(m(pose), target, mask, "l1"), opt)
         return step
 
     t_bare = timed(bare(), args.steps)
