@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch import Tensor
+
+from pbc.io import atomic_path
 
 
 @dataclass
@@ -77,12 +78,9 @@ def dataset_hash(dataset_dir: str | Path, split_key: str = "train") -> str:
 
 def save_pca(basis: PCABasis, path: str | Path) -> None:
     """Atomic save (.pt): a killed job never leaves a half-written basis behind."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save({"mean": basis.mean, "components": basis.components,
-                "singular_values": basis.singular_values, "dataset_hash": basis.dataset_hash}, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save({"mean": basis.mean, "components": basis.components,
+                    "singular_values": basis.singular_values, "dataset_hash": basis.dataset_hash}, tmp)
 
 
 def load_pca(path: str | Path, expected_hash: str | None = None) -> PCABasis:
