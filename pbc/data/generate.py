@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
-import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ from pbc.geometry.cage import Cage, load_cage, save_cage
 from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, hash_arrays, read_json, save_npy, write_json
-from pbc.sim.drape import check_sample, drape, pattern_triangles, rest_triangle_areas
+from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 
@@ -46,8 +45,6 @@ class Scene:
     cage: Cage
     embedding: Embedding
     sim: DictConfig
-    rest_triangles: np.ndarray  # (F, 3, 2) the flat pattern: stress-free shape of every face
-    rest_areas: np.ndarray  # (F,)
 
 
 def dataset_dir(cfg: DictConfig) -> Path:
@@ -84,8 +81,7 @@ def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     body = build_body(cfg.body)
     garment, cage = garment_from_config(cfg.garment)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
-    rest = pattern_triangles(garment.uv.numpy(), garment.face_uv.numpy(), garment.uv_scale)
-    return Scene(body, garment, cage, embedding, cfg.sim, rest, rest_triangle_areas(rest)), wrap_stats
+    return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats
 
 
 def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
@@ -95,13 +91,9 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
     body_v = pose_body(scene.body, rot)  # (1, Vb, 3)
     start = embedded_points(body_v, scene.body.faces, scene.embedding)[0]
     t1 = time.perf_counter()
-    faces = scene.garment.faces.numpy()
-    res = drape(
-        scene.rest_triangles, faces, start.numpy(), body_v[0].numpy(), scene.body.faces.numpy(),
-        scene.embedding.part.numpy(), scene.body.parts.numpy(), scene.sim,
-    )
+    res = drape_garment(scene.garment, start, body_v[0], scene.body, scene.embedding, scene.sim)
     t2 = time.perf_counter()
-    ok, reason = check_sample(res.positions, faces, scene.rest_areas, scene.sim, res.converged)
+    ok, reason = check_garment_result(res, scene.garment, scene.sim)
     return {
         "positions": res.positions.astype(np.float32),
         "ok": ok,
@@ -307,7 +299,3 @@ def _plain(obj):
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
-
-
-def cpu_workers() -> int:
-    return max(1, len(os.sched_getaffinity(0)))
