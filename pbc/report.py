@@ -32,7 +32,6 @@ TABLE1_LOSSES = ("l1", "l2", "l2_normal", "l1_normal")
 LOSS_LABEL = {"l1": "L1", "l2": "L2", "l2_normal": "L2 + N", "l1_normal": "L1 + N"}
 FC_SPACES = (("local", "Off. Loc."), ("root", "Off. Root."), ("position", "Pos. Root."))
 FC_EXPERIMENTS = tuple(f"fc_{m}_{s}" for s, _ in FC_SPACES for m in ("direct", "pca"))
-SEAM_METHODS = ("average", "pca", "inpaint", "hierarchy")
 # Scalar series plotted as learning curves, first found wins.
 TRAIN_CURVES = ("train/loss_step", "train/loss", "train/loss_epoch", "train/image_loss_step")
 VAL_CURVES = ("val/vertex_error_cm", "val/loss")
@@ -285,11 +284,6 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
 
 
 # ---------------------------------------------------------------------------------------------- figures
-def _atomic_savefig(fig, path: Path) -> None:
-    fig.tight_layout()
-    save_figure(fig, path)
-
-
 def _bars(ax, labels, ours, theirs, ylabel, title):
     import numpy as np
 
@@ -325,7 +319,8 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
                 unit,
                 f"Table 1: test {m}",
             )
-        _atomic_savefig(fig, out / "table1.png")
+        fig.tight_layout()
+        save_figure(fig, out / "table1.png")
         plt.close(fig)
         made["table1"] = "table1.png"
     if any(r.status == OK for r in t2[:-1]):  # an FC row, not only the CNN
@@ -338,7 +333,8 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
             "cm",
             "Table 2: test vertex error",
         )
-        _atomic_savefig(fig, out / "table2.png")
+        fig.tight_layout()
+        save_figure(fig, out / "table2.png")
         plt.close(fig)
         made["table2"] = "table2.png"
     if any(r.status == OK for r in patches) or any(r.status == OK for r in hier):
@@ -364,7 +360,8 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         ax.set_ylabel("test vertex error (cm)")
         ax.set_title("Hierarchy: per-patch error (bars, ±std over test poses) vs whole / stitched", fontsize=9)
         ax.legend(fontsize=7)
-        _atomic_savefig(fig, out / "hierarchy.png")
+        fig.tight_layout()
+        save_figure(fig, out / "hierarchy.png")
         plt.close(fig)
         made["hierarchy"] = "hierarchy.png"
     curved = [r for r in runs if r.curves]
@@ -390,7 +387,8 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
             handles, labels = axes[0].get_legend_handles_labels()
         if handles:
             fig.legend(handles, labels, fontsize=6, loc="center left", bbox_to_anchor=(1.0, 0.5))
-        _atomic_savefig(fig, out / "learning_curves.png")
+        fig.tight_layout()
+        save_figure(fig, out / "learning_curves.png")
         plt.close(fig)
         made["curves"] = "learning_curves.png"
     return made

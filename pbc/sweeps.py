@@ -22,6 +22,8 @@ from pathlib import Path
 
 import yaml
 
+from pbc.io import write_text
+
 METRICS_FILE = "metrics.json"
 # Keys under which a failing job records why it failed in its metrics.json (pbc.train writes "error").
 ERROR_KEYS = ("error", "exception", "traceback")
@@ -399,9 +401,7 @@ def run_sweep(
         if step == "data" and code != 0:
             break  # no data, no runs: the train step would fail the same way in every job
     record["seconds"] = round(time.time() - t0, 1)
-    tmp = sweep_dir / f".{SWEEP_RECORD}.tmp"
-    tmp.write_text(json.dumps(record, indent=1))
-    tmp.replace(sweep_dir / SWEEP_RECORD)
+    write_text(sweep_dir / SWEEP_RECORD, json.dumps(record, indent=1))
     if report:
         from pbc.report import build_report
 

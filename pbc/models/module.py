@@ -260,11 +260,13 @@ def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
 
 
 def write_obj(path: Path, vertices: Tensor, faces: Tensor) -> Path:
-    """Plain OBJ (v / f, 1-based)."""
+    """Plain OBJ (v / f, 1-based), written atomically."""
+    from pbc.io import write_text
+
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices.tolist()]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path
 
 

@@ -21,6 +21,7 @@ import torch  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from omegaconf import OmegaConf  # noqa: E402
 
+from pbc.io import save_figure  # noqa: E402
 from pbc.pixels.frames import to_offsets  # noqa: E402
 from pbc.pixels.operators import ImageOperators, image_sizes  # noqa: E402
 
@@ -46,8 +47,7 @@ def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles:
             axes[2 * i + s, 3].imshow(mask[s], cmap="gray")
             axes[2 * i + s, 3].set_title("padded chart mask", fontsize=8)
             axes[2 * i + s, 3].axis("off")
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def crop_windows_figure(ops512: ImageOperators, image: np.ndarray, cage, crop_size: int, path: Path) -> None:
@@ -64,8 +64,7 @@ def crop_windows_figure(ops512: ImageOperators, image: np.ndarray, cage, crop_si
             ax.text(c0 + size / 2, r0 + size / 2, str(p.id), ha="center", va="center", fontsize=7)
         ax.set_title(f"{'front' if s == 0 else 'back'}: crop windows ({crop_size} px)")
         ax.axis("off")
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
 
 
 def round_trip_figure(garment, plain: ImageOperators, x: torch.Tensor, path: Path) -> float:
@@ -81,8 +80,7 @@ def round_trip_figure(garment, plain: ImageOperators, x: torch.Tensor, path: Pat
         axes[s].set_aspect("equal")
         axes[s].set_title(f"{'front' if s == 0 else 'back'}: plain round-trip error at {plain.res} (cm)")
     fig.colorbar(h, ax=axes.tolist(), shrink=0.6)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    save_figure(fig, path, dpi=80)
     return float(err.mean())
 
 
