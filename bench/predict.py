@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/predict.py                        # paper-size random decoders, stand-in shirt
     .venv/bin/python bench/predict.py --whole RUN --patches SWEEP_DIR   # trained runs
+Also measures the bfloat16 patch net (CPU AMX / AVX512-bf16) and its vertex distance to float32 in cm.
 Prints a markdown table of the best-of-N milliseconds at batch 1 and batch 32 (full pose -> (B, V, 3),
 skinning included). Timings are only comparable on a quiet machine; say when it is shared.
 """
@@ -92,6 +93,17 @@ def main() -> None:
     forms["stacked, all bmm"] = StackedPatchNet(pred.patch_nets, ("bmm",) * 5).eval()
     forms["stacked, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5).eval()
     forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5, False).eval()
+    bf16 = StackedPatchNet(pred.patch_nets, dtype=torch.bfloat16).eval()
+    forms["stacked, bfloat16"] = bf16
+    fp32_net = pred.patch_net
+
+    def with_net(net, fn):
+        """Run fn with the predictor's patch net swapped (the bf16 row of the full pipeline)."""
+        pred.patch_net = net
+        try:
+            return fn()
+        finally:
+            pred.patch_net = fp32_net
 
     rows = Rows()
     print("\n| batch | what | ms |\n|---|---|---|", flush=True)
@@ -107,16 +119,28 @@ def main() -> None:
                 rows.append((B, f"28 patch nets, {name}", best_ms(lambda net=net, x=x: net(x), reps)))
             crops = pred.patch_crops(pose)
             whole_off = pred.whole_offsets(pose)
-            for m in ("average", "pca", "inpaint", "hierarchy"):
+            for m in ("average", "pca", "inpaint", "hierarchy", "hierarchy_detail"):
                 if m == "inpaint" and B > 1:
                     continue  # seconds per sample: biharmonic solves on the CPU
                 fn = lambda m=m, c=crops, w=whole_off: pred.stitcher(c, m, w)  # noqa: E731
                 rows.append((B, f"stitch only: {m}", best_ms(fn, reps if m != "inpaint" else 1)))
-            for m in ("average", "pca", "hierarchy"):
+            for m in ("average", "pca", "hierarchy", "hierarchy_detail"):
                 fn = lambda m=m, pose=pose: pred(pose, method=m)  # noqa: E731
                 rows.append((B, f"pose -> mesh: 28 patches + {m}", best_ms(fn, reps)))
+            fn = lambda pose=pose: with_net(bf16, lambda: pred(pose, method="pca"))  # noqa: E731
+            rows.append((B, "pose -> mesh: 28 patches (bfloat16) + pca", best_ms(fn, reps)))
+    # what bf16 costs in accuracy: the same poses through both precisions, vertex distance in cm
+    poses = torch.from_numpy(pred.dataset.poses[:32]).float()
+    with torch.inference_mode():
+        exact = pred(poses, method="pca")
+        fast = with_net(bf16, lambda: pred(poses, method="pca"))
+    diff_cm = 100 * (fast - exact).norm(dim=-1)
+    print(f"\nbfloat16 vs float32 on {len(poses)} poses: vertex distance mean {diff_cm.mean():.4f} cm, "
+          f"max {diff_cm.max():.4f} cm")
     ms = {f"b{b} {what}": round(t, 2) for b, what, t in rows}
-    figures = {"threads": torch.get_num_threads(), "ms": ms}
+    figures = {"threads": torch.get_num_threads(), "ms": ms,
+               "bf16_vertex_diff_cm_mean": round(diff_cm.mean().item(), 5),
+               "bf16_vertex_diff_cm_max": round(diff_cm.max().item(), 5)}
     for B in args.batches:  # side-by-side ratios of the same run
         stacked = ms.get(f"b{B} 28 patch nets, stacked (default: bmm x2, grouped CL x3)")
         loop = ms.get(f"b{B} 28 patch nets, loop of 28")
@@ -124,6 +148,9 @@ def main() -> None:
             figures[f"b{B}_loop_over_stacked"] = round(loop / stacked, 3)
         full = ms.get(f"b{B} pose -> mesh: 28 patches + pca")
         whole = ms.get(f"b{B} whole: pose -> mesh")
+        fast = ms.get(f"b{B} pose -> mesh: 28 patches (bfloat16) + pca")
+        if full and fast:
+            figures[f"b{B}_fp32_over_bf16_pipeline"] = round(full / fast, 3)
         if full and whole:
             figures[f"b{B}_patches_pca_over_whole"] = round(full / whole, 3)
     print(json.dumps(figures))

@@ -28,6 +28,8 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from pbc.io import save_figure, write_text
+
 log = logging.getLogger(__name__)
 CM = 100.0
 
@@ -73,7 +75,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
     from pbc.pixels.reconstruct import mesh_edges
     from pbc.predict import ClothPredictor
     from pbc.stitch.pca import dataset_hash, load_pca, save_pca
-    from pbc.stitch.seams import METHODS, patch_disagreement, seam_edges, uv_to_pixel
+    from pbc.stitch.seams import METHODS, NEEDS_WHOLE, patch_disagreement, seam_edges, uv_to_pixel
 
     t0 = time.time()
     unknown = [m for m in cfg.methods if m not in METHODS]
@@ -133,7 +135,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
             gt_crops = torch.stack([c.render(gt_off) for c in pred.crops], 1)
             gt_whole = pred.ops_whole.sample(pred.ops_whole.render(gt_off))
             for m in cfg.methods:
-                if m == "hierarchy" and whole_off is None:
+                if m in NEEDS_WHOLE and whole_off is None:
                     continue
                 batch[f"patches_{m}"] = pos_of(pred.stitcher(crops, m, whole_off))
                 batch[f"gt_crops_{m}"] = pos_of(pred.stitcher(gt_crops, m, gt_whole))
@@ -155,8 +157,8 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
         "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()),
         "entries": entries, "seconds": round(time.time() - t0, 2),
     }
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
-    (out / "metrics.md").write_text(markdown_table(metrics))
+    write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    write_text(out / "metrics.md", markdown_table(metrics))
     write_figures(out, pred, keep, faces, cfg.stitch.method)
     return metrics
 
@@ -197,8 +199,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
             ax.set_title(f"{n} {'front' if s == 0 else 'back'}", fontsize=7)
             ax.axis("off")
     fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="cm")
-    fig.savefig(out / "error_maps.png", dpi=80)
-    plt.close(fig)
+    save_figure(fig, out / "error_maps.png", dpi=80)
 
     shown = [n for n in ("gt", "whole", f"patches_{method}") if n in keep]
     f = faces.numpy()
@@ -218,8 +219,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
             a.set_title(n, fontsize=8)
             a.axis("off")
             write_obj(out / "meshes" / f"pose{i}_{n}.obj", keep[n][i], faces)
-        fig.savefig(out / f"preview_{i}.png", dpi=80)
-        plt.close(fig)
+        save_figure(fig, out / f"preview_{i}.png", dpi=80)
 
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")

@@ -119,8 +119,8 @@ def patched_load(world, monkeypatch):
 
 
 def _stitch_cfg(method="pca"):
-    return OmegaConf.create({"method": method, "feather_ramp": 16, "band_width": 8, "pca_components": 128,
-                             "pca_band_only": True})
+    # every seam method shares average.yaml's keys and only sets `method`
+    return OmegaConf.merge(OmegaConf.load(ROOT / "conf/stitch/average.yaml"), {"method": method})
 
 
 def test_select_patch_runs_reports_every_problem(world, tmp_path):
@@ -165,7 +165,7 @@ def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
 
     root, ds, whole = world
     cfg = OmegaConf.create({"whole_run": str(whole), "patch_runs": str(root / "runs" / "patches"),
-                            "methods": ["average", "pca", "inpaint", "hierarchy"], "split": "test",
+                            "methods": ["average", "pca", "inpaint", "hierarchy", "hierarchy_detail"], "split": "test",
                             "max_samples": None, "batch_size": 8, "num_previews": 2, "pca_path": None,
                             "pca_fit_max": 100, "stitch": _stitch_cfg("pca")})
     m = evaluate(cfg, tmp_path)
@@ -178,7 +178,7 @@ def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
         assert np.isfinite(e[name]["vertex_error_cm"]), name
     # ground-truth crops through every seam method land on the representation floor
     floor = e["floor_512"]["vertex_error_cm"]
-    for meth in ("average", "pca", "hierarchy"):
+    for meth in ("average", "pca", "hierarchy", "hierarchy_detail"):
         assert e[f"gt_crops_{meth}"]["vertex_error_cm"] <= floor + 1e-3, meth
     assert e["gt_crops_inpaint"]["vertex_error_cm"] <= floor + 0.05
     assert m["patch_disagreement_before_blend_cm"] > 0
@@ -207,3 +207,36 @@ def test_stacked_patch_net_carries_each_mean_image():
         net.output_mean.zero_()
     with torch.inference_mode():
         assert not torch.allclose(LoopPatchNet(nets)(pose), ref, atol=0.1)  # the means do matter
+
+
+@pytest.mark.parametrize("batch", [1, 6])  # 6 > bmm_max_batch: the all-grouped path
+def test_stacked_patch_net_bfloat16_close_to_float32(batch):
+    """The bf16 fast path returns float32 crops within bf16 rounding of the exact loop."""
+    from pbc.models.decoder import ConvDecoder
+    from pbc.predict import LoopPatchNet, StackedPatchNet
+
+    torch.manual_seed(1)
+    nets = [ConvDecoder(90, 3, (40, 40), (5, 5), 32, first_layer="linear") for _ in range(3)]
+    for net in nets:
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.normal_(0, 0.1)
+                m.running_var.uniform_(0.5, 2.0)
+        net.output_mean.normal_()
+        net.eval()
+    pose = torch.randn(batch, 90)
+    with torch.inference_mode():
+        ref = LoopPatchNet(nets)(pose)
+        fast = StackedPatchNet(nets, dtype=torch.bfloat16)(pose)
+    assert fast.dtype == torch.float32 and fast.shape == ref.shape
+    err = (fast - ref).abs().max().item()
+    spread = (ref - torch.stack([n.output_mean[0] for n in nets])).abs().max().item()  # the net's own part
+    assert 0 < err < 0.02 * spread  # rounded (not exact), yet within bf16's ~3 significant digits
+
+
+def test_predictor_rejects_unknown_precision(tmp_path):
+    from pbc.predict import ClothPredictor
+
+    with pytest.raises(ValueError, match="precision must be one of"):
+        ClothPredictor(fake_dataset(tmp_path / "fake"), IMAGE, None, [], OmegaConf.load(
+            ROOT / "conf/stitch/average.yaml"), precision="fp16")

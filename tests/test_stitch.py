@@ -183,7 +183,8 @@ def test_ground_truth_crops_on_the_real_garment(tmp_path):
     ds = fake_dataset(tmp_path / "ds")
     ops = ImageOperators.for_garment(ds.garment, 512, int(IMAGE.pad))
     crops_ops = [ops.crop(p, int(IMAGE.crop_size), int(IMAGE.margin)) for p in ds.cage.patches]
-    cfg = OmegaConf.create({"feather_ramp": 16, "band_width": 8, "pca_components": None, "pca_band_only": True})
+    cfg = OmegaConf.create({"feather_ramp": 16, "band_width": 8, "pca_components": None, "pca_band_only": True,
+                           "detail_sigma": 16})
     x = torch.from_numpy(np.array(ds.verts)) - torch.from_numpy(np.array(ds.verts)).mean(0)  # offsets stand-in
     st = build_stitcher(ops, crops_ops, ds.garment, ds.cage, cfg, pca=fit_pca(x, 1000))
     sample = x[:2]
@@ -197,7 +198,52 @@ def test_ground_truth_crops_on_the_real_garment(tmp_path):
     assert cov.reshape(-1)[torch.from_numpy(ops.arrays["S_pix"]).reshape(-1)].all()
     cov6 = cov[:, None].expand(2, 3, 512, 512).reshape(6, 512, 512)
     assert torch.allclose(out[:, cov6], img[:, cov6], atol=1e-6)
-    for m in ("average", "pca", "hierarchy"):
+    for m in ("average", "pca", "hierarchy", "hierarchy_detail"):
         assert (st(crops, m, sample) - sample).abs().max() < 1e-5, m
     inp = st(crops, "inpaint")
     assert (inp - sample).norm(dim=-1).mean() < 0.1 * sample.norm(dim=-1).mean()
+
+
+def test_masked_blur_keeps_constants_and_lowers_noise():
+    from pbc.stitch.seams import masked_blur
+
+    torch.manual_seed(0)
+    mask = torch.zeros(2, 32, 32, dtype=torch.bool)
+    mask[0, 4:20, 6:30] = True
+    mask[1, 10:30, 2:12] = True
+    const = torch.arange(6.0).view(1, 6, 1, 1).expand(2, 6, 32, 32)
+    m6 = mask[:, None].expand(2, 3, 32, 32).reshape(1, 6, 32, 32).expand(2, -1, -1, -1)
+    out = masked_blur(const * m6, mask, 3.0)  # outside values never leak in: mask edge stays exact
+    assert torch.allclose(out[m6], const[m6], atol=1e-5) and (out[~m6] == 0).all()
+    noise = torch.randn(2, 6, 32, 32) * m6
+    assert masked_blur(noise, mask, 3.0)[m6].std() < 0.5 * noise[m6].std()
+
+
+def test_hierarchy_detail_takes_low_frequencies_from_the_whole_model(tmp_path):
+    """Patches off by a constant everywhere (a pure low-frequency error) + a correct whole model:
+    `hierarchy_detail` gives back the truth, `average` keeps the error."""
+    import sys
+    from pathlib import Path
+
+    from omegaconf import OmegaConf
+
+    from pbc.pixels.operators import ImageOperators
+    from pbc.stitch.seams import build_stitcher
+
+    root = Path(__file__).parents[1]
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_evaluate import IMAGE, fake_dataset
+
+    ds = fake_dataset(tmp_path / "ds")
+    ops = ImageOperators.for_garment(ds.garment, 512, int(IMAGE.pad))
+    crops_ops = [ops.crop(p, int(IMAGE.crop_size), int(IMAGE.margin)) for p in ds.cage.patches]
+    cfg = OmegaConf.load(root / "conf/stitch/average.yaml")
+    st = build_stitcher(ops, crops_ops, ds.garment, ds.cage, cfg)
+    x = torch.from_numpy(np.array(ds.verts[:2])).float()
+    x = x - x.mean(1, keepdim=True)
+    shift = torch.tensor([0.01, -0.02, 0.005])
+    crops = torch.stack([c.render(x + shift) for c in crops_ops], 1)
+    assert torch.allclose(st(crops, "average"), x + shift, atol=1e-5)
+    assert (st(crops, "hierarchy_detail", x) - x).abs().max() < 1e-4
+    with pytest.raises(ValueError, match="needs the whole-shirt"):
+        st(crops, "hierarchy_detail")

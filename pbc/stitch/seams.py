@@ -5,7 +5,9 @@ One job: make the stitched garment smooth and consistent across patch boundaries
 - `pca`: project the stitched per-vertex offsets onto a PCA basis of whole garments, used either
   everywhere or only in a soft band around the seams;
 - `inpaint`: refill the seam band of the assembled images with `skimage.restoration.inpaint_biharmonic`;
-- `hierarchy`: fill the seam band with the whole-shirt model's prediction (beyond the paper).
+- `hierarchy`: fill the seam band with the whole-shirt model's prediction (beyond the paper);
+- `hierarchy_detail`: the whole-shirt model's prediction as the low-frequency base and the patches'
+  high-frequency detail on top, split by a masked Gaussian low-pass of the 512 images (beyond the paper).
 The seam band is the seam curves rasterised in each chart and dilated by a width, with a weight that
 falls linearly from 1 on the seam to 0 at the width. The metric is the mean jump across seam edges.
 """
@@ -26,7 +28,8 @@ from torch import Tensor
 from pbc.stitch.assemble import Assembler
 from pbc.stitch.pca import PCABasis, project
 
-METHODS = ("average", "pca", "inpaint", "hierarchy")
+METHODS = ("average", "pca", "inpaint", "hierarchy", "hierarchy_detail")
+NEEDS_WHOLE = ("hierarchy", "hierarchy_detail")
 
 
 # ----------------------------------------------------------------------------- band
@@ -179,6 +182,36 @@ def inpaint_band(images: Tensor, band: np.ndarray, fill_index: np.ndarray | None
     return out
 
 
+def gaussian_kernel1d(sigma: float, truncate: float = 3.0) -> Tensor:
+    """Normalised 1-D Gaussian taps: (2 * ceil(truncate * sigma) + 1,) float32."""
+    r = max(1, int(np.ceil(truncate * sigma)))
+    t = torch.arange(-r, r + 1, dtype=torch.float32)
+    k = torch.exp(-0.5 * (t / sigma) ** 2)
+    return k / k.sum()
+
+
+def masked_blur(images: Tensor, mask: Tensor, sigma: float) -> Tensor:
+    """Gaussian low-pass inside each side's mask, normalised so the mask edge does not pull toward 0.
+
+    images: (B, 2*C, H, W); mask: (2, H, W) bool -> (B, 2*C, H, W), blur(img * m) / blur(m) inside
+    the mask and 0 outside. A constant inside the mask is returned unchanged (exactly a low-pass).
+    """
+    B, C2, H, W = images.shape
+    C = C2 // 2
+    k = gaussian_kernel1d(sigma).to(images)
+    r = (k.numel() - 1) // 2
+    m = mask.to(images)[:, None].expand(2, C, H, W).reshape(1, C2, H, W)
+
+    def blur(x: Tensor) -> Tensor:  # separable, depthwise: (N, C2, H, W) -> same
+        n = x.shape[1]
+        x = F.conv2d(F.pad(x, (r, r, 0, 0)), k.view(1, 1, 1, -1).expand(n, 1, 1, -1), groups=n)
+        return F.conv2d(F.pad(x, (0, 0, r, r)), k.view(1, 1, -1, 1).expand(n, 1, -1, 1), groups=n)
+
+    num = blur(images * m)
+    den = blur(m)
+    return torch.where(m > 0, num / den.clamp_min(1e-12), torch.zeros_like(num))
+
+
 # ----------------------------------------------------------------------------- metric
 
 
@@ -240,7 +273,10 @@ class Stitcher:
     offsets; `fold` optionally precomputes sample∘assemble as one sparse matrix for a fast `average`;
     vertex_band: (V,) seam band weight at each vertex's sample position;
     image_band: (2, H, W) bool band for inpainting; fill_index: from `nearest_fill_index`;
-    pca: basis of whole-garment offsets; pca_band_only: filter only in the band.
+    pca: basis of whole-garment offsets; pca_band_only: filter only in the band;
+    render: (B, V, 3) offsets -> (B, 6, H, W) images (hierarchy_detail draws the whole model's offsets
+    at the patch resolution with it); detail_sigma: px of the low-pass that splits base from detail;
+    coverage: (2, H, W) bool pixels any crop covers (where the low-pass is taken).
     """
 
     assembler: Assembler
@@ -252,6 +288,9 @@ class Stitcher:
     pca_band_only: bool = True
     pca_components: int | None = None
     folded: Tensor | None = None  # sparse CSR (V, P*h*w), the same for every channel
+    render: Callable[[Tensor], Tensor] | None = None
+    detail_sigma: float = 16.0
+    coverage: Tensor | None = None
 
     def fold(self, sample_matrix: Tensor) -> None:
         """Precompute sample∘assemble as one sparse (V, P*h*w) matrix (same for every channel).
@@ -268,6 +307,16 @@ class Stitcher:
             x = crops.permute(1, 3, 4, 0, 2).reshape(P * h * w, B * C)
             return (self.folded @ x).view(-1, B, C).transpose(0, 1)
         return self.sample(self.assembler.images(crops))
+
+    def base_plus_detail(self, patches: Tensor, base: Tensor) -> Tensor:
+        """low-pass(base) + patches - low-pass(patches): (B, 6, H, W) each -> (B, 6, H, W).
+
+        Both low-passes use the same mask (the crops' coverage), so patches equal to the base plus any
+        smooth field give back the base plus that field's high frequencies only.
+        """
+        lo_base = masked_blur(base, self.coverage, self.detail_sigma)
+        lo_patch = masked_blur(patches, self.coverage, self.detail_sigma)
+        return lo_base + patches - lo_patch
 
     def __call__(self, crops: Tensor, method: str = "average", whole: Tensor | None = None) -> Tensor:
         """crops (B, P, 3, h, w); whole: (B, V, 3) whole-model offsets (hierarchy) -> (B, V, 3)."""
@@ -286,6 +335,10 @@ class Stitcher:
             if whole is None:
                 raise ValueError("stitch=hierarchy needs the whole-shirt model's prediction")
             return blend_in_band(self.average(crops), whole, self.vertex_band)
+        if method == "hierarchy_detail":
+            if whole is None or self.render is None or self.coverage is None:
+                raise ValueError("stitch=hierarchy_detail needs the whole-shirt model's prediction and a renderer")
+            return self.sample(self.base_plus_detail(self.assembler.images(crops), self.render(whole)))
         raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
 
 
@@ -293,7 +346,8 @@ def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) 
     """A `Stitcher` for one garment at the patch resolution.
 
     ops: `ImageOperators` at the patch resolution; crops: its 28 `PatchCrop`s (id order);
-    cfg: a `conf/stitch/*.yaml` node (feather_ramp, band_width, pca_components, pca_band_only).
+    cfg: a `conf/stitch/*.yaml` node (feather_ramp, band_width, pca_components, pca_band_only,
+    detail_sigma).
     """
     from pbc.stitch.assemble import feather_weights
 
@@ -311,7 +365,8 @@ def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) 
     st = Stitcher(asm, ops.sample, vertex_band, image_band,
                   fill_index=nearest_fill_index(asm.coverage().numpy()), pca=pca,
                   pca_band_only=bool(cfg.pca_band_only),
-                  pca_components=None if cfg.pca_components is None else int(cfg.pca_components))
+                  pca_components=None if cfg.pca_components is None else int(cfg.pca_components),
+                  render=ops.render, detail_sigma=float(cfg.detail_sigma), coverage=asm.coverage())
     S = ops.scipy_S().tocoo()
     st.fold(torch.sparse_coo_tensor(torch.from_numpy(np.stack([S.row, S.col]).astype(np.int64)),
                                     torch.from_numpy(S.data.astype(np.float32)), S.shape, check_invariants=False))
