@@ -95,6 +95,8 @@ def main() -> None:
     forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5, False).eval()
     bf16 = StackedPatchNet(pred.patch_nets, dtype=torch.bfloat16).eval()
     forms["stacked, bfloat16"] = bf16
+    forms["stacked, bfloat16, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5,
+                                                                 dtype=torch.bfloat16).eval()
     fp32_net = pred.patch_net
 
     def with_net(net, fn):
