@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from pbc.io import save_figure, write_text
-from pbc.sweeps import FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
+from pbc.sweeps import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
 
 PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
 
@@ -32,6 +32,9 @@ TABLE1_LOSSES = ("l1", "l2", "l2_normal", "l1_normal")
 LOSS_LABEL = {"l1": "L1", "l2": "L2", "l2_normal": "L2 + N", "l1_normal": "L1 + N"}
 FC_SPACES = (("local", "Off. Loc."), ("root", "Off. Root."), ("position", "Pos. Root."))
 FC_EXPERIMENTS = tuple(f"fc_{m}_{s}" for s, _ in FC_SPACES for m in ("direct", "pca"))
+# Columns of the hierarchy table, in this order, with their headers (pbc.evaluate's entry keys).
+HIERARCHY_COLUMNS = {"vertex_error_cm": "vertex (cm)", "normal_error": "normal (1 - cos)",
+                     "seam_jump_cm": "seam jump (cm)", "interior_jump_cm": "interior jump (cm)"}
 # Scalar series plotted as learning curves, first found wins.
 TRAIN_CURVES = ("train/loss_step", "train/loss", "train/loss_epoch", "train/image_loss_step")
 VAL_CURVES = ("val/vertex_error_cm", "val/loss")
@@ -526,10 +529,11 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
 
     md += ["", "## Hierarchy: whole vs. stitched patches", ""]
     if hier:
-        keys = sorted({k for r in hier for k in r.values})
+        present = {k for r in hier for k in r.values} - set(ALIASES.values())  # an alias repeats a column
+        keys = [k for k in HIERARCHY_COLUMNS if k in present] + sorted(present - set(HIERARCHY_COLUMNS))
         md.append(
             _md_table(
-                ["model", *keys, "status"],
+                ["model", *[HIERARCHY_COLUMNS.get(k, k) for k in keys], "status"],
                 [
                     [
                         r.label,

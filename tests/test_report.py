@@ -212,6 +212,12 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
     assert list(rows)[:3] == ["whole", "stitched (average)", "stitched (pca)"]
     assert rows["stitched (pca)"]["values"]["vertex_error_cm"] == 0.38
     assert rows["stitcher on true crops (pca)"]["values"]["seam_jump_cm"] == 0.001
+    md = (built / "report.md").read_text()
+    hier_md = md.split("## Hierarchy")[1]
+    header = next(line for line in hier_md.splitlines() if line.startswith("| model |"))
+    # fixed column order, readable names, and normal_error's alias (normal_distance) not repeated
+    assert header == "| model | vertex (cm) | normal (1 - cos) | seam jump (cm) | status |"
+    assert "| stitched (pca) | 0.38 | 0.027 | 0.05 | ok |" in md
     patches = {r["label"]: r for r in json.loads((built / "report.json").read_text())["patches"]}
     assert patches["patch_07"]["values"]["test/vertex_error_cm"] == pytest.approx(0.35)
     # The runner's evaluation step: the newest whole run and every successful patch run, quoted.
