@@ -128,6 +128,8 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
             batch = {"gt": gt}
             batch["floor_256"] = pos_of(pred.ops_whole.sample(pred.ops_whole.render(gt_off)))
             batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
+            # the no-model baseline: every pose gets the training split's mean offsets
+            batch["train_mean"] = pos_of(basis.mean.view(1, -1, 3).expand(len(j), -1, -1).to(gt_off))
             whole_off = pred.whole_offsets(poses) if pred.whole_net is not None else None
             if whole_off is not None:
                 batch["whole"] = pos_of(whole_off)

@@ -173,11 +173,12 @@ def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
         assert (tmp_path / f).is_file(), f
     assert len(list((tmp_path / "meshes").glob("*.obj"))) == 6
     e = m["entries"]
-    for name in ("whole", "floor_256", "floor_512", "patches_average", "patches_pca", "patches_inpaint",
+    for name in ("whole", "train_mean", "floor_256", "floor_512", "patches_average", "patches_pca", "patches_inpaint",
                  "patches_hierarchy", "gt_crops_average", "gt_crops_inpaint"):
         assert np.isfinite(e[name]["vertex_error_cm"]), name
     # ground-truth crops through every seam method land on the representation floor
     floor = e["floor_512"]["vertex_error_cm"]
+    assert e["train_mean"]["vertex_error_cm"] > floor + 0.1  # the no-model baseline is a real error
     for meth in ("average", "pca", "hierarchy", "hierarchy_detail"):
         assert e[f"gt_crops_{meth}"]["vertex_error_cm"] <= floor + 1e-3, meth
     assert e["gt_crops_inpaint"]["vertex_error_cm"] <= floor + 0.05

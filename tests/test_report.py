@@ -187,6 +187,14 @@ def test_claim_that_does_not_hold(tmp_path):
     assert claims[0]["verdict"] == report.NOT_HELD
 
 
+def test_claim_within_one_percent_is_a_tie(tmp_path):
+    make_run(tmp_path, "0", {"experiment": "whole", "loss": "l1"}, ok_metrics(3.149, 0.02, 3.263, 0.03))
+    make_run(tmp_path, "1", {"experiment": "whole", "loss": "l2"}, ok_metrics(3.150, 0.02, 3.264, 0.03))
+    report.build_report(tmp_path, plots=False)
+    claims = json.loads((tmp_path / "report.json").read_text())["claims"]
+    assert claims[0]["verdict"] == report.TIE
+
+
 def test_train_error_falls_back_to_tensorboard(tmp_path):
     m = ok_metrics(0, 0, 0.4, 0.03)
     del m["train"]

@@ -213,10 +213,11 @@ def test_masked_blur_keeps_constants_and_lowers_noise():
     mask[1, 10:30, 2:12] = True
     const = torch.arange(6.0).view(1, 6, 1, 1).expand(2, 6, 32, 32)
     m6 = mask[:, None].expand(2, 3, 32, 32).reshape(1, 6, 32, 32).expand(2, -1, -1, -1)
-    out = masked_blur(const * m6, mask, 3.0)  # outside values never leak in: mask edge stays exact
-    assert torch.allclose(out[m6], const[m6], atol=1e-5) and (out[~m6] == 0).all()
-    noise = torch.randn(2, 6, 32, 32) * m6
-    assert masked_blur(noise, mask, 3.0)[m6].std() < 0.5 * noise[m6].std()
+    for sigma in (3.0, 8.0):  # 8: the coarsened (pooled) path
+        out = masked_blur(const * m6, mask, sigma)  # outside values never leak in: mask edge stays exact
+        assert torch.allclose(out[m6], const[m6], atol=1e-5) and (out[~m6] == 0).all(), sigma
+        noise = torch.randn(2, 6, 32, 32) * m6
+        assert masked_blur(noise, mask, sigma)[m6].std() < 0.5 * noise[m6].std(), sigma
 
 
 def test_hierarchy_detail_takes_low_frequencies_from_the_whole_model(tmp_path):

@@ -194,21 +194,29 @@ def masked_blur(images: Tensor, mask: Tensor, sigma: float) -> Tensor:
     """Gaussian low-pass inside each side's mask, normalised so the mask edge does not pull toward 0.
 
     images: (B, 2*C, H, W); mask: (2, H, W) bool -> (B, 2*C, H, W), blur(img * m) / blur(m) inside
-    the mask and 0 outside. A constant inside the mask is returned unchanged (exactly a low-pass).
+    the mask and 0 outside. A constant inside the mask is returned unchanged. For sigma >= 8 px the
+    blur runs on a grid coarsened by sigma // 4 (box-averaged, then bilinearly upsampled): the result
+    is still a normalised low-pass of the same kind, at 1/16 or less of the full-resolution cost.
     """
     B, C2, H, W = images.shape
     C = C2 // 2
-    k = gaussian_kernel1d(sigma).to(images)
-    r = (k.numel() - 1) // 2
     m = mask.to(images)[:, None].expand(2, C, H, W).reshape(1, C2, H, W)
+    f = max(1, int(sigma // 4))
+    if H % f or W % f:
+        f = 1
+    num, den = images * m, m
+    if f > 1:
+        num, den = F.avg_pool2d(num, f), F.avg_pool2d(den, f)
+    k = gaussian_kernel1d(sigma / f).to(images)
+    r = (k.numel() - 1) // 2
 
-    def blur(x: Tensor) -> Tensor:  # separable, depthwise: (N, C2, H, W) -> same
+    def blur(x: Tensor) -> Tensor:  # separable, depthwise, zero outside the image: (N, C2, h, w) -> same
         n = x.shape[1]
         x = F.conv2d(F.pad(x, (r, r, 0, 0)), k.view(1, 1, 1, -1).expand(n, 1, 1, -1), groups=n)
-        return F.conv2d(F.pad(x, (0, 0, r, r)), k.view(1, 1, -1, 1).expand(n, 1, -1, 1), groups=n)
+        x = F.conv2d(F.pad(x, (0, 0, r, r)), k.view(1, 1, -1, 1).expand(n, 1, -1, 1), groups=n)
+        return F.interpolate(x, size=(H, W), mode="bilinear", align_corners=False) if f > 1 else x
 
-    num = blur(images * m)
-    den = blur(m)
+    num, den = blur(num), blur(den)
     return torch.where(m > 0, num / den.clamp_min(1e-12), torch.zeros_like(num))
 
 
