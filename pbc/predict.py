@@ -174,8 +174,11 @@ class StackedPatchNet(nn.Module):
         self.c0, self.s0 = d0.start_channels, d0.start_size
         self.channels_last = channels_last
         self.bmm_max_batch = 4
-        self.first_w = nn.Parameter(torch.cat([d.first.weight.detach() for d in decoders]), False)
-        self.first_b = nn.Parameter(torch.cat([d.first.bias.detach() for d in decoders]), False)
+        # each decoder's pose standardisation folded into its first layer: W (x - m) / s + b
+        ws = [d.first.weight.detach() / d.input_scale for d in decoders]
+        self.first_w = nn.Parameter(torch.cat(ws), False)
+        self.first_b = nn.Parameter(torch.cat([d.first.bias.detach() - w @ d.input_mean for w, d in
+                                               zip(ws, decoders, strict=True)]), False)
         groups = [list(d.groups) for d in decoders]
         n = len(groups[0]) // 3
         if len(layer_modes) < n:
@@ -193,8 +196,11 @@ class StackedPatchNet(nn.Module):
         # bmm layout: (P, cout*16, cin), made lazily for the groups that use it
         self._bmm = {i: self.weights[i].view(self.P, -1, self.weights[i].shape[1] * 16).transpose(1, 2)
                      .contiguous() for i in range(n) if self.modes[i] == "bmm"}
-        self.head_w = nn.Parameter(torch.cat([d.head.weight.detach() for d in decoders]), False)
-        self.head_b = nn.Parameter(torch.cat([d.head.bias.detach() for d in decoders]), False)
+        # each decoder's output_scale (C,) folded into its head
+        scale = torch.cat([d.output_scale.detach().flatten() for d in decoders])  # (P*C,)
+        self.head_w = nn.Parameter(torch.cat([d.head.weight.detach() for d in decoders]) * scale[:, None, None, None],
+                                   False)
+        self.head_b = nn.Parameter(torch.cat([d.head.bias.detach() for d in decoders]) * scale, False)
         self.head_pad = d0.head.padding
         self.out_channels = d0.out_channels
         self.output_mean = nn.Parameter(torch.cat([d.output_mean for d in decoders], 1), False)  # (1, P*C, h, w)

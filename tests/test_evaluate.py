@@ -199,6 +199,9 @@ def test_stacked_patch_net_carries_each_mean_image():
     nets = [ConvDecoder(90, 3, (40, 40), (5, 5), 32, first_layer="linear") for _ in range(3)]
     for net in nets:
         net.output_mean.normal_()
+        net.output_scale.uniform_(0.5, 2.0)
+        net.input_mean.normal_()
+        net.input_scale.uniform_(0.5, 2.0)
         net.eval()
     pose = torch.randn(2, 90)
     with torch.inference_mode():
@@ -224,6 +227,9 @@ def test_stacked_patch_net_bfloat16_close_to_float32(batch):
                 m.running_mean.normal_(0, 0.1)
                 m.running_var.uniform_(0.5, 2.0)
         net.output_mean.normal_()
+        net.output_scale.uniform_(0.5, 2.0)
+        net.input_mean.normal_()
+        net.input_scale.uniform_(0.5, 2.0)
         net.eval()
     pose = torch.randn(batch, 90)
     with torch.inference_mode():

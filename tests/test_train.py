@@ -173,6 +173,11 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     # an image model starts from (and keeps in its checkpoint) the train split's mean image
     state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["net.output_mean"].abs().sum() > 0
+    # ...and each channel's spread over poses as its output scale: centimetres, not the unit default
+    scale = state["net.output_scale"].flatten()
+    assert ((scale > 1e-4) & (scale < 0.1)).all(), scale
+    # and the pose is standardised with the training poses' mean and spread
+    assert state["net.input_mean"].abs().sum() > 0 and (state["net.input_scale"] != 1).any()
     assert list((run / "tensorboard").glob("events.out.tfevents.*"))
     assert (run / "meshes" / "pred_val0.obj").is_file()
     print(f"{exp}: {time.time() - t0:.1f} s")

@@ -217,15 +217,34 @@ class ClothModule(L.LightningModule):
 
     @torch.no_grad()
     def fit_output_mean(self, loader) -> None:
-        """Set the decoder's output_mean to the mean target image of the train split."""
-        total, n = None, 0
+        """Set the decoder's output_mean to the train split's mean target image, and (where the decoder
+        has them) its output_scale to each channel's spread over poses (the RMS over the pixels that vary
+        of each pixel's standard deviation) and input_mean / input_scale to the poses' mean and spread."""
+        total, sq, n, poses = None, None, 0, []
         for batch in loader:
             batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
-            image = self.targets(batch)["image"]
-            total = image.sum(0, keepdim=True) if total is None else total + image.sum(0, keepdim=True)
+            poses.append(batch["pose"].reshape(batch["pose"].shape[0], -1).double())
+            image = self.targets(batch)["image"].double()
+            s1, s2 = image.sum(0, keepdim=True), (image * image).sum(0, keepdim=True)
+            total, sq = (s1, s2) if total is None else (total + s1, sq + s2)
             n += image.shape[0]
-        self.net.output_mean.copy_(total / n)
-        log.info("decoder starts from the mean image of %d train samples", n)
+        mean = total / n
+        self.net.output_mean.copy_(mean.float())
+        if hasattr(self.net, "input_mean") and n > 1:
+            pose = torch.cat(poses)
+            self.net.input_mean.copy_(pose.mean(0).float())
+            # entries that never vary (a joint's fixed axis) keep scale 1 instead of dividing by ~0
+            std = pose.std(0)
+            self.net.input_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).float())
+        scale = getattr(self.net, "output_scale", None)
+        if scale is not None and n > 1:
+            var = (sq / n - mean * mean).clamp_min(0)[0]  # (C, H, W) per-pixel variance over poses
+            varies = var > 0
+            per_channel = [var[c][varies[c]].mean().sqrt() if varies[c].any() else var.new_ones(()) for c in
+                           range(var.shape[0])]
+            scale.copy_(torch.stack(per_channel).float().view_as(scale))
+        log.info("decoder starts from the mean image of %d train samples (output scale %s)", n,
+                 None if scale is None else [f"{v:.2e}" for v in scale.flatten().tolist()])
 
     @torch.no_grad()
     def fit_pca(self, loader) -> None:
