@@ -48,6 +48,28 @@ def group_strides(start_size: Sequence[int], output_size: Sequence[int]) -> list
     return [(2 if i < nh else 1, 2 if i < nw else 1) for i in range(max(nh, nw))]
 
 
+def register_pose_standardisation(net: nn.Module, in_features: int) -> None:
+    """Buffers input_mean / input_scale (in_features,): the net reads (pose - mean) / scale.
+
+    Zeros and ones (the raw pose) until the module fits them on the training split. Most of the 90
+    rotation entries sit near a constant; left raw, that constant swamps the pose-dependent part of
+    the first layer's features (the whole CNN stayed at the mean image for 20 CPU epochs without it).
+    """
+    net.register_buffer("input_mean", torch.zeros(int(in_features)))
+    net.register_buffer("input_scale", torch.ones(int(in_features)))
+    add_buffer_defaults(net, ("input_mean", "input_scale"))
+
+
+def add_buffer_defaults(net: nn.Module, names: Sequence[str]) -> None:
+    """Checkpoints from before these buffers existed were trained without them: load their init values."""
+
+    def hook(module, state_dict, prefix, *args):
+        for name in names:
+            state_dict.setdefault(prefix + name, getattr(module, name).clone())
+
+    net.register_load_state_dict_pre_hook(hook)
+
+
 class ConvDecoder(nn.Module):
     """Pose (B, in_features) -> image (B, out_channels, H, W).
 
@@ -122,11 +144,8 @@ class ConvDecoder(nn.Module):
         # spread. Buffers, so checkpoints and the stacked predictor carry them.
         self.register_buffer("output_mean", torch.zeros(1, self.out_channels, *self.output_size))
         self.register_buffer("output_scale", torch.ones(1, self.out_channels, 1, 1))
-        # The pose is standardised with the training split's per-entry mean and spread (zeros and ones:
-        # the raw pose). Most of the 90 rotation entries sit near a constant; left raw, that constant
-        # swamps the pose-dependent part of the first layer's features.
-        self.register_buffer("input_mean", torch.zeros(self.in_features))
-        self.register_buffer("input_scale", torch.ones(self.in_features))
+        add_buffer_defaults(self, ("output_scale",))
+        register_pose_standardisation(self, self.in_features)
 
     def forward(self, pose: Tensor) -> Tensor:
         """pose (B, in_features) (or (B, J, 3, 3), flattened) -> (B, out_channels, H, W)."""
@@ -139,11 +158,6 @@ class ConvDecoder(nn.Module):
         x = torch.relu(x)
         return self.head(self.groups(x)) * self.output_scale + self.output_mean
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        # checkpoints from before these buffers existed were trained without them: identity
-        for name in ("output_scale", "input_mean", "input_scale"):
-            state_dict.setdefault(prefix + name, getattr(self, name).clone())
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
 def count_parameters(module: nn.Module) -> int:

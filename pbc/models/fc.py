@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
+from pbc.models.decoder import register_pose_standardisation
+
 MODES = ("direct", "pca")
 
 
@@ -74,6 +76,7 @@ class FCNet(nn.Module):
             width = int(h)
         layers.append(nn.Linear(width, out))
         self.mlp = nn.Sequential(*layers)
+        register_pose_standardisation(self, in_features)
         if mode == "pca":
             # Buffers, not parameters: fitted once on the train split, then frozen and checkpointed.
             self.register_buffer("pca_mean", torch.zeros(dim))
@@ -90,7 +93,7 @@ class FCNet(nn.Module):
 
     def forward(self, pose: Tensor) -> Tensor:
         """pose (B, in_features) or (B, J, 3, 3) -> (B, V, 3)."""
-        y = self.mlp(pose.reshape(pose.shape[0], -1))
+        y = self.mlp((pose.reshape(pose.shape[0], -1) - self.input_mean) / self.input_scale)
         if self.mode == "pca":
             # the network predicts whitened coefficients so its outputs are O(1) like the direct mode
             y = (y * self.pca_scale) @ self.pca_components + self.pca_mean

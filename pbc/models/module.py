@@ -211,31 +211,38 @@ class ClothModule(L.LightningModule):
         net = self.net
         if getattr(net, "mode", None) == "pca" and not bool(net.pca_fitted):
             self.fit_pca(self.trainer.datamodule.train_dataloader())
+        # every fresh net standardises its pose input with the training poses' statistics
+        if hasattr(net, "input_mean") and not net.input_mean.any():
+            self.fit_input_stats(self.trainer.datamodule.train_dataloader())
         # a fresh image model starts from the training split's mean image (a resumed one has it already)
         if self.hparams.get("mean_image", True) and hasattr(net, "output_mean") and not net.output_mean.any():
             self.fit_output_mean(self.trainer.datamodule.train_dataloader())
 
     @torch.no_grad()
+    def fit_input_stats(self, loader) -> None:
+        """Set the net's input_mean / input_scale to the train split's per-entry pose mean and spread."""
+        pose = torch.cat([b["pose"].reshape(b["pose"].shape[0], -1).double() for b in loader])
+        if pose.shape[0] < 2:
+            return
+        # entries that never vary (a joint's fixed axis) keep scale 1 instead of dividing by ~0
+        std = pose.std(0)
+        self.net.input_mean.copy_(pose.mean(0).float())
+        self.net.input_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).float())
+
+    @torch.no_grad()
     def fit_output_mean(self, loader) -> None:
         """Set the decoder's output_mean to the train split's mean target image, and (where the decoder
-        has them) its output_scale to each channel's spread over poses (the RMS over the pixels that vary
-        of each pixel's standard deviation) and input_mean / input_scale to the poses' mean and spread."""
-        total, sq, n, poses = None, None, 0, []
+        has one) its output_scale to each channel's spread over poses: the RMS over the pixels that vary
+        of each pixel's standard deviation."""
+        total, sq, n = None, None, 0
         for batch in loader:
             batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
-            poses.append(batch["pose"].reshape(batch["pose"].shape[0], -1).double())
             image = self.targets(batch)["image"].double()
             s1, s2 = image.sum(0, keepdim=True), (image * image).sum(0, keepdim=True)
             total, sq = (s1, s2) if total is None else (total + s1, sq + s2)
             n += image.shape[0]
         mean = total / n
         self.net.output_mean.copy_(mean.float())
-        if hasattr(self.net, "input_mean") and n > 1:
-            pose = torch.cat(poses)
-            self.net.input_mean.copy_(pose.mean(0).float())
-            # entries that never vary (a joint's fixed axis) keep scale 1 instead of dividing by ~0
-            std = pose.std(0)
-            self.net.input_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).float())
         scale = getattr(self.net, "output_scale", None)
         if scale is not None and n > 1:
             var = (sq / n - mean * mean).clamp_min(0)[0]  # (C, H, W) per-pixel variance over poses
