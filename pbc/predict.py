@@ -160,7 +160,8 @@ class StackedPatchNet(nn.Module):
     forward: pose (B, in_features) -> crops (B, P, C, h, w) float32, equal to stacking the decoders'
     outputs in eval mode. layer_modes: per group "bmm" (batched matmul + fold) or "grouped" (grouped
     conv). dtype: the weights' and activations' dtype; ``torch.bfloat16`` runs on the CPU's bf16/AMX
-    units (measured 1.5x faster on the reference CPU, at ~0.01 cm vertex difference; bench/predict.py).
+    units (on the reference CPU at batch 1: 85 vs 246 ms for the 28 nets, 1.5x on the full pose -> mesh,
+    0.015 cm mean vertex difference; bench/predict.py).
     """
 
     def __init__(self, decoders: Sequence[ConvDecoder], layer_modes: Sequence[str] = DEFAULT_LAYER_MODES,
