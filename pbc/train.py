@@ -32,6 +32,7 @@ from pathlib import Path
 import hydra
 import lightning as L
 import torch
+from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
@@ -46,8 +47,6 @@ log = logging.getLogger(__name__)
 def output_dir(cfg: DictConfig) -> Path:
     """The run dir: Hydra's when inside an entry point, else ``cfg.paths.output_dir`` as given."""
     try:
-        from hydra.core.hydra_config import HydraConfig
-
         return Path(HydraConfig.get().runtime.output_dir)
     except ValueError:
         return Path(cfg.paths.output_dir)

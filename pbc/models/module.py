@@ -23,8 +23,10 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
+from pbc.io import write_text
 from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm
+from pbc.models.fc import fit_pca as fit_pca_values
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.pixels.target import KINDS, VertexTarget
 
@@ -213,13 +215,11 @@ class ClothModule(L.LightningModule):
     @torch.no_grad()
     def fit_pca(self, loader) -> None:
         """Fit the FC net's PCA basis on the (whole) train split, in the model's space."""
-        from pbc.models.fc import fit_pca
-
         rows = []
         for batch in loader:
             batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
             rows.append(self.targets(batch)["offsets"].reshape(batch["verts"].shape[0], -1).cpu())
-        mean, comps, scale = fit_pca(torch.cat(rows), self.net.pca_components.shape[0])
+        mean, comps, scale = fit_pca_values(torch.cat(rows), self.net.pca_components.shape[0])
         self.net.set_pca(mean.to(self.device), comps.to(self.device), scale.to(self.device))
         log.info("fitted PCA on %d train samples", sum(len(r) for r in rows))
 
@@ -244,8 +244,6 @@ def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
 
 def write_obj(path: Path, vertices: Tensor, faces: Tensor) -> Path:
     """Plain OBJ (v / f, 1-based), written atomically."""
-    from pbc.io import write_text
-
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices.tolist()]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
