@@ -160,3 +160,19 @@ def test_resume_from_last(e2e_root, tiny_dataset):
     assert r.returncode == 0, r.stderr[-3000:]
     assert "resuming from" in r.stderr + r.stdout
     assert json.loads((run / "metrics.json").read_text())["epochs"] == 3
+
+
+def test_module_optimiser_and_scheduler_come_from_the_config():
+    from hydra.utils import instantiate
+
+    from pbc.config import load_config
+
+    cfg = load_config(["model=patch", "model.lr=0.005", "image.crop_size=80", "paths.output_dir=/tmp/x"])
+    m = instantiate(cfg.model, identity={}, summary={})
+    opt = m.configure_optimizers()  # the default: Adam at model.lr, no scheduler (the paper's schedule)
+    assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == 0.005
+    cfg = load_config(["model=patch", "image.crop_size=80", "paths.output_dir=/tmp/x",
+                       "model.scheduler={_target_: torch.optim.lr_scheduler.StepLR, _partial_: true, step_size: 3}"])
+    out = instantiate(cfg.model, identity={}, summary={}).configure_optimizers()
+    assert isinstance(out["lr_scheduler"]["scheduler"], torch.optim.lr_scheduler.StepLR)
+    assert out["lr_scheduler"]["scheduler"].step_size == 3

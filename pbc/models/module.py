@@ -46,12 +46,14 @@ class ClothModule(L.LightningModule):
         kind: ``whole`` | ``patch`` | ``fc``.
         space: offset space of the predicted values (``local`` | ``root`` | ``position``).
         loss: ``{norm, normal_weight, edge_weight}``.
-        lr: Adam learning rate.
+        lr: learning rate (``model.optimizer.lr`` interpolates it).
         identity: what a checkpoint must match to be loaded here (garment hash, resolution, patch...).
         patch_id: patch of a patch model, else None.
         summary: flat extra hparams for the TensorBoard hparams tab (data size, loss name...).
         mean_image: image models start from the train split's mean image (``model.mean_image``;
             false = the paper's plain decoder).
+        optimizer: a ``_partial_`` optimiser node (``model.optimizer``); None = Adam at ``lr``.
+        scheduler: an optional ``_partial_`` LR scheduler node (``model.scheduler``), stepped per epoch.
     """
 
     def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict | None = None,
