@@ -3,7 +3,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: venv main test lint bench
+.PHONY: venv main test test-fast lint bench
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -20,6 +20,10 @@ main: venv
 
 test: venv
 	$(BIN)/python -m pytest -x
+
+# the quick tier: synthetic data only (no drape, no subprocess jobs); `test` runs everything
+test-fast: venv
+	$(BIN)/python -m pytest -x -m "not slow"
 
 lint: venv
 	$(BIN)/ruff check pbc tests bench

@@ -24,8 +24,8 @@ sys.path.insert(0, str(ROOT))
 
 from pbc.config import load_config  # noqa: E402
 from pbc.losses import image_loss  # noqa: E402
-from pbc.models.module import ClothModule, geometry_from_datamodule  # noqa: E402
-from pbc.train import datamodule, run_identity  # noqa: E402
+from pbc.models.module import ClothModule  # noqa: E402
+from pbc.train import datamodule, net_config  # noqa: E402
 
 
 def timed(fn, steps: int, warmup: int = 1) -> float:
@@ -53,12 +53,10 @@ def main() -> None:
     cfg = load_config([f"data={args.data}", f"model={args.model}", f"image.whole_resolution={args.res}",
                        f"datamodule.batch_size={args.batch}", "paths.output_dir=/tmp/pbc_bench"])
     dm = datamodule(cfg)
-    ident = run_identity(cfg, dm)
-    geom = geometry_from_datamodule(dm, args.model)
-    size = [ident["crop_size"]] * 2 if args.model == "patch" else [dm.ops.res] * 2
-    from omegaconf import OmegaConf
-
-    net_cfg = dict(OmegaConf.to_container(cfg.model.net, resolve=True), output_size=size)
+    target = dm.target
+    ident = target.identity(dm.data)
+    size = list(target.image_size)
+    net_cfg = net_config(cfg, target)
     batches = [b for _, b in zip(range(4), dm.train_dataloader(), strict=False)]
     batches = [b for b in batches if b["pose"].shape[0] == args.batch] or batches
     rows, out = [], {"device": str(dev), "model": args.model, "batch": args.batch, "image": size,
@@ -75,7 +73,7 @@ def main() -> None:
     def full(normal_weight: float):
         m = ClothModule(net_cfg, args.model, cfg.model.space, {"norm": "l1", "normal_weight": normal_weight,
                                                                 "edge_weight": 0.0}, 1e-3, ident)
-        m.attach(geom).to(dev).train()
+        m.attach(target).to(dev).train()
         m.log_dict = lambda *a, **k: None  # no Trainer here: logging is not what is measured
         opt = m.configure_optimizers()
         it = iter(range(10**9))

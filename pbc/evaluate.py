@@ -26,25 +26,28 @@ from pathlib import Path
 import hydra
 import numpy as np
 import torch
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.io import save_figure, write_text
+from pbc.models.module import write_obj
+from pbc.pixels.frames import from_offsets, to_offsets
+from pbc.pixels.reconstruct import mesh_edges, vertex_normals
+from pbc.predict import ClothPredictor
+from pbc.stitch.pca import dataset_hash, fit_pca, load_pca, save_pca
+from pbc.stitch.seams import METHODS, NEEDS_WHOLE, edge_jump, patch_disagreement, seam_edges, uv_to_pixel
 
 log = logging.getLogger(__name__)
 CM = 100.0
 
 
 def _offsets_of(predictor, poses: torch.Tensor, verts: torch.Tensor):
-    from pbc.pixels.frames import to_offsets
-
     anchors, frames = predictor.skinner(poses)
     return to_offsets(verts, anchors, frames, predictor.space), anchors, frames
 
 
 def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int = 64):
     """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
-    from pbc.stitch.pca import dataset_hash, fit_pca
-
     ds = predictor.dataset
     idx = ds.split("train")[:max_samples]
     offs = []
@@ -58,9 +61,6 @@ def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int 
 
 def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
     """Per-sample scores (B,) of positions pos against gt (B, V, 3)."""
-    from pbc.pixels.reconstruct import vertex_normals
-    from pbc.stitch.seams import edge_jump
-
     n_p, n_g = vertex_normals(pos, faces), vertex_normals(gt, faces)
     return {
         "vertex_error_cm": (pos - gt).norm(dim=-1).mean(1) * CM,
@@ -71,12 +71,6 @@ def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
 
 
 def evaluate(cfg: DictConfig, out: Path) -> dict:
-    from pbc.pixels.frames import from_offsets
-    from pbc.pixels.reconstruct import mesh_edges
-    from pbc.predict import ClothPredictor
-    from pbc.stitch.pca import dataset_hash, load_pca, save_pca
-    from pbc.stitch.seams import METHODS, NEEDS_WHOLE, patch_disagreement, seam_edges, uv_to_pixel
-
     t0 = time.time()
     unknown = [m for m in cfg.methods if m not in METHODS]
     if unknown:
@@ -184,7 +178,6 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    from pbc.models.module import write_obj
 
     gt = keep["gt"]
     names = [n for n in keep if n != "gt" and not n.startswith("gt_crops")]
@@ -226,8 +219,6 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    from hydra.core.hydra_config import HydraConfig
-
     out = Path(HydraConfig.get().runtime.output_dir)
     metrics = evaluate(cfg, out)
     log.info("\n%s", markdown_table(metrics))

@@ -13,19 +13,23 @@ here are what measured fastest on the 2-core CPU.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
 from torch import Tensor, nn
 
+import pbc.data.dataset as datasets
 from pbc.models.decoder import ConvDecoder
-from pbc.stitch.seams import NEEDS_WHOLE
+from pbc.pixels.frames import from_offsets
+from pbc.pixels.reconstruct import Skinner
+from pbc.pixels.target import image_operators, patch_crops
+from pbc.runs import NUM_PATCHES, RunInfo, find_runs, read_run, select_patch_runs  # noqa: F401  (re-exported)
+from pbc.stitch.seams import NEEDS_WHOLE, build_stitcher
 
-NUM_PATCHES = 28
 # measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
 DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
@@ -34,106 +38,8 @@ PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 # ----------------------------------------------------------------------------- runs
 
 
-@dataclass
-class RunInfo:
-    """What a training run dir holds: its model kind, patch id, garment and best checkpoint."""
-
-    dir: Path
-    kind: str
-    patch_id: int | None
-    garment_hash: str
-    checkpoint: Path
-    config: dict
-
-
-def _best_checkpoint(run_dir: Path, metrics: dict) -> Path | None:
-    best = metrics.get("best_checkpoint")
-    if best and Path(best).is_file():
-        return Path(best)
-    ck = run_dir / "checkpoints"
-    cands = sorted(p for p in ck.glob("*.ckpt") if p.name != "last.ckpt") if ck.is_dir() else []
-    if cands:
-        return cands[-1]
-    return ck / "last.ckpt" if (ck / "last.ckpt").is_file() else None
-
-
-def read_run(run_dir: str | Path) -> RunInfo:
-    """Read a run dir (metrics.json + checkpoints/); raises ValueError saying what is missing."""
-    d = Path(run_dir)
-    mpath = d / "metrics.json"
-    if not mpath.is_file():
-        raise ValueError(f"{d}: not a finished training run (no metrics.json)")
-    metrics = json.loads(mpath.read_text())
-    if metrics.get("status") not in (None, "ok"):
-        raise ValueError(f"{d}: the run failed ({metrics.get('error', 'status ' + str(metrics.get('status')))})")
-    ckpt = _best_checkpoint(d, metrics)
-    if ckpt is None:
-        raise ValueError(f"{d}: no checkpoint under {d / 'checkpoints'}")
-    ident = metrics.get("identity") or {}
-    if not ident:  # older runs: the identity lives in the checkpoint's hparams
-        ident = torch.load(ckpt, map_location="cpu", weights_only=False)["hyper_parameters"]["identity"]
-    pid = ident.get("patch_id")
-    return RunInfo(d, str(ident.get("kind")), None if pid is None else int(pid),
-                   str(ident.get("garment_hash", "")), ckpt, metrics.get("config") or {})
-
-
-def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
-    """Run dirs from a list of run dirs and/or sweep dirs (any dir holding */metrics.json below it)."""
-    if isinstance(paths, str | Path):
-        paths = [paths]
-    out: list[Path] = []
-    for p in map(Path, paths):
-        if (p / "metrics.json").is_file():
-            out.append(p)
-        elif p.is_dir():
-            # a sweep dir: training runs only (an evaluate run below it has no checkpoints/)
-            found = sorted(m.parent for m in p.rglob("metrics.json") if (m.parent / "checkpoints").is_dir())
-            if not found:
-                raise ValueError(f"{p}: no training runs (metrics.json) found below it")
-            out += found
-        else:
-            raise ValueError(f"{p}: no such run or sweep directory")
-    return out
-
-
-def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) -> list[RunInfo]:
-    """Exactly one patch run per patch id 0..num_patches-1 for this garment, in id order.
-
-    Raises one ValueError listing every problem: unreadable runs, runs of another kind or garment,
-    unknown patch ids, patches claimed by two runs, and missing patches.
-    """
-    problems: list[str] = []
-    by_id: dict[int, list[RunInfo]] = {}
-    named = {Path(p) for p in ([paths] if isinstance(paths, str | Path) else paths)}
-    for d in find_runs(paths):
-        try:
-            r = read_run(d)
-        except ValueError as e:
-            problems.append(str(e))
-            continue
-        if r.kind != "patch":
-            if d in named:  # a whole/fc run found inside a sweep dir is simply not a patch run
-                problems.append(f"{d}: a {r.kind!r} run, not a patch run")
-        elif r.garment_hash != garment_hash:
-            problems.append(f"{d}: trained on garment {r.garment_hash!r}, not {garment_hash!r}")
-        elif r.patch_id is None or not 0 <= r.patch_id < num_patches:
-            problems.append(f"{d}: patch id {r.patch_id} is not in 0..{num_patches - 1}")
-        else:
-            by_id.setdefault(r.patch_id, []).append(r)
-    for k, rs in sorted(by_id.items()):
-        if len(rs) > 1:
-            problems.append(f"patch {k} is claimed by {len(rs)} runs: " + ", ".join(str(r.dir) for r in rs))
-    missing = [k for k in range(num_patches) if k not in by_id]
-    if missing:
-        problems.append(f"missing patch runs for patch ids {missing}")
-    if problems:
-        raise ValueError("cannot assemble the patch models:\n  - " + "\n  - ".join(problems))
-    return [by_id[k][0] for k in range(num_patches)]
-
-
 def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
     """The network of a ClothModule checkpoint, in eval mode, and the checkpoint's hparams."""
-    from hydra.utils import instantiate
 
     ck = torch.load(checkpoint, map_location="cpu", weights_only=False)
     hp = ck["hyper_parameters"]
@@ -263,10 +169,6 @@ class ClothPredictor:
                  stitch_cfg, space: str = "local", pca=None, cache_dir=None, backend: str = "stacked",
                  layer_modes: Sequence[str] = DEFAULT_LAYER_MODES, threads: int | None = None,
                  precision: str = "float32"):
-        from pbc.pixels.operators import ImageOperators, image_sizes
-        from pbc.pixels.reconstruct import Skinner
-        from pbc.stitch.seams import build_stitcher
-
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         if precision != "float32" and backend != "stacked":
@@ -274,15 +176,12 @@ class ClothPredictor:
         if threads:
             torch.set_num_threads(int(threads))
         self.dataset, self.space = dataset, space
-        # crop, margin and pad are given at the reference resolution: scale them as training did
-        sizes = image_sizes(image_cfg)
+        # the operators exactly as training built them (pbc.pixels.target: one cache, one method)
         self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
-        self.ops_whole = ImageOperators.for_garment(dataset.garment, sizes["whole_resolution"], sizes["whole_pad"],
-                                                    cache_dir=cache_dir)
-        self.ops_patch = ImageOperators.for_garment(dataset.garment, sizes["patch_resolution"], sizes["patch_pad"],
-                                                    cache_dir=cache_dir)
-        self.crops = [self.ops_patch.crop(p, sizes["crop_size"], sizes["margin"]) for p in dataset.cage.patches]
+        self.ops_whole = image_operators(dataset, image_cfg, "whole", cache_dir)
+        self.ops_patch = image_operators(dataset, image_cfg, "patch", cache_dir)
+        self.crops = patch_crops(dataset, image_cfg, self.ops_patch)
         self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
                                        pca=pca)
         self.method = str(stitch_cfg.method)
@@ -296,16 +195,12 @@ class ClothPredictor:
     @classmethod
     def from_runs(cls, whole_run, patch_runs, stitch_cfg, pca=None, **kw) -> ClothPredictor:
         """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches)."""
-        from omegaconf import OmegaConf
-
-        from pbc.data.dataset import load_dataset
-
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind != "whole":
             raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
         first = whole or read_run(find_runs(patch_runs)[0])
         cfg = OmegaConf.create(first.config)
-        dataset = load_dataset(OmegaConf.select(cfg, "data.dir"))
+        dataset = datasets.load_dataset(OmegaConf.select(cfg, "data.dir"))
         ghash = str(dataset.manifest.get("garment_hash", ""))
         if whole is not None and whole.garment_hash != ghash:
             raise ValueError(f"{whole.dir}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
@@ -318,7 +213,6 @@ class ClothPredictor:
             spaces.add(hp.get("space", "local"))
         if len(spaces) > 1:
             raise ValueError(f"patch runs use different offset spaces {sorted(spaces)}")
-        kw.setdefault("cache_dir", Path(OmegaConf.select(cfg, "paths.data_dir")) / "cache")
         return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
 
     # -------------------------------------------------------------------- pieces
@@ -338,8 +232,6 @@ class ClothPredictor:
 
     @torch.inference_mode()
     def __call__(self, pose: Tensor, model: str = "patches", method: str | None = None) -> Tensor:
-        from pbc.pixels.frames import from_offsets
-
         single = pose.ndim == 3
         pose = pose[None] if single else pose
         pose = pose.float()

@@ -1,6 +1,6 @@
 """Turn a sweep dir into the paper's comparison report: `python -m pbc.report <sweep dir> [--out DIR]`.
 
-Reads the run dirs below the sweep dir (`pbc.sweeps.load_runs`: metrics.json, Hydra configs, TensorBoard
+Reads the run dirs below the sweep dir (`pbc.runs.load_runs`: metrics.json, Hydra configs, TensorBoard
 events) and writes `report.md`, `report.json` (every table value, exactly as read) and PNGs: Table 1
 (losses), Table 2 (FC spaces x direct/PCA, and the CNN), the hierarchy (whole vs. stitched per seam
 method, per-patch errors), learning curves, and the paper's claimed orderings marked held / did not
@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from pbc.io import save_figure, write_text
-from pbc.sweeps import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
+from pbc.runs import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
 
 PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
 

@@ -1,7 +1,8 @@
 """`python -m pbc.train +experiment=NAME [overrides]`: train, test on the best checkpoint, write metrics.json.
 
-One job: wire the Hydra config into a DataModule, a :class:`~pbc.models.module.ClothModule` and a
-Lightning Trainer, run fit + test, and leave everything in the Hydra run dir:
+One job: build the DataModule (``conf/datamodule``), the :class:`~pbc.models.module.ClothModule`
+(``conf/model``), callbacks, loggers and the Lightning Trainer from the config (``_target_`` nodes, as
+lightning-hydra-template does), run fit + test, and leave everything in the Hydra run dir:
 
     <run dir>/.hydra/               the composed config
     <run dir>/checkpoints/          epoch_NNN.ckpt (best by val/vertex_error_cm) and last.ckpt
@@ -29,58 +30,65 @@ import traceback
 from pathlib import Path
 
 import hydra
+import lightning as L
 import torch
-from omegaconf import DictConfig, OmegaConf, open_dict
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
 
+from pbc.data.datamodule import ClothDataModule
 from pbc.io import write_json
+from pbc.models.module import MONITOR, TEST_SPLITS, ClothModule, flat_summary
+from pbc.pixels.target import VertexTarget
 
 log = logging.getLogger(__name__)
-MONITOR = "val/vertex_error_cm"
 
 
 def output_dir(cfg: DictConfig) -> Path:
     """The run dir: Hydra's when inside an entry point, else ``cfg.paths.output_dir`` as given."""
     try:
-        from hydra.core.hydra_config import HydraConfig
-
         return Path(HydraConfig.get().runtime.output_dir)
     except ValueError:
         return Path(cfg.paths.output_dir)
 
 
-def datamodule(cfg: DictConfig):
-    """The DataModule, set up (dataset generated on first use). The model is the source of truth for
-    what it serves: target and offset space follow ``model.kind`` / ``model.space``."""
-    from pbc.data.datamodule import from_config
+def ensure_dataset(cfg: DictConfig) -> Path:
+    """Make the configured dataset when it is missing (the entry point's job, not the DataModule's)."""
+    data_dir = Path(cfg.data.dir)
+    if not (data_dir / "manifest.json").is_file():
+        from pbc.data.generate import generate  # heavy (newton/warp): only when data must be made
 
-    kind = cfg.model.kind
-    if kind not in ("whole", "patch", "fc"):
-        raise ValueError(f"model.kind must be whole | patch | fc, got {kind!r}")
-    with open_dict(cfg):
-        cfg.datamodule.target = "patch" if kind == "patch" else "whole"
-        cfg.datamodule.patch_id = cfg.model.patch_id if kind == "patch" else None
-        cfg.datamodule.space = cfg.model.space
-        cfg.datamodule.render = kind != "fc"  # the FC baselines need no images
-    dm = from_config(cfg)
-    dm.prepare_data()
+        log.info("no dataset at %s: making it first (python -m pbc.generate)", data_dir)
+        generate(cfg)
+    return data_dir
+
+
+def datamodule(cfg: DictConfig) -> ClothDataModule:
+    """The DataModule of ``cfg.datamodule``, set up; what it serves follows ``model.kind`` / ``model.space``."""
+    ensure_dataset(cfg)
+    dm = instantiate(cfg.datamodule)
     dm.setup("fit")
     return dm
 
 
-def run_identity(cfg: DictConfig, dm) -> dict:
-    """What a checkpoint must match to be loaded by this run (see ClothModule.on_load_checkpoint)."""
-    kind = cfg.model.kind
-    res = getattr(dm.ops, "res", None)
-    if kind == "patch":
-        res = int(cfg.image.patch_resolution)
+def net_config(cfg: DictConfig, target: VertexTarget) -> dict:
+    """``model.net`` sized to what the target serves: image size for decoders, vertex count for FC nets."""
+    net = OmegaConf.to_container(cfg.model.net, resolve=True)
+    fit = {"output_size": list(target.image_size)} if target.image_size else {"num_vertices": target.num_vertices}
+    for k, v in fit.items():
+        if net.get(k) != v:
+            log.info("model.net.%s %s -> %s (what the target serves)", k, net.get(k), v)
+    return dict(net, **fit)
+
+
+def run_summary(cfg: DictConfig, dm: ClothDataModule) -> dict:
+    """The flat hparams of a run (the TensorBoard hparams tab, metrics.json, pbc.report)."""
     return {
-        "garment_hash": str(dm.data.manifest.get("garment_hash", "")),
-        "num_vertices": int(dm.data.verts.shape[1]),
-        "kind": str(kind),
-        "resolution": None if kind == "fc" else int(res),
-        "patch_id": None if kind != "patch" else int(cfg.model.patch_id),
-        "space": str(cfg.model.space),
-        "crop_size": None if kind != "patch" else int(dm.ops.window[2]),
+        "model": str(cfg.model.net._target_).rsplit(".", 1)[-1], "kind": cfg.model.kind,
+        "patch_id": -1 if cfg.model.patch_id is None else int(cfg.model.patch_id), "space": cfg.model.space,
+        "loss": f"{cfg.loss.norm}+n{cfg.loss.normal_weight}+e{cfg.loss.edge_weight}",
+        "lr": float(cfg.model.lr),
+        "data": str(cfg.data.name), "num_train": len(dm.splits["train"]), "seed": int(cfg.seed),
     }
 
 
@@ -110,41 +118,16 @@ def resolve_ckpt_path(spec: str | None, out_dir: Path, identity: dict) -> str | 
 
 def train(cfg: DictConfig) -> dict:
     """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict."""
-    import lightning as L
-
-    from pbc.models.module import ClothModule, flat_summary, geometry_from_datamodule
-
-    t0 = time.time()
-    out = output_dir(cfg)
+    t0, out = time.time(), output_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     L.seed_everything(int(cfg.seed), workers=True)
     dm = datamodule(cfg)
-    dataset = dm.data
-    identity = run_identity(cfg, dm)
-    net_cfg = OmegaConf.to_container(cfg.model.net, resolve=True)
-    if cfg.model.kind == "fc":
-        net_cfg["num_vertices"] = identity["num_vertices"]
-    else:
-        # the image size the DataModule really serves (crop_size scales with patch_resolution)
-        size = [identity["crop_size"]] * 2 if cfg.model.kind == "patch" else [dm.ops.res] * 2
-        if list(net_cfg["output_size"]) != size:
-            log.info("decoder output_size %s -> %s (the served image size)", net_cfg["output_size"], size)
-            net_cfg["output_size"] = size
-    summary = {
-        "model": str(cfg.model.net._target_).rsplit(".", 1)[-1], "kind": cfg.model.kind,
-        "patch_id": -1 if cfg.model.patch_id is None else int(cfg.model.patch_id), "space": cfg.model.space,
-        "loss": f"{cfg.loss.norm}+n{cfg.loss.normal_weight}+e{cfg.loss.edge_weight}",
-        "lr": float(cfg.model.lr),
-        "data": str(cfg.data.name), "num_train": len(dataset.split("train")), "seed": int(cfg.seed),
-    }
-    module = ClothModule(net=net_cfg, kind=cfg.model.kind, space=cfg.model.space,
-                         loss=OmegaConf.to_container(cfg.loss, resolve=True), lr=float(cfg.model.lr),
-                         identity=identity, patch_id=identity["patch_id"], summary=summary,
-                         mean_image=bool(cfg.model.get("mean_image", True)))
-    module.attach(geometry_from_datamodule(dm, cfg.model.kind))
-    callbacks = [hydra.utils.instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
-    loggers = [hydra.utils.instantiate(c) for c in (cfg.get("logger") or {}).values()]
-    trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
+    identity, summary = dm.target.identity(dm.data), run_summary(cfg, dm)
+    module: ClothModule = instantiate(cfg.model, net=net_config(cfg, dm.target), identity=identity,
+                                      summary=summary).attach(dm.target)
+    callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
+    loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
+    trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
 
     ckpt = resolve_ckpt_path(cfg.get("ckpt_path"), out, identity)
     if ckpt:
@@ -153,33 +136,35 @@ def train(cfg: DictConfig) -> dict:
 
     ck = trainer.checkpoint_callback
     best_path = ck.best_model_path if ck is not None else ""
-    score = ck.best_model_score if ck is not None else None
-    best_val = float(score) if score is not None else float("inf")
-    test, train_metrics = {}, {}
-    if cfg.get("test", True):
-        res = trainer.test(module, datamodule=dm, ckpt_path=best_path or None)
-        test = {k.split("/", 1)[1]: float(v) for k, v in (res[0] if res else {}).items()
-                if k.startswith("test/")}
-        # the same metrics of the best model on the training split (the paper's "training error")
-        module.test_prefix = "train_final"
-        res = trainer.test(module, dataloaders=dm.loader("train", shuffle=False), ckpt_path=best_path or None)
-        module.test_prefix = "test"
-        train_metrics = {k.split("/", 1)[1]: float(v) for k, v in (res[0] if res else {}).items()
-                         if k.startswith("train_final/")}
+    best_val = float(ck.best_model_score) if ck is not None and ck.best_model_score is not None else float("inf")
+    # the test split, then the training split (Table 1's training error), each under its own prefix
+    scores = score(trainer, module, dm, best_path) if cfg.get("test", True) else {}
     metrics = {
         "status": "ok", "optimized_metric": MONITOR, "val_best": {"vertex_error_cm": best_val},
-        "test": test, "train": train_metrics, "best_checkpoint": best_path, "epochs": trainer.current_epoch,
-        "seconds": round(time.time() - t0, 2), "summary": summary, "identity": identity,
-        "config": OmegaConf.to_container(cfg, resolve=False),
+        "test": scores.get("test", {}), "train": scores.get("train_final", {}), "best_checkpoint": best_path,
+        "epochs": trainer.current_epoch, "seconds": round(time.time() - t0, 2), "summary": summary,
+        "identity": identity, "config": OmegaConf.to_container(cfg, resolve=False),
     }
+    log_final(trainer, summary, metrics)
+    write_metrics(out, metrics)
+    return metrics
+
+
+def score(trainer: L.Trainer, module: ClothModule, dm: ClothDataModule, ckpt: str) -> dict[str, dict]:
+    """{prefix: {metric: value}} of the best checkpoint on each of ``dm.scoring_dataloaders()``."""
+    res = trainer.test(module, dataloaders=dm.scoring_dataloaders(), ckpt_path=ckpt or None)
+    merged = {k: float(v) for r in res for k, v in r.items()}
+    return {p: {k.split("/", 1)[1]: v for k, v in merged.items() if k.startswith(p + "/")} for p in TEST_SPLITS}
+
+
+def log_final(trainer: L.Trainer, summary: dict, metrics: dict) -> None:
+    """The TensorBoard hparams tab: the run's summary with its final val/test metrics."""
     for lg in trainer.loggers:
         if isinstance(lg, L.pytorch.loggers.TensorBoardLogger):
             final = {f"final/val_best_{k}": v for k, v in metrics["val_best"].items()}
-            final.update({f"final/test_{k}": v for k, v in test.items()})
+            final.update({f"final/test_{k}": v for k, v in metrics["test"].items()})
             lg.log_hyperparams(flat_summary(summary), metrics=final)
             lg.finalize("success")
-    write_metrics(out, metrics)
-    return metrics
 
 
 def write_metrics(out: Path, metrics: dict) -> Path:

@@ -1,4 +1,9 @@
-"""Shared fixtures: one real tiny dataset per test session (coarse shirt, a few poses, the real drape)."""
+"""Shared fixtures: one real tiny dataset per test session (coarse shirt, a few poses, the real drape),
+the coarse mannequin, and the test tiers. Synthetic garments for fast tests live in tests/helpers/.
+
+Tiers (markers registered in pyproject.toml, --strict-markers): a test that needs the real tiny dataset is
+marked `slow` here automatically; `pytest -m "not slow"` is the quick tier, `make test` runs everything.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+# fixtures that drape real data: any test using them (directly or through another fixture) is `slow`
+SLOW_FIXTURES = {"tiny_dataset", "draped"}
 TINY_SAMPLES = 10  # poses requested; the distortion check discards some (see the manifest)
 
 
@@ -51,3 +58,9 @@ def body(body_cfg):
     from pbc.geometry.body import build_body
 
     return build_body(body_cfg)
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)

@@ -13,44 +13,18 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
 
-from pbc.models.module import ClothModule, Geometry
+from pbc.models.module import ClothModule
 from pbc.pixels.operators import ImageOperators
-from pbc.pixels.reconstruct import mesh_edges
+from pbc.pixels.target import WholeTarget
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
-
-
-def two_chart_garment(n: int = 6):
-    """Two flat n x n vertex sheets: front chart (side 0) and back chart (side 1), uv in [0.1, 0.9]^2."""
-    t = np.linspace(0.1, 0.9, n)
-    uv = np.stack(np.meshgrid(t, t), -1).reshape(-1, 2)
-    quads = [(i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1)
-             for i in range(n - 1) for j in range(n - 1)]
-    tri = np.array([[a, c, b] for a, b, c, d in quads] + [[b, c, d] for a, b, c, d in quads])
-    faces = np.concatenate([tri, tri + n * n])
-    verts = np.concatenate([np.c_[uv, np.zeros(n * n)], np.c_[uv, np.full(n * n, -0.1)]]) * 0.5
-    return SimpleNamespace(
-        vertices=torch.tensor(verts, dtype=torch.float32), faces=torch.tensor(faces),
-        uv=torch.tensor(np.concatenate([uv, uv]), dtype=torch.float32), face_uv=torch.tensor(faces),
-        face_side=torch.tensor([0] * len(tri) + [1] * len(tri)),
-        vertex_uv=torch.tensor(np.concatenate([uv, uv]), dtype=torch.float32),
-        vertex_side=torch.tensor([0] * n * n + [1] * n * n))
-
-
-class FakeSkinner:
-    def __init__(self, rest):
-        self.rest = rest
-
-    def __call__(self, rot):
-        b, v = rot.shape[0], self.rest.shape[0]
-        return self.rest.to(rot)[None].expand(b, -1, -1), torch.eye(3).to(rot).expand(b, v, 3, 3)
 
 
 def whole_module(norm="l1", normal_weight=0.01, res=32):
@@ -62,14 +36,7 @@ def whole_module(norm="l1", normal_weight=0.01, res=32):
              "patch_id": None, "space": "local"}
     m = ClothModule(net, "whole", "local", {"norm": norm, "normal_weight": normal_weight, "edge_weight": 0.1},
                     1e-3, ident)
-    return m.attach(Geometry(ops, FakeSkinner(g.vertices), g.faces, mesh_edges(g.faces), None)), g
-
-
-def batch_for(g, b=4, seed=0):
-    gen = torch.Generator().manual_seed(seed)
-    pose = torch.randn(b, 10, 3, 3, generator=gen)
-    verts = g.vertices[None] + 0.01 * torch.randn(b, len(g.vertices), 3, generator=gen)
-    return {"pose": pose, "verts": verts, "index": torch.arange(b)}
+    return m.attach(WholeTarget(FakeSkinner(g.vertices), g.faces, ops, "local")), g
 
 
 def test_one_optimisation_step_lowers_the_loss():
@@ -134,6 +101,7 @@ def test_every_config_composes_and_instantiates():
                     assert "_target_" in node
 
 
+@pytest.mark.slow
 def test_unknown_experiment_lists_choices():
     r = subprocess.run([sys.executable, "-m", "pbc.train", "+experiment=nope"], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
@@ -192,3 +160,19 @@ def test_resume_from_last(e2e_root, tiny_dataset):
     assert r.returncode == 0, r.stderr[-3000:]
     assert "resuming from" in r.stderr + r.stdout
     assert json.loads((run / "metrics.json").read_text())["epochs"] == 3
+
+
+def test_module_optimiser_and_scheduler_come_from_the_config():
+    from hydra.utils import instantiate
+
+    from pbc.config import load_config
+
+    cfg = load_config(["model=patch", "model.lr=0.005", "image.crop_size=80", "paths.output_dir=/tmp/x"])
+    m = instantiate(cfg.model, identity={}, summary={})
+    opt = m.configure_optimizers()  # the default: Adam at model.lr, no scheduler (the paper's schedule)
+    assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == 0.005
+    cfg = load_config(["model=patch", "image.crop_size=80", "paths.output_dir=/tmp/x",
+                       "model.scheduler={_target_: torch.optim.lr_scheduler.StepLR, _partial_: true, step_size: 3}"])
+    out = instantiate(cfg.model, identity={}, summary={}).configure_optimizers()
+    assert isinstance(out["lr_scheduler"]["scheduler"], torch.optim.lr_scheduler.StepLR)
+    assert out["lr_scheduler"]["scheduler"].step_size == 3

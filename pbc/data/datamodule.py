@@ -2,14 +2,15 @@
 images per batch, on the batch's device.
 
 One job: turn a dataset directory into train/val/test batches. Only per-vertex data is read from disk
-(memory-mapped); images are rendered in `on_after_batch_transfer` with the garment's sparse operators
-(pbc.pixels.operators), never stored.
+(memory-mapped); targets are rendered in `on_after_batch_transfer` by the run's cloth target
+(`pbc.pixels.target`, `dm.target`), never stored. It only reads: a missing dataset is an error that
+says how to make it (`python -m pbc.generate`; `python -m pbc.train` makes it first when missing).
 
 Batch dict (B = batch size, V garment vertices, H = W = image.whole_resolution, S = crop size):
     pose     (B, 90)          float32  10 joint rotations, row-major 3x3, joint order of conf/body
     verts    (B, V, 3)        float32  draped garment vertices (root frame, metres): metrics ground truth
     index    (B,)             int64    sample index in the dataset arrays
-  added on the device when `render` is true (the default):
+  added on the device by `dm.target.render` when `render` is true (the default):
     anchors  (B, V, 3)        float32  skinned cloth pixels (embedded points on the posed body)
     frames   (B, V, 3, 3)     float32  their local frames, rows (t, b, n)
     offsets  (B, V, 3)        float32  `verts` in `space` (local (du,dv,dn) | root | position)
@@ -20,8 +21,8 @@ Batch dict (B = batch size, V garment vertices, H = W = image.whole_resolution, 
       image  (B, 3, S, S)     float32  crop of patch k's side of the patch_resolution image
       mask   (1, 3, S, S)     float32  patch k's pixels dilated by `margin`, inside the padded chart
       vertices (Vk,)          int64    garment vertex ids of patch k
-`images_to_positions(image, dm.ops, anchors, frames, space)` (pbc.pixels.reconstruct) inverts a whole
-image; for a patch, `dm.ops.sample(crop)` gives the patch vertices' offsets.
+    target=fc: no image (the per-vertex baselines)
+`dm.target.positions(pred, batch)` maps a prediction back to 3D; `dm.target.values(pred)` to offsets.
 """
 
 from __future__ import annotations
@@ -34,11 +35,10 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from pbc.data.dataset import ClothDataset, load_dataset
-from pbc.pixels.frames import SPACES, to_offsets
-from pbc.pixels.operators import ImageOperators, PatchCrop, image_sizes
-from pbc.pixels.reconstruct import Skinner
+from pbc.pixels.frames import SPACES
+from pbc.pixels.target import KINDS, VertexTarget, make_target
 
-TARGETS = ("whole", "patch")
+TARGETS = KINDS
 
 
 class PoseVerts(Dataset):
@@ -65,13 +65,13 @@ class ClothDataModule(L.LightningDataModule):
     Args:
         data_dir: the dataset directory (written by `python -m pbc.generate`).
         image: the `image` config node (resolutions, crop_size, margin, pad, exact_sample, method).
-        target: "whole" (256 x 6 channel images) or "patch" (one patch's crop).
+        target: what is served, the model's kind: "whole" (6-channel images), "patch" (one patch's crop)
+            or "fc" (per-vertex offsets only).
         patch_id: the patch for target=patch (0 .. number of patches - 1).
-        space: offset space of the images ("local", "root", "position").
+        space: offset space of the targets ("local", "root", "position").
         batch_size, num_workers, pin_memory: DataLoader settings.
-        render: render images in `on_after_batch_transfer` (False: only pose/verts/index).
+        render: render targets in `on_after_batch_transfer` (False: only pose/verts/index).
         garment_hash: if set, the dataset must have been made for this garment (manifest garment_hash).
-        generate_cfg: the full root config; `prepare_data` generates the dataset from it when missing.
     """
 
     def __init__(
@@ -86,54 +86,49 @@ class ClothDataModule(L.LightningDataModule):
         pin_memory: bool = False,
         render: bool = True,
         garment_hash: str | None = None,
-        generate_cfg=None,
     ):
         super().__init__()
         if target not in TARGETS:
             raise ValueError(f"datamodule.target must be one of {TARGETS}, got {target!r}")
         if space not in SPACES:
             raise ValueError(f"datamodule.space must be one of {SPACES}, got {space!r}")
-        if target == "patch" and patch_id is None:
-            raise ValueError("datamodule.target=patch needs a patch_id")
         self.data_dir = Path(data_dir)
         self.image_cfg = image
-        self.target, self.patch_id, self.space = target, (None if patch_id is None else int(patch_id)), space
-        self.batch_size, self.num_workers, self.pin_memory = (
-            int(batch_size),
-            int(num_workers),
-            bool(pin_memory),
-        )
-        self.render, self.garment_hash, self.generate_cfg = bool(render), garment_hash, generate_cfg
+        self.kind, self.space = target, space
+        self.patch_id = None if patch_id is None else int(patch_id)  # read by the patch target only
+        self.batch_size, self.num_workers, self.pin_memory = int(batch_size), int(num_workers), bool(pin_memory)
+        self.render, self.garment_hash = bool(render), garment_hash
         self.data: ClothDataset | None = None
-        self.ops: ImageOperators | PatchCrop | None = None
-        self.skinner: Skinner | None = None
+        self.target: VertexTarget | None = None
         self.splits: dict[str, np.ndarray] = {}
+
+    @property
+    def ops(self):
+        """The target's render/sample operators (ImageOperators, PatchCrop, or None for fc)."""
+        return None if self.target is None else self.target.ops
+
+    @property
+    def skinner(self):
+        return None if self.target is None else self.target.skinner
 
     # ----------------------------------------------------------------------------------- lifecycle
     def prepare_data(self) -> None:
-        """Generate the dataset if its directory has no manifest (a fresh machine just works)."""
-        if (self.data_dir / "manifest.json").is_file():
-            return
-        if self.generate_cfg is None:
+        """Check that the dataset exists; making it is the entry point's job (it can take many minutes)."""
+        if not (self.data_dir / "manifest.json").is_file():
             raise FileNotFoundError(
-                f"no dataset at {self.data_dir} and no config to generate it from; "
-                "run `python -m pbc.generate` first"
+                f"no dataset at {self.data_dir}: make it with `python -m pbc.generate data=NAME` "
+                f"(or `data.dir=...` to point at an existing one); `python -m pbc.train` makes it when missing"
             )
-        from pbc.data.generate import generate  # GENERATION: the lead's pipeline makes the directory
-
-        generate(self.generate_cfg)
 
     def setup(self, stage: str | None = None) -> None:
         if self.data is not None:
             return
+        self.prepare_data()
         data = load_dataset(self.data_dir)  # memory-maps; clear errors for missing/corrupt/misshapen arrays
         self._check(data)
         self.data = data
         self.splits = {name: data.split(name) for name in ("train", "val", "test")}
-        if not self.render:
-            return
-        self.skinner = Skinner(data.body, data.garment, data.embedding)
-        self.ops = operators_for(data, self.image_cfg, self.target, self.patch_id)
+        self.target = make_target(data, self.image_cfg, self.kind, self.patch_id, self.space)
 
     def _check(self, data: ClothDataset) -> None:
         """One clear error for a dataset that cannot serve this configuration."""
@@ -143,10 +138,6 @@ class ClothDataModule(L.LightningDataModule):
                 f"{where} was made for garment {data.manifest.get('garment_hash')}, this run "
                 f"expects {self.garment_hash}; set data.dir to that garment's dataset or regenerate"
             )
-        if self.target == "patch":
-            n = len(data.cage.patches)
-            if not 0 <= self.patch_id < n:
-                raise ValueError(f"unknown patch_id {self.patch_id}: {where} has patches 0..{n - 1}")
         n = len(data)
         for name in ("train", "val", "test"):
             idx = np.asarray(data.manifest["splits"][name], np.int64)
@@ -161,7 +152,7 @@ class ClothDataModule(L.LightningDataModule):
                 )
 
     def loader(self, split: str, shuffle: bool = False) -> DataLoader:
-        """A DataLoader over any split ('train', 'val', 'test'), e.g. to score a model on the train split."""
+        """A DataLoader over any split ('train', 'val', 'test')."""
         if self.data is None:
             self.setup()
         return DataLoader(
@@ -183,61 +174,16 @@ class ClothDataModule(L.LightningDataModule):
     def test_dataloader(self) -> DataLoader:
         return self.loader("test", shuffle=False)
 
+    def scoring_dataloaders(self) -> list[DataLoader]:
+        """The final scoring pass: the test split, then the training split in order (Table 1's training
+        error), matching `pbc.models.module.TEST_SPLITS`."""
+        return [self.loader("test", shuffle=False), self.loader("train", shuffle=False)]
+
     # ----------------------------------------------------------------------------------- rendering
     def on_after_batch_transfer(self, batch: dict, dataloader_idx: int) -> dict:
-        """Render the batch's images where the batch now lives (the GPU in training)."""
-        return self.render_batch(batch) if self.render else batch
-
-    @torch.no_grad()
-    def render_batch(self, batch: dict) -> dict:
-        """Add anchors, frames, offsets, image and mask to a batch of pose/verts (any device)."""
-        if self.ops is None or self.skinner is None:
+        """Render the batch's targets where the batch now lives (the GPU in training)."""
+        if not self.render:
+            return batch
+        if self.target is None:
             self.setup()
-        pose, verts = batch["pose"], batch["verts"]
-        anchors, frames = self.skinner(pose.reshape(pose.shape[0], -1, 3, 3))
-        offsets = to_offsets(verts, anchors, frames, self.space)
-        out = dict(batch, anchors=anchors, frames=frames, offsets=offsets)
-        out["image"] = self.ops.render(offsets)
-        out["mask"] = self.ops.image_mask(verts.device, verts.dtype)
-        if isinstance(self.ops, PatchCrop):
-            out["vertices"] = self.ops.vertices.to(verts.device)
-        return out
-
-
-def operators_for(data: ClothDataset, image_cfg, target: str, patch_id: int | None = None):
-    """The render/sample operators for `target`, cached under `<dataset>/operators/`.
-
-    whole -> ImageOperators at image.whole_resolution; patch -> PatchCrop of patch `patch_id` at
-    image.patch_resolution (crop_size, margin and pad scaled from image.reference_resolution).
-    """
-    sizes = image_sizes(image_cfg)
-    which = "whole" if target == "whole" else "patch"
-    ops = ImageOperators.for_garment(
-        data.garment,
-        sizes[f"{which}_resolution"],
-        sizes[f"{which}_pad"],
-        exact=bool(image_cfg.get("exact_sample", True)),
-        cache_dir=Path(data.dir) / "operators",
-        method=str(image_cfg.get("method", "gather")),
-    )
-    if target == "whole":
-        return ops
-    return ops.crop(data.cage.patches[int(patch_id)], sizes["crop_size"], sizes["margin"])
-
-
-def from_config(cfg) -> ClothDataModule:
-    """Build the DataModule from the root config (uses cfg.datamodule, cfg.image, cfg.data.dir)."""
-    dm = cfg.datamodule
-    return ClothDataModule(
-        data_dir=str(cfg.data.dir),
-        image=cfg.image,
-        target=dm.target,
-        patch_id=dm.get("patch_id"),
-        space=dm.space,
-        batch_size=dm.batch_size,
-        num_workers=dm.num_workers,
-        pin_memory=dm.get("pin_memory", False),
-        render=dm.get("render", True),
-        garment_hash=dm.get("garment_hash"),
-        generate_cfg=cfg,
-    )
+        return self.target.render(batch)

@@ -1,10 +1,14 @@
-"""Preview figures of a dataset: the UV layout with the cage and patch ids, draped samples, OBJ exports.
+"""Preview figures of a dataset: the UV layout with the cage and patch ids, draped samples, OBJ exports,
+and (with an image config) the pixels stage's cloth images, crop windows and round-trip error map.
 
 Everything is written under `<dataset>/preview/` (PNG via matplotlib, meshes via trimesh), atomically.
+
+    python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3]    # the cloth-image figures only
 """
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import matplotlib
@@ -15,11 +19,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
-from omegaconf import DictConfig  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
 from pbc.geometry.body import pose_body  # noqa: E402
 from pbc.io import atomic_path, save_figure  # noqa: E402
+from pbc.pixels.preview import preview as cloth_image_preview  # noqa: E402
+from pbc.sim.poses import plot_angle_histograms  # noqa: E402
 
 SIDE_NAMES = ("front", "back")
 
@@ -101,8 +107,6 @@ def export_objs(ds: ClothDataset, indices: list[int], out: Path) -> list[Path]:
 
 def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_samples: int = 4) -> list[Path]:
     """All preview figures and meshes of the dataset in `directory`. Returns the written paths."""
-    from pbc.sim.poses import plot_angle_histograms
-
     ds = load_dataset(directory)
     out = Path(directory) / "preview"
     out.mkdir(exist_ok=True)
@@ -114,7 +118,22 @@ def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_sample
         paths.append(out / "pose_angles.png")
     paths += export_objs(ds, indices, out)
     if cfg is not None:  # cloth images, crop windows, round-trip error: the pixels stage's figures
-        from pbc.pixels.preview import preview as cloth_image_preview
-
-        paths += cloth_image_preview(directory, out, cfg.image)
+        paths += cloth_image_preview(ds, out, cfg.image)
     return paths
+
+
+def main(argv: list[str] | None = None) -> None:
+    """The cloth-image figures of a dataset (under DATASET_DIR/preview_pixels unless OUT_DIR is given)."""
+    ap = argparse.ArgumentParser(description="Cloth images, crop windows and round-trip error of a dataset.")
+    ap.add_argument("dataset")
+    ap.add_argument("out", nargs="?", default=None)
+    ap.add_argument("--samples", type=int, default=3)
+    args = ap.parse_args(argv)
+    image_cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf/image/default.yaml")
+    out = args.out or Path(args.dataset) / "preview_pixels"
+    for p in cloth_image_preview(load_dataset(args.dataset), out, image_cfg, args.samples):
+        print(p)
+
+
+if __name__ == "__main__":
+    main()

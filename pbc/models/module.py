@@ -1,10 +1,11 @@
 """The one LightningModule for every target (whole-shirt images, patch crops, FC per-vertex baselines).
 
 Job: turn a batch of (pose, draped vertices) into losses, metrics and logs. Ground-truth cloth images
-are rendered from the stored vertices on the batch's device (DESIGN key idea 1); predictions go back
-image -> vertices -> 3D through ``pbc.pixels.reconstruct`` so the normal/edge losses and the cm metrics
-see the real garment. Per-garment operators (render/sample, skinning, faces, edges) are not hparams:
-they are attached with :meth:`ClothModule.attach` (see :func:`build_geometry`) before fit/test.
+are rendered from the stored vertices on the batch's device (docs/architecture.md); predictions go back
+image -> vertices -> 3D through the run's cloth target (``pbc.pixels.target``) so the normal/edge losses
+and the cm metrics see the real garment. The target (operators, skinning, faces, edges) is not an hparam:
+it is attached with :meth:`ClothModule.attach` before fit/test (``pbc.train`` attaches the DataModule's).
+Built from ``conf/model/*.yaml`` (``_target_`` this class; optimiser and LR scheduler as ``_partial_``).
 
 Also here: :class:`ImagePanel`, the TensorBoard callback drawing pred | gt | error images for fixed
 validation poses and writing one predicted mesh (``add_mesh`` + OBJ) at the end of fit.
@@ -14,9 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import lightning as L
 import torch
@@ -24,48 +23,19 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
+from pbc.io import write_text
 from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm
-from pbc.pixels.frames import from_offsets, to_offsets
-from pbc.pixels.reconstruct import edge_lengths, mesh_edges, vertex_normals
+from pbc.models.fc import fit_pca as fit_pca_values
+from pbc.pixels.reconstruct import edge_lengths, vertex_normals
+from pbc.pixels.target import KINDS, VertexTarget
 
 log = logging.getLogger(__name__)
-KINDS = ("whole", "patch", "fc")
 # the identity keys a checkpoint must share with the run that loads it
+MONITOR = "val/vertex_error_cm"
+# log prefixes of the test dataloaders, in order (see pbc.data.datamodule.ClothDataModule.scoring_dataloaders)
+TEST_SPLITS = ("test", "train_final")
 IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space")
-
-
-@dataclass
-class Geometry:
-    """Everything per garment/resolution the module needs to go vertices <-> images <-> 3D.
-
-    ops: ``ImageOperators`` (whole) or ``PatchCrop`` (patch) or None (fc); skinner: pose -> anchors,
-    frames; faces (F, 3) long; edges (E, 2) long (only those inside ``vertices`` for a patch);
-    vertices: (Vk,) ids the metrics run over (None = all).
-    """
-
-    ops: Any
-    skinner: Any
-    faces: Tensor
-    edges: Tensor
-    vertices: Tensor | None
-
-
-def geometry_from_datamodule(dm, kind: str) -> Geometry:
-    """Geometry of a set-up ``pbc.data.datamodule.ClothDataModule`` (its operators and skinner are reused,
-    so images are rendered once per batch, by the DataModule)."""
-    from pbc.pixels.reconstruct import Skinner
-
-    data = dm.data
-    faces = torch.as_tensor(data.garment.faces).long()
-    edges = mesh_edges(faces)
-    skinner = dm.skinner or Skinner(data.body, data.garment, data.embedding)
-    if kind == "patch":
-        ids = dm.ops.vertices
-        inside = torch.zeros(len(data.garment.vertices), dtype=torch.bool)
-        inside[ids] = True
-        return Geometry(dm.ops, skinner, faces, edges[inside[edges].all(1)], ids)
-    return Geometry(dm.ops if kind == "whole" else None, skinner, faces, edges, None)
 
 
 class ClothModule(L.LightningModule):
@@ -76,102 +46,94 @@ class ClothModule(L.LightningModule):
         kind: ``whole`` | ``patch`` | ``fc``.
         space: offset space of the predicted values (``local`` | ``root`` | ``position``).
         loss: ``{norm, normal_weight, edge_weight}``.
-        lr: Adam learning rate.
+        lr: learning rate (``model.optimizer.lr`` interpolates it).
         identity: what a checkpoint must match to be loaded here (garment hash, resolution, patch...).
         patch_id: patch of a patch model, else None.
         summary: flat extra hparams for the TensorBoard hparams tab (data size, loss name...).
         mean_image: image models start from the train split's mean image (``model.mean_image``;
             false = the paper's plain decoder).
+        optimizer: a ``_partial_`` optimiser node (``model.optimizer``); None = Adam at ``lr``.
+        scheduler: an optional ``_partial_`` LR scheduler node (``model.scheduler``), stepped per epoch.
     """
 
-    def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict,
-                 patch_id: int | None = None, summary: dict | None = None, mean_image: bool = True) -> None:
+    def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict | None = None,
+                 patch_id: int | None = None, summary: dict | None = None, mean_image: bool = True,
+                 optimizer: dict | None = None, scheduler: dict | None = None) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
         # logger=False: the hparams tab is written once at the end, together with the final metrics
         self.save_hyperparameters(logger=False)
         self.net = instantiate(net)
-        self.geom: Geometry | None = None
+        self.target: VertexTarget | None = None
 
     # ------------------------------------------------------------------------------ wiring
-    def attach(self, geom: Geometry) -> ClothModule:
-        self.geom = geom
+    def attach(self, target: VertexTarget) -> ClothModule:
+        """Give the module its cloth target (``pbc.pixels.target.make_target``); needed before a step."""
+        if target.kind != self.hparams.kind:
+            raise ValueError(f"a {self.hparams.kind!r} model cannot train on a {target.kind!r} target")
+        self.target = target
         return self
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         """Refuse a checkpoint of another garment / resolution / patch / model kind, naming the difference."""
         theirs = checkpoint.get("hyper_parameters", {}).get("identity", {})
-        mine = self.hparams.identity
+        mine = self.hparams.identity or {}
         diff = {k: (theirs.get(k), mine.get(k)) for k in IDENTITY_KEYS if theirs.get(k) != mine.get(k)}
         if diff:
             lines = ", ".join(f"{k}: checkpoint {a!r} vs this run {b!r}" for k, (a, b) in diff.items())
             raise ValueError(f"refusing checkpoint made for a different setup ({lines})")
 
     def configure_optimizers(self):
-        return torch.optim.Adam(self.net.parameters(), lr=self.hparams.lr)
+        """``model.optimizer`` (a ``_partial_`` node; Adam at ``lr`` when absent) and, when
+        ``model.scheduler`` is set (a ``_partial_`` LR scheduler), the scheduler stepped per epoch."""
+        node = self.hparams.get("optimizer") or {"_target_": "torch.optim.Adam", "_partial_": True,
+                                                 "lr": self.hparams.lr}
+        opt = instantiate(node)(params=self.net.parameters())
+        sched = self.hparams.get("scheduler")
+        if not sched:
+            return opt
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": instantiate(sched)(optimizer=opt),
+                                                   "monitor": MONITOR, "interval": "epoch"}}
 
     def forward(self, pose: Tensor) -> Tensor:
         return self.net(pose.reshape(pose.shape[0], -1))
 
     # ------------------------------------------------------------------------------ targets
     def targets(self, batch: dict) -> dict:
-        """Ground truth of a batch: anchors/frames of the posed body, offsets, and the target image.
-
-        Uses what the DataModule already rendered on the device (``anchors``, ``frames``, ``offsets``,
-        ``image``, ``mask``) and computes only what is missing.
-        """
-        if all(k in batch for k in ("anchors", "frames", "offsets")) and (
-                self.hparams.kind == "fc" or "image" in batch):
-            return batch
-        g = self.geom
-        pose = batch["pose"].reshape(batch["pose"].shape[0], -1, 3, 3)
-        verts = batch["verts"]
-        anchors, frames = g.skinner(pose)
-        offsets = to_offsets(verts, anchors, frames, self.hparams.space)
-        out = {"anchors": anchors, "frames": frames, "offsets": offsets, "verts": verts}
-        if self.hparams.kind != "fc":
-            out["image"] = g.ops.render(offsets)
-            out["mask"] = g.ops.image_mask(verts.device, verts.dtype)
-        return out
+        """Ground truth of a batch (anchors, frames, offsets and the target image): what the DataModule
+        already rendered on the device, else rendered here by the same target."""
+        return self.target.ensure(batch)
 
     def positions(self, pred: Tensor, t: dict) -> Tensor:
         """Prediction -> 3D positions (B, V, 3); outside a patch model's patch, ground truth."""
-        kind, space = self.hparams.kind, self.hparams.space
-        if kind == "fc":
-            return from_offsets(pred, t["anchors"], t["frames"], space)
-        values = self.geom.ops.sample(pred)
-        if kind == "whole":
-            return from_offsets(values, t["anchors"], t["frames"], space)
-        ids = self.geom.vertices.to(pred.device)
-        inner = from_offsets(values, t["anchors"][:, ids], t["frames"][:, ids], space)
-        return t["verts"].index_copy(1, ids, inner)
+        return self.target.positions(pred, t)
 
     def step(self, batch: dict, split: str, batch_idx: int) -> tuple[Tensor, dict]:
         t = self.targets(batch)
         pred = self(batch["pose"])
         lc = self.hparams.loss
         logs: dict[str, Tensor] = {}
-        if self.hparams.kind == "fc":
-            base = vertex_value_loss(pred, t["offsets"], lc["norm"])
-        else:
-            base = image_loss(pred, t["image"], t["mask"], lc["norm"])
+        truth, mask = self.target.truth(t)
+        base = vertex_value_loss(pred, truth, lc["norm"]) if mask is None else image_loss(pred, truth, mask,
+                                                                                          lc["norm"])
         logs["image_loss"] = base
         total = base
         # 3D is always built: the cm metric needs it; only the optional losses add graph work
         pos = self.positions(pred, t)
-        ids = self.geom.vertices
+        ids = self.target.vertices
+        faces, edges = self.target.faces.to(pos.device), self.target.edges.to(pos.device)
         n_pred = n_gt = None
         if lc["normal_weight"] > 0 or split != "train":
-            n_pred = vertex_normals(pos, self.geom.faces)
-            n_gt = vertex_normals(t["verts"], self.geom.faces)
+            n_pred = vertex_normals(pos, faces)
+            n_gt = vertex_normals(t["verts"], faces)
         if lc["normal_weight"] > 0:
             sel = slice(None) if ids is None else ids.to(pos.device)
             nl = normal_loss(n_pred[:, sel], n_gt[:, sel])
             logs["normal_loss"] = nl
             total = total + lc["normal_weight"] * nl
         if lc["edge_weight"] > 0:
-            el = edge_loss(edge_lengths(pos, self.geom.edges), edge_lengths(t["verts"], self.geom.edges))
+            el = edge_loss(edge_lengths(pos, edges), edge_lengths(t["verts"], edges))
             logs["edge_loss"] = el
             total = total + lc["edge_weight"] * el
         logs["loss"] = total
@@ -189,7 +151,8 @@ class ClothModule(L.LightningModule):
                 + "; stopping instead of training a NaN model")
         bs = batch["pose"].shape[0]
         self.log_dict({f"{split}/{k}": v.detach() if k != "loss" else v for k, v in logs.items()},
-                      on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=False)
+                      on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=False,
+                      add_dataloader_idx=False)
         return total, {"pred": pred.detach(), **{k: v for k, v in t.items() if k in ("image", "mask")},
                        "positions": pos.detach()}
 
@@ -199,12 +162,10 @@ class ClothModule(L.LightningModule):
     def validation_step(self, batch, batch_idx):
         self.step(batch, "val", batch_idx)
 
-    # the log prefix of test passes: "test", or "train_final" when the best model is scored on the train
-    # split (Table 1's training error) so those numbers never mix with the test curves
-    test_prefix = "test"
-
-    def test_step(self, batch, batch_idx):
-        self.step(batch, self.test_prefix, batch_idx)
+    def test_step(self, batch, batch_idx, dataloader_idx: int = 0):
+        # test loaders in TEST_SPLITS order: the test split, then (pbc.train) the training split scored by
+        # the best model (Table 1's training error) under its own prefix, never mixed with the test curves
+        self.step(batch, TEST_SPLITS[dataloader_idx], batch_idx)
 
     # ------------------------------------------------------------------------------ PCA (fc)
     def on_fit_start(self) -> None:
@@ -256,13 +217,11 @@ class ClothModule(L.LightningModule):
     @torch.no_grad()
     def fit_pca(self, loader) -> None:
         """Fit the FC net's PCA basis on the (whole) train split, in the model's space."""
-        from pbc.models.fc import fit_pca
-
         rows = []
         for batch in loader:
             batch = {k: v.to(self.device) if torch.is_tensor(v) else v for k, v in batch.items()}
             rows.append(self.targets(batch)["offsets"].reshape(batch["verts"].shape[0], -1).cpu())
-        mean, comps, scale = fit_pca(torch.cat(rows), self.net.pca_components.shape[0])
+        mean, comps, scale = fit_pca_values(torch.cat(rows), self.net.pca_components.shape[0])
         self.net.set_pca(mean.to(self.device), comps.to(self.device), scale.to(self.device))
         log.info("fitted PCA on %d train samples", sum(len(r) for r in rows))
 
@@ -287,8 +246,6 @@ def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
 
 def write_obj(path: Path, vertices: Tensor, faces: Tensor) -> Path:
     """Plain OBJ (v / f, 1-based), written atomically."""
-    from pbc.io import write_text
-
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices.tolist()]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
@@ -342,7 +299,7 @@ class ImagePanel(L.Callback):
     def on_validation_epoch_end(self, trainer, pl_module) -> None:
         tb = _tensorboard(trainer)
         epoch = trainer.current_epoch
-        if tb is None or trainer.sanity_checking or pl_module.hparams.kind == "fc":
+        if tb is None or trainer.sanity_checking or pl_module.target.image_size is None:
             return
         if (epoch + 1) % self.every:
             return
@@ -362,7 +319,7 @@ class ImagePanel(L.Callback):
         if out is None:
             return
         pos = out[3][0].float().cpu()
-        faces = pl_module.geom.faces.cpu()
+        faces = pl_module.target.faces.cpu()
         if self.mesh_dir is not None:
             write_obj(self.mesh_dir / "pred_val0.obj", pos, faces)
             write_obj(self.mesh_dir / "gt_val0.obj", out[1]["verts"][0].float().cpu(), faces)

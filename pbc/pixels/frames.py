@@ -19,6 +19,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from pbc.geometry.shrinkwrap import embedded_points
+
 SPACES = ("local", "root", "position")
 _EPS = 1e-12
 
@@ -28,14 +30,9 @@ def _check_space(space: str) -> None:
         raise ValueError(f"unknown offset space {space!r}; choose one of {SPACES}")
 
 
-def embedded_anchors(body_vertices: Tensor, body_faces: Tensor, emb) -> Tensor:
-    """Skinned cloth-pixel positions: barycentric points on the posed body.
-
-    body_vertices (B, Vb, 3), body_faces (Fb, 3) long, emb.face (V,), emb.bary (V, 3) -> (B, V, 3).
-    """
-    tri = body_faces.to(body_vertices.device)[emb.face.to(body_vertices.device)]  # (V, 3)
-    corners = body_vertices[:, tri]  # (B, V, 3, 3)
-    return torch.einsum("bvkc,vk->bvc", corners, emb.bary.to(body_vertices))
+# Skinned cloth-pixel positions, barycentric points on the posed body: the geometry stage's one definition
+# (body_vertices (B, Vb, 3), body_faces (Fb, 3) long, emb.face (V,), emb.bary (V, 3) -> (B, V, 3)).
+embedded_anchors = embedded_points
 
 
 class FrameBuilder:

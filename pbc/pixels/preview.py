@@ -4,12 +4,12 @@ One job: draw, for a few samples of a dataset, the front/back cloth images (one 
 per channel, symmetric about 0), the padded chart mask, the patch crop windows on the 512 image, and
 the round-trip error map of plain bilinear sampling (per vertex, at its UV).
 
-    python -m pbc.pixels.preview DATASET_DIR [OUT_DIR] [--samples 3]
+Takes a loaded dataset (this stage never reads one from disk); the command is
+`python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3]`.
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib
@@ -19,11 +19,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
-from omegaconf import OmegaConf  # noqa: E402
 
 from pbc.io import save_figure  # noqa: E402
 from pbc.pixels.frames import to_offsets  # noqa: E402
 from pbc.pixels.operators import ImageOperators, image_sizes  # noqa: E402
+from pbc.pixels.reconstruct import Skinner  # noqa: E402
+from pbc.pixels.target import image_operators  # noqa: E402
 
 CHANNELS = ("du", "dv", "dn")
 
@@ -84,39 +85,23 @@ def round_trip_figure(garment, plain: ImageOperators, x: torch.Tensor, path: Pat
     return float(err.mean())
 
 
-def preview(dataset_dir: str | Path, out_dir: str | Path, image_cfg, samples: int = 3) -> list[Path]:
-    """Write the PNGs for the first `samples` samples of a dataset; returns their paths."""
-    from pbc.data.dataset import load_dataset
-    from pbc.pixels.reconstruct import Skinner
+def preview(data, out_dir: str | Path, image_cfg, samples: int = 3) -> list[Path]:
+    """Write the PNGs for the first `samples` samples of a loaded dataset `data`; returns their paths.
 
-    data = load_dataset(dataset_dir)
+    The operators are the ones training uses (pbc.pixels.target.image_operators); the round-trip figure
+    also builds the plain (uncorrected) ones it compares against, uncached.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sizes = image_sizes(image_cfg)
     idx = np.arange(min(samples, len(data)))
     anchors, frames = Skinner(data.body, data.garment, data.embedding)(torch.from_numpy(np.array(data.poses[idx])))
     x = to_offsets(torch.from_numpy(np.array(data.verts[idx])), anchors, frames, "local")
-    cache = Path(data.dir) / "operators"
-    whole = ImageOperators.for_garment(data.garment, sizes["whole_resolution"], sizes["whole_pad"], cache_dir=cache)
-    ops512 = ImageOperators.for_garment(data.garment, sizes["patch_resolution"], sizes["patch_pad"], cache_dir=cache)
+    whole = image_operators(data, image_cfg, "whole")
+    ops512 = image_operators(data, image_cfg, "patch")
     plain = ImageOperators.for_garment(data.garment, sizes["patch_resolution"], sizes["patch_pad"], exact=False)
     paths = [out / "cloth_images.png", out / "crop_windows.png", out / "round_trip_error.png"]
     cloth_image_figure(whole.render(x).numpy(), whole.mask.numpy(), paths[0], [f"sample {i}" for i in idx])
     crop_windows_figure(ops512, ops512.render(x[:1]).numpy()[0], data.cage, sizes["crop_size"], paths[1])
     round_trip_figure(data.garment, plain, x, paths[2])
     return paths
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("dataset")
-    ap.add_argument("out", nargs="?", default=None)
-    ap.add_argument("--samples", type=int, default=3)
-    args = ap.parse_args()
-    cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf/image/default.yaml")
-    for p in preview(args.dataset, args.out or Path(args.dataset) / "preview_pixels", cfg, args.samples):
-        print(p)
-
-
-if __name__ == "__main__":
-    main()

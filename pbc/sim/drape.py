@@ -1,6 +1,6 @@
 """Drape one garment on one static posed body to static equilibrium with newton's SolverStyle3D.
 
-This module's one job is the physics of record for a sample (DESIGN key idea 6, appendix D.6): start
+This module's one job is the physics of record for a sample (docs/architecture.md; appendix D.6): start
 from the garment skinned onto the posed body, relax it under gravity with Style3D's anisotropic
 stretch and bending energies whose rest shape is the flat sewing pattern, collide every cloth vertex
 with its *primary* body part only (torso, left arm, right arm: D.6), and step frames until the cloth

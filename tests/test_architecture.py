@@ -1,0 +1,108 @@
+"""The import graph of pbc/ (every `import`, lazy ones included, read with `ast`): no circle, and no module
+importing one further down the data flow (docs/architecture.md)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "pbc"
+
+# The data flow, lowest first; a module may import its own stage or an earlier one. The longest matching
+# prefix names a module's stage. The ground floor (io, config, runs) reads and writes files only.
+STAGES = [
+    ("pbc.io", "pbc.config", "pbc.runs"),
+    ("pbc.geometry",),
+    ("pbc.sim",),
+    ("pbc.pixels",),
+    ("pbc.data",),
+    ("pbc.losses", "pbc.metrics", "pbc.models"),
+    ("pbc.stitch",),
+    ("pbc.predict",),
+    ("pbc.evaluate", "pbc.train"),
+    ("pbc.report",),
+    ("pbc.sweeps",),
+    ("pbc.generate", "pbc.main", "pbc.cli"),
+]
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PKG.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph() -> dict[str, set[str]]:
+    """{module: the pbc modules it imports}, from the source alone (nothing is imported)."""
+    modules = {module_name(p): p for p in PKG.rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                # `from pbc.x import y`: y is a submodule when such a file exists, else a name in pbc.x
+                targets = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules else node.module
+                           for a in node.names]
+            else:
+                continue
+            deps |= {t for t in targets if t.startswith("pbc.") and t in modules and t != name}
+        graph[name] = deps
+    return graph
+
+
+def stage(module: str) -> int:
+    best = None
+    for i, prefixes in enumerate(STAGES):
+        for p in prefixes:
+            if (module == p or module.startswith(p + ".")) and (best is None or len(p) > best[1]):
+                best = (i, len(p))
+    assert best is not None, f"{module} has no stage: add it to STAGES (and to docs/architecture.md)"
+    return best[0]
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}  # 1 = on the stack, 2 = done
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m not in state and (c := visit(m)):
+                return c
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if n not in state and (c := visit(n)):
+            return c
+    return None
+
+
+def test_graph_is_read():
+    g = import_graph()
+    # a sanity floor so an empty graph cannot pass: the trainer imports the DataModule and the module
+    assert {"pbc.data.datamodule", "pbc.models.module"} <= g["pbc.train"]
+    assert "pbc.pixels.target" in g["pbc.data.datamodule"]
+
+
+def test_no_import_cycle():
+    cycle = find_cycle(import_graph())
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_no_import_runs_back_up_the_pipeline():
+    g = import_graph()
+    upward = [f"{a} (stage {stage(a)}) imports {b} (stage {stage(b)})" for a, deps in sorted(g.items())
+              for b in sorted(deps) if stage(b) > stage(a)]
+    assert not upward, "imports running back up the data flow:\n  " + "\n  ".join(upward)
+
+
+def test_the_checks_catch_a_cycle_and_an_upward_import():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+    assert stage("pbc.pixels.preview") < stage("pbc.data.dataset")
