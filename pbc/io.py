@@ -166,6 +166,19 @@ def is_writable_dir(path: str | os.PathLike) -> bool:
     return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
 
 
+def require_writable_dir(path: str | os.PathLike, what: str = "output directory", fix: str = "") -> Path:
+    """Create `path` if needed and return it; one PermissionError naming it when it cannot be written
+    (a read-only runs dir otherwise surfaces as a misleading FileNotFoundError deep in a logger)."""
+    p = Path(path)
+    if not is_writable_dir(p):
+        raise PermissionError(f"{what} {p} is not writable; {fix or 'choose a writable location'}")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PermissionError(f"cannot create {what} {p} ({err}); {fix or 'choose a writable location'}") from err
+    return p
+
+
 # ----------------------------------------------------------------------------------------- locks
 class LockHeld(RuntimeError):
     """Another process holds a pbc lock file (see `dir_lock`)."""

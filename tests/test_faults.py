@@ -100,24 +100,34 @@ def test_config_patch_id_must_be_an_integer_patch(override, needle):
         check_config(cfg, num_patches=28)
 
 
-@pytest.mark.parametrize("override, needle", [
-    ("datamodule.batch_size=0", "datamodule.batch_size=0"),
-    ("datamodule.batch_size=8.5", r"datamodule.batch_size=8.5 \(float\)"),
-    ("model.kind=wole", "model.kind='wole'.*one of"),
-    ("model.space=world", "model.space='world'"),
-    ("loss.norm=l3", "loss.norm='l3'"),
-    ("model.lr=-1", "model.lr=-1"),
-    ("data.num_samples=0", "data.num_samples=0"),
-    ("data.shard=2", r"data.shard=2 .*0\.\.0"),
+@pytest.fixture(scope="module")
+def root_cfg():
+    return load_config([])
+
+
+@pytest.mark.parametrize("key, value, needle", [
+    ("datamodule.batch_size", 0, "datamodule.batch_size=0"),
+    ("datamodule.batch_size", 8.5, r"datamodule.batch_size=8.5 \(float\)"),
+    ("model.kind", "wole", "model.kind='wole'.*one of"),
+    ("model.space", "world", "model.space='world'"),
+    ("loss.norm", "l3", "loss.norm='l3'"),
+    ("model.lr", -1, "model.lr=-1"),
+    ("data.num_samples", 0, "data.num_samples=0"),
+    ("data.shard", 2, r"data.shard=2 .*0\.\.0"),
 ])
-def test_config_values_checked_by_type(override, needle):
+def test_config_values_checked_by_type(root_cfg, key, value, needle):
+    cfg = root_cfg.copy()
+    OmegaConf.update(cfg, key, value)
     with pytest.raises(ValueError, match=needle):
-        check_config(load_config([override]))
+        check_config(cfg)
 
 
-def test_config_lists_every_problem_at_once():
+def test_config_lists_every_problem_at_once(root_cfg):
+    cfg = root_cfg.copy()
+    OmegaConf.update(cfg, "datamodule.batch_size", 0)
+    OmegaConf.update(cfg, "model.lr", 0)
     with pytest.raises(ValueError) as err:
-        check_config(load_config(["datamodule.batch_size=0", "model.lr=0"]))
+        check_config(cfg)
     assert "batch_size" in str(err.value) and "model.lr" in str(err.value)
 
 
@@ -273,6 +283,16 @@ def test_corrupt_checkpoint_and_json_name_the_file(tmp_path):
     m.write_text('{"status": "ok", "test": {')
     with pytest.raises(ValueError, match=rf"metrics {m} is corrupt"):
         read_json(m, "metrics")
+
+
+def test_read_only_output_dir_is_named(tmp_path):
+    from pbc.io import require_writable_dir
+
+    blocker = tmp_path / "runs"
+    blocker.write_text("a file where the runs dir would be")
+    with pytest.raises(PermissionError, match=rf"run dir {blocker}/r1 is not writable; set paths.log_dir"):
+        require_writable_dir(blocker / "r1", "run dir", "set paths.log_dir")
+    assert require_writable_dir(tmp_path / "ok" / "r1").is_dir()
 
 
 # ============================================================================ operator cache
@@ -471,3 +491,11 @@ def test_second_generator_on_one_dir_is_refused_before_touching_it(tmp_path):
         with pytest.raises(LockHeld, match="in use by another process"):
             generate(cfg)
     assert sorted(p.name for p in out.iterdir()) == []  # no work/ left behind by the refused one
+
+
+def test_generator_checks_config_types_first(tmp_path):
+    from pbc.data.generate import generate
+
+    cfg = load_config(["data=tshirt_tiny", f"paths.data_dir={tmp_path}", "data.num_shards=2", "data.shard=1.0"])
+    with pytest.raises(ValueError, match=r"data.shard=1.0 \(float\)"):
+        generate(cfg)

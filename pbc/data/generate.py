@@ -34,6 +34,7 @@ from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
+from pbc.validate import check_config
 
 
 @dataclass
@@ -161,6 +162,7 @@ def generate(cfg: DictConfig) -> Path:
     or merge holds `.generate.lock` exclusively; shard runs share it and each holds its own shard lock,
     so shards of one dataset run side by side but never beside a merge (which removes work/).
     """
+    check_config(cfg)  # typed values before any work: data.shard=1.0 is not shard 1
     out = dataset_dir(cfg)
     if (out / "manifest.json").is_file() and cfg.data.shard is None:
         return _generate(cfg)  # finished: only reads (the directory may be read-only)
