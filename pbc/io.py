@@ -203,7 +203,9 @@ def dir_lock(path: str | os.PathLike, what: str = "this directory", shared: bool
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise PermissionError(f"cannot create {path.parent} to lock {what} ({err}); choose a writable location") from err
+        raise PermissionError(
+            f"cannot create {path.parent} to lock {what} ({err}); choose a writable location"
+        ) from err
     deadline = time.monotonic() + max(0.0, timeout)
     mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
     while True:

@@ -8,6 +8,7 @@ Imports nothing from pbc, so every stage (data, models, predict, the CLIs) can c
     check_config(cfg)           one ValueError listing every mistyped / out-of-range config value
     training_identity(cfg, fp)  what a resumed run must share with its checkpoint
     identity_diff(a, b)         the differences between two identities, one readable line each
+    check_resume(ck, ident, p)  refuse a checkpoint of another training identity, listing the differences
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ __all__ = [
     "ROTATION_TOL",
     "as_poses",
     "check_config",
+    "check_resume",
     "identity_diff",
     "rotation_errors",
     "training_identity",
@@ -98,7 +100,9 @@ def as_poses(
         batched = True
     else:
         hint = ""
-        if len(s) >= 1 and s[-1] % 9 == 0 and len(s) <= 2:
+        if s == (J, 9):
+            hint = f" (one row of 9 per joint: reshape it to ({J}, 3, 3))"
+        elif len(s) >= 1 and s[-1] % 9 == 0 and len(s) <= 2:
             hint = f" (that is {s[-1] // 9} joints; this model takes {J})"
         elif len(s) >= 3 and s[-2:] == (3, 3):
             hint = f" (that is {s[-3]} joints; this model takes {J})"
@@ -290,3 +294,22 @@ def identity_diff(a: Mapping, b: Mapping, names: tuple[str, str] = ("checkpoint"
         if va != vb:
             lines.append(f"{k}: {names[0]} {va!r} vs {names[1]} {vb!r}")
     return lines
+
+
+def check_resume(checkpoint_identity: Mapping | None, identity: Mapping, path: Any) -> None:
+    """Refuse to resume from checkpoint `path` whose training identity differs from this run's.
+
+    One ValueError listing every difference (identity_diff) and the two ways out. A checkpoint written
+    before identities were recorded (None) is refused too: nothing says it is the same training.
+    """
+    if checkpoint_identity is None:
+        raise ValueError(
+            f"refusing to resume from {path}: it records no training identity (written by an older pbc); "
+            "start a new run (ckpt_path=null), or load its weights explicitly if you know it matches"
+        )
+    diff = identity_diff(checkpoint_identity, identity)
+    if diff:
+        raise ValueError(
+            f"refusing to resume from {path}: it was trained with other settings\n  - " + "\n  - ".join(diff)
+            + "\nresume with the checkpoint's settings (drop those overrides), or start a new run (ckpt_path=null)"
+        )

@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 
 from pbc.config import load_config
 from pbc.io import LockHeld, dir_lock, load_checkpoint, load_npz, read_json, write_json
-from pbc.validate import as_poses, check_config, identity_diff, rotation_errors, training_identity
+from pbc.validate import as_poses, check_config, check_resume, identity_diff, rotation_errors, training_identity
 
 J = 10
 
@@ -49,6 +49,8 @@ def test_pose_shapes_numpy_and_torch_become_batched_float32(shape):
 def test_pose_wrong_joint_count_names_expected_shape():
     with pytest.raises(ValueError, match=r"shape \(4, 72\).*8 joints.*takes 10.*\(B, 90\)"):
         as_poses(rotations(4)[:, :8].reshape(4, 72), J)
+    with pytest.raises(ValueError, match=r"shape \(10, 9\) \(one row of 9 per joint: reshape it to \(10, 3, 3\)\)"):
+        as_poses(rotations(1).reshape(J, 9), J)
     with pytest.raises(ValueError, match=r"shape \(11, 3, 3\).*11 joints"):
         as_poses(np.concatenate([rotations(1)[0], np.eye(3, dtype=np.float32)[None]]), J)
 
@@ -247,6 +249,18 @@ def test_sigterm_writes_last_checkpoint_at_the_step_reached(tmp_path):
     assert (last["epoch"], last["global_step"]) == (2, 2 * NB + 2)
 
 
+@pytest.mark.parametrize("preset", ["default", "minimal"])
+def test_best_checkpoint_callback_comes_first(preset, tmp_path):
+    """pbc.train tests and reports trainer.checkpoint_callback: it must be the monitored one, not last."""
+    import lightning as L
+    from hydra.utils import instantiate
+
+    cfg = load_config([f"callbacks={preset}", f"paths.output_dir={tmp_path}"])
+    t = L.Trainer(callbacks=[instantiate(c) for c in cfg.callbacks.values()], logger=False)
+    assert t.checkpoint_callback.monitor == "val/vertex_error_cm" and t.checkpoint_callback.save_top_k == 1
+    assert [c.monitor for c in t.checkpoint_callbacks] == ["val/vertex_error_cm", None]
+
+
 def test_training_identity_names_every_difference():
     a = load_config(["+experiment=whole"])
     b = load_config(["+experiment=whole", "loss=l2", "model.lr=0.01", "datamodule.batch_size=8"])
@@ -256,6 +270,12 @@ def test_training_identity_names_every_difference():
     keys = {line.split(":")[0] for line in diff}
     assert {"loss.norm", "model.lr", "optimizer.lr", "batch_size", "data.garment_hash"} <= keys
     assert any("'l1' vs this run 'l2'" in line for line in diff)
+    with pytest.raises(ValueError, match=r"refusing to resume from r/last.ckpt(.|\n)*loss.norm: checkpoint 'l1'"
+                                         r" vs this run 'l2'(.|\n)*ckpt_path=null"):
+        check_resume(training_identity(a, fp), training_identity(b, fp), "r/last.ckpt")
+    with pytest.raises(ValueError, match="records no training identity"):
+        check_resume(None, training_identity(a, fp), "old.ckpt")
+    check_resume(training_identity(a, fp), training_identity(a, fp), "r/last.ckpt")
     # a longer schedule is what resuming is for: not part of the identity
     c = load_config(["+experiment=whole", "trainer.max_epochs=500"])
     assert identity_diff(training_identity(a, fp), training_identity(c, fp)) == []

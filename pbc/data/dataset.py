@@ -119,8 +119,8 @@ def bad_samples(poses: np.ndarray, verts: np.ndarray, radius: float, tol: float 
     """Row ids of samples that cannot be right, vectorised over chunks of rows.
 
     poses (N, J, 3, 3), verts (N, V, 3) (memory-mapped is fine: each row is read once), `radius` metres:
-    a vertex with any coordinate beyond it (root frame) is implausible. Returns {problem: sorted row ids} for the problems
-    found: "pose not finite", "pose not a rotation", "vertices not finite", "vertices beyond reach".
+    a vertex with any coordinate beyond it (root frame) is implausible. Returns {problem: sorted row ids}
+    for the problems found: "pose not finite", "pose not a rotation", "vertices not finite", "vertices beyond reach".
     """
     n = len(poses)
     if len(verts) != n:
@@ -257,7 +257,8 @@ def config_mismatch(cfg, manifest: Mapping, full: bool = False) -> list[str]:
             "seed": int(cfg.data.seed),
             "num_samples": int(cfg.data.num_samples),
             "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
-            "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items() if k not in MACHINE_SIM_KEYS},
+            "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
+                    if k not in MACHINE_SIM_KEYS},
         }
     have = {k: manifest.get(k) for k in want}
     return identity_diff(have, want, names=("dataset", "config"))
