@@ -11,6 +11,7 @@ import hashlib
 import json
 import os
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -107,3 +108,143 @@ def hash_arrays(*arrays: np.ndarray | Any) -> str:
         else:
             h.update(json.dumps(a, sort_keys=True, default=str).encode())
     return h.hexdigest()[:16]
+
+
+# ----------------------------------------------------------------------------------------- reading
+def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None, what: str = "file",
+             fix: str = "delete it and re-run the command that makes it") -> dict[str, np.ndarray]:
+    """Read every array (or `keys`) of an .npz into memory; a missing, truncated or incomplete file gets
+    one ValueError/FileNotFoundError naming the file and `fix` (numpy raises a bare BadZipFile)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in (keys or ()) if k not in z.files]
+            if missing:
+                raise KeyError(f"missing arrays {missing}")
+            return {k: z[k] for k in (keys or z.files)}
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, KeyError) as err:
+        raise ValueError(f"{what} {path} is corrupt or truncated ({type(err).__name__}: {err}); {fix}") from err
+
+
+def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu") -> dict:
+    """`torch.load` of a Lightning checkpoint with one clear error naming the file when it is corrupt."""
+    import pickle
+
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    try:
+        ck = torch.load(path, map_location=map_location, weights_only=False)
+    except (RuntimeError, EOFError, OSError, ValueError, pickle.UnpicklingError, zipfile.BadZipFile) as err:
+        raise ValueError(
+            f"checkpoint {path} is corrupt or truncated ({type(err).__name__}: {err}); delete it and resume from "
+            "another checkpoint of the run (checkpoints/epoch_*.ckpt) or train again"
+        ) from err
+    if not isinstance(ck, dict) or "state_dict" not in ck:
+        raise ValueError(f"{path} is not a Lightning checkpoint (no state_dict); pass a .ckpt written by pbc.train")
+    return ck
+
+
+# ----------------------------------------------------------------------------------------- places
+def user_cache_dir(*parts: str) -> Path:
+    """Per-user cache dir for derived files: $PBC_CACHE_DIR, else $XDG_CACHE_HOME/pbc, else ~/.cache/pbc."""
+    base = os.environ.get("PBC_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pbc"
+    return Path(base, *parts)
+
+
+def is_writable_dir(path: str | os.PathLike) -> bool:
+    """True when `path` exists as a writable dir or could be created (its nearest existing parent is writable)."""
+    p = Path(path).absolute()
+    while not p.exists():
+        if p.parent == p:
+            return False
+        p = p.parent
+    return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
+
+
+def require_writable_dir(path: str | os.PathLike, what: str = "output directory", fix: str = "") -> Path:
+    """Create `path` if needed and return it; one PermissionError naming it when it cannot be written
+    (a read-only runs dir otherwise surfaces as a misleading FileNotFoundError deep in a logger)."""
+    p = Path(path)
+    if not is_writable_dir(p):
+        raise PermissionError(f"{what} {p} is not writable; {fix or 'choose a writable location'}")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PermissionError(f"cannot create {what} {p} ({err}); {fix or 'choose a writable location'}") from err
+    return p
+
+
+# ----------------------------------------------------------------------------------------- locks
+class LockHeld(RuntimeError):
+    """Another process holds a pbc lock file (see `dir_lock`)."""
+
+
+@contextlib.contextmanager
+def dir_lock(path: str | os.PathLike, what: str = "this directory", shared: bool = False,
+             timeout: float = 0.0) -> Iterator[Path]:
+    """Hold an advisory lock file `path` (flock) for the duration of the block.
+
+    exclusive (default): no other holder at all; shared: other shared holders allowed, no exclusive one.
+    `timeout` seconds to wait (0: refuse at once) before LockHeld names the holder (pid, host, start).
+    The kernel drops the lock when its process dies, so a SIGKILLed holder leaves no stale lock. An
+    exclusive holder removes the file on release (a waiter on the old file notices and retries), so a
+    finished directory keeps no lock files.
+    """
+    import fcntl
+    import socket
+    import time
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise PermissionError(
+            f"cannot create {path.parent} to lock {what} ({err}); choose a writable location"
+        ) from err
+    deadline = time.monotonic() + max(0.0, timeout)
+    mode = fcntl.LOCK_SH if shared else fcntl.LOCK_EX
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as err:
+            raise PermissionError(
+                f"cannot write the lock file {path} ({err}); {what} is read-only: choose a writable location"
+            ) from err
+        try:
+            fcntl.flock(fd, mode | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = ""
+            with contextlib.suppress(OSError, UnicodeDecodeError):
+                holder = os.pread(fd, 4096, 0).decode().strip()
+            os.close(fd)
+            if time.monotonic() < deadline:
+                time.sleep(0.2)
+                continue
+            raise LockHeld(
+                f"{what} is in use by another process ({holder or 'holder unknown'}; lock file {path}); "
+                "wait for it to finish and run again, or use another directory"
+            ) from None
+        # the file may have been removed by the previous exclusive holder after we opened it
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        if not shared:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}"
+                          .encode(), 0)
+        yield path
+    finally:
+        if not shared:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        os.close(fd)

@@ -11,8 +11,12 @@ Layout (see docs/interfaces.md):
 
 from __future__ import annotations
 
+import hashlib
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -21,7 +25,8 @@ from pbc.geometry.body import Body, load_body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, load_garment_obj
 from pbc.geometry.shrinkwrap import Embedding
-from pbc.io import atomic_path, load_npy, read_json
+from pbc.io import atomic_path, hash_arrays, load_npy, load_npz, read_json
+from pbc.validate import ROTATION_TOL, identity_diff, rotation_errors
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -58,22 +63,21 @@ def save_embedding(emb: Embedding, path: str | Path) -> None:
 
 def load_embedding(path: str | Path) -> Embedding:
     """Read an embedding written by `save_embedding`, with a clear error when missing or corrupt."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"embedding not found: {path}")
-    try:
-        with np.load(path) as z:
-            return Embedding(
-                face=torch.from_numpy(z["face"]).long(),
-                bary=torch.from_numpy(z["bary"]).float(),
-                part=torch.from_numpy(z["part"]).long(),
-            )
-    except (KeyError, ValueError, OSError) as err:
-        raise ValueError(f"embedding {path} is corrupt ({err}); regenerate the dataset") from err
+    z = load_npz(path, ("face", "bary", "part"), "embedding", "regenerate the dataset")
+    return Embedding(
+        face=torch.from_numpy(z["face"]).long(),
+        bary=torch.from_numpy(z["bary"]).float(),
+        part=torch.from_numpy(z["part"]).long(),
+    )
 
 
-def load_dataset(directory: str | Path) -> ClothDataset:
-    """Open the dataset in `directory`, checking it is complete and self-consistent."""
+def load_dataset(directory: str | Path, check: bool = True) -> ClothDataset:
+    """Open the dataset in `directory`, checking it is complete and self-consistent.
+
+    check: also read every sample once (`check_dataset`: finite, rotations, vertices near the body), so a
+    bad sample is named when the dataset opens, not blamed on another one epochs later. Once per process
+    per dataset file version.
+    """
     d = Path(directory)
     manifest_path = d / "manifest.json"
     if not manifest_path.is_file():
@@ -94,4 +98,178 @@ def load_dataset(directory: str | Path) -> ClothDataset:
     verts = load_npy(d / "verts.npy", shape=(n, v, 3))
     if emb.face.shape[0] != v:
         raise ValueError(f"embedding in {d} has {emb.face.shape[0]} vertices, the garment {v}; regenerate the dataset")
-    return ClothDataset(d, manifest, poses, verts, garment, cage, body, emb)
+    data = ClothDataset(d, manifest, poses, verts, garment, cage, body, emb)
+    if check:
+        check_dataset(data)
+    return data
+
+
+# ----------------------------------------------------------------------------------------- whole-data check
+# A draped shirt hangs within centimetres of the body, and skinning moves body points along rigid bone
+# chains, so no garment vertex can be much further from the root than the rest body's farthest point.
+# 1.5x leaves room for loose cloth and refuses centimetre-scaled, exploded or garbage rows by far.
+PLAUSIBLE_REACH = 1.5
+CHUNK_BYTES = 64 << 20  # rows read per step: bounded memory on paper-scale memory-mapped arrays
+
+_CHECKED: dict[tuple, None] = {}  # dataset file versions already checked in this process
+
+
+def bad_samples(poses: np.ndarray, verts: np.ndarray, radius: float, tol: float = ROTATION_TOL,
+                chunk_bytes: int = CHUNK_BYTES) -> dict[str, np.ndarray]:
+    """Row ids of samples that cannot be right, vectorised over chunks of rows.
+
+    poses (N, J, 3, 3), verts (N, V, 3) (memory-mapped is fine: each row is read once), `radius` metres:
+    a vertex with any coordinate beyond it (root frame) is implausible. Returns {problem: sorted row ids}
+    for the problems found: "pose not finite", "pose not a rotation", "vertices not finite", "vertices beyond reach".
+    """
+    n = len(poses)
+    if len(verts) != n:
+        raise ValueError(f"poses has {n} rows, verts {len(verts)}")
+    found: dict[str, list[np.ndarray]] = {}
+
+    def add(name: str, mask: np.ndarray, start: int) -> None:
+        if mask.any():
+            found.setdefault(name, []).append(np.flatnonzero(mask) + start)
+
+    row_bytes = max(1, verts[0].nbytes if n else 1)
+    step = max(1, chunk_bytes // row_bytes)
+    for a in range(0, n, step):
+        p = np.asarray(poses[a : a + step], np.float32)
+        v = np.asarray(verts[a : a + step], np.float32)
+        p_fin = np.isfinite(p).reshape(len(p), -1).all(1)
+        add("pose not finite", ~p_fin, a)
+        ortho, det = rotation_errors(torch.from_numpy(np.where(np.isfinite(p), p, 0)))
+        add("pose not a rotation", p_fin & ((ortho > tol) | (det > tol)).any(1).numpy(), a)
+        # per-row max and min: NaN and inf propagate into them, and they bound every coordinate, so two
+        # streaming passes give finiteness and a box of half-width `radius` (3.5x faster than the norms)
+        flat = v.reshape(len(v), -1)
+        hi, lo = (flat.max(1), flat.min(1)) if flat.shape[1] else (np.zeros(len(v)), np.zeros(len(v)))
+        v_fin = np.isfinite(hi) & np.isfinite(lo)
+        add("vertices not finite", ~v_fin, a)
+        with np.errstate(invalid="ignore"):
+            add("vertices beyond reach", v_fin & (np.maximum(hi, -lo) > radius), a)
+    return {k: np.concatenate(ids) for k, ids in found.items()}
+
+
+def _file_version(d: Path) -> tuple:
+    return (str(d.resolve()),) + tuple(
+        (st.st_size, st.st_mtime_ns) for st in (os.stat(d / f) for f in ("poses.npy", "verts.npy", "manifest.json"))
+    )
+
+
+def check_dataset(data: ClothDataset, force: bool = False) -> None:
+    """Read every sample once; one ValueError naming the bad sample ids and the fix.
+
+    Checked: poses finite and rotations (pbc.validate.ROTATION_TOL), vertices finite and every coordinate
+    within PLAUSIBLE_REACH x the rest body's farthest point from the root. Skipped when this process already
+    checked the same files (same size and mtime), unless `force`.
+    """
+    key = _file_version(Path(data.dir))
+    if key in _CHECKED and not force:
+        return
+    radius = PLAUSIBLE_REACH * float(data.body.vertices.norm(dim=-1).max())
+    bad = bad_samples(data.poses, data.verts, radius)
+    if bad:
+        src = data.manifest.get("source_index")
+        lines = []
+        for what, ids in bad.items():
+            more = f" ... ({len(ids)} in all)" if len(ids) > 10 else ""
+            gen = f" (generation samples {[int(src[i]) for i in ids[:10]]})" if src and len(src) == len(data) else ""
+            lines.append(f"{what}: rows {ids[:10].tolist()}{more}{gen}")
+        raise ValueError(
+            f"dataset {data.dir} holds bad samples (reach limit {radius:.2f} m from the root):\n  - "
+            + "\n  - ".join(lines)
+            + f"\nThe arrays are corrupt or the drape diverged: delete {data.dir} and regenerate it with "
+            "`python -m pbc.generate` (same overrides)."
+        )
+    _CHECKED[key] = None
+
+
+# ----------------------------------------------------------------------------------------- fingerprints
+# What makes two datasets the same data (the generation fingerprint of pbc.data.generate.fingerprint)
+FINGERPRINT_KEYS = ("format_version", "seed", "num_samples", "garment_hash", "body_hash", "embedding_hash", "sim")
+MACHINE_SIM_KEYS = ("kernel_cache_dir", "device")  # where kernels are cached / which device: not the data
+
+
+def dataset_fingerprint(data: ClothDataset) -> dict:
+    """What identifies a dataset's content, independent of where it lives: the generation fingerprint
+    (seed, sample count, garment/body/embedding hashes, sim settings), the kept count and a hash of the
+    manifest file (splits, source indices, stats). Equal fingerprints = the same arrays (generation is
+    deterministic). JSON-able; store it in a run (`run_data_record`), compare with `fingerprint_diff`."""
+    fp: dict[str, Any] = {k: data.manifest.get(k) for k in FINGERPRINT_KEYS}
+    fp["kept"] = int(data.manifest.get("counts", {}).get("kept", len(data)))
+    fp["manifest_hash"] = hashlib.sha256((Path(data.dir) / "manifest.json").read_bytes()).hexdigest()[:16]
+    return fp
+
+
+def run_data_record(data: ClothDataset) -> dict:
+    """What a run writes about its data (metrics.json "data", the checkpoint's hyper-parameters): the
+    resolved directory (no ${oc.env:...} left to re-resolve in another shell) and the fingerprint."""
+    return {"dir": str(Path(data.dir).resolve()), "fingerprint": dataset_fingerprint(data)}
+
+
+def fingerprint_diff(recorded: Mapping, current: Mapping) -> list[str]:
+    """Differing fingerprint keys, one readable line each (empty: the same data)."""
+    return identity_diff(recorded, current, names=("recorded", "found"))
+
+
+def open_recorded_dataset(record: Mapping, directory: str | Path | None = None, check: bool = True) -> ClothDataset:
+    """The dataset a run was trained on: `record` = run_data_record(...) read back from the run.
+
+    `directory` overrides where to look (a moved copy); by default the recorded resolved dir. Refuses a
+    dataset whose fingerprint differs, printing both fingerprints' differences and the fix.
+    """
+    d = Path(directory if directory is not None else record["dir"])
+    if not (d / "manifest.json").is_file():
+        raise FileNotFoundError(
+            f"the run's dataset is not at {d}: {d / 'manifest.json'} is missing; copy the dataset there, or pass "
+            "the directory of a copy (data.dir=...), or regenerate it with the run's config (`python -m pbc.generate`)"
+        )
+    data = load_dataset(d, check=check)
+    diff = fingerprint_diff(record["fingerprint"], dataset_fingerprint(data))
+    if diff:
+        raise ValueError(
+            f"dataset {d} is not the data the run was trained on:\n  - " + "\n  - ".join(diff)
+            + f"\nPoint data.dir at the run's dataset (recorded at {record['dir']}) or regenerate it with the run's "
+            "config; scoring on other data would be silently wrong."
+        )
+    return data
+
+
+def config_mismatch(cfg, manifest: Mapping, full: bool = False) -> list[str]:
+    """Generation keys of `cfg` that disagree with a dataset's manifest, one line each (empty: they agree).
+
+    Cheap by default: seed, num_samples, sim settings, format version and the garment hash (the garment
+    is rebuilt, ~0.1 s). full=True builds the whole scene as pbc.generate does (body, shrink-wrap; seconds)
+    and compares every fingerprint key.
+    """
+    from omegaconf import OmegaConf
+
+    from pbc.data import generate as gen  # generate imports this module: import at call time
+
+    if full:
+        scene, _ = gen.build_scene(cfg)
+        want = gen.fingerprint(cfg, scene)
+    else:
+        garment, _ = gen.garment_from_config(cfg.garment)
+        want = {
+            "format_version": FORMAT_VERSION,
+            "seed": int(cfg.data.seed),
+            "num_samples": int(cfg.data.num_samples),
+            "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
+            "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
+                    if k not in MACHINE_SIM_KEYS},
+        }
+    have = {k: manifest.get(k) for k in want}
+    return identity_diff(have, want, names=("dataset", "config"))
+
+
+def check_matches_config(cfg, data: ClothDataset, full: bool = False) -> None:
+    """Refuse to train on a dataset made with other generation settings than `cfg` (see config_mismatch)."""
+    diff = config_mismatch(cfg, data.manifest, full=full)
+    if diff:
+        raise ValueError(
+            f"dataset {data.dir} was made with other settings than this config:\n  - " + "\n  - ".join(diff)
+            + "\nDrop those overrides to train on it, or set data.dir to a new directory (data.name=...) so that "
+            "`python -m pbc.generate` makes the data the config asks for."
+        )

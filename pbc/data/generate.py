@@ -31,9 +31,10 @@ from pbc.geometry.body import Body, build_body, pose_body, save_body
 from pbc.geometry.cage import Cage, load_cage, save_cage
 from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.io import atomic_path, hash_arrays, read_json, save_npy, write_json
+from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
+from pbc.validate import check_config
 
 
 @dataclass
@@ -155,7 +156,25 @@ def _check_or_write_fingerprint(out: Path, fp: dict) -> None:
 
 
 def generate(cfg: DictConfig) -> Path:
-    """Generate (or resume, or merge) the dataset configured by `cfg.data`. Returns its directory."""
+    """Generate (or resume, or merge) the dataset configured by `cfg.data`. Returns its directory.
+
+    A second generator on the same directory is refused (pbc.io.LockHeld names the holder): a whole run
+    or merge holds `.generate.lock` exclusively; shard runs share it and each holds its own shard lock,
+    so shards of one dataset run side by side but never beside a merge (which removes work/).
+    """
+    check_config(cfg)  # typed values before any work: data.shard=1.0 is not shard 1
+    out = dataset_dir(cfg)
+    if (out / "manifest.json").is_file() and cfg.data.shard is None:
+        return _generate(cfg)  # finished: only reads (the directory may be read-only)
+    shard = cfg.data.shard
+    with dir_lock(out / ".generate.lock", f"dataset {out}", shared=shard is not None):
+        if shard is None:
+            return _generate(cfg)
+        with dir_lock(out / f".generate-shard{shard}.lock", f"shard {shard} of dataset {out}"):
+            return _generate(cfg)
+
+
+def _generate(cfg: DictConfig) -> Path:
     out = dataset_dir(cfg)
     data = cfg.data
     if (out / "manifest.json").is_file() and data.shard is None:

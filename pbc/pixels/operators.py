@@ -205,23 +205,64 @@ def build_operators(
     }
 
 
+CACHE_KEYS = ("R_indptr", "R_indices", "R_data", "S_pix", "S_w", "chart", "mask", "label", "residual",
+              "resolution", "pad", "num_vertices")
+
+
+def _read_cache(path: Path, resolution: int) -> dict[str, np.ndarray] | None:
+    """The cached operators at `path`, or None when absent, unreadable, truncated or incomplete."""
+    import zipfile
+
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None  # numpy raises a bare BadZipFile for a truncated file: it is only a cache
+    if any(k not in arrays for k in CACHE_KEYS) or int(arrays["resolution"]) != resolution:
+        return None
+    return arrays
+
+
+def cache_dirs(cache_dir: str | Path | None) -> list[Path]:
+    """Where operators are looked for, in order: `cache_dir` (e.g. `<dataset>/operators`), then, only when
+    `cache_dir` is not writable (a dataset on read-only shared storage), the user cache dir
+    (pbc.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators)."""
+    from pbc.io import is_writable_dir, user_cache_dir
+
+    if cache_dir is None:
+        return []
+    if is_writable_dir(cache_dir):
+        return [Path(cache_dir)]
+    return [Path(cache_dir), user_cache_dir("operators")]
+
+
 def load_or_build(
     garment, resolution: int, pad: int, exact: bool = True, cache_dir: str | Path | None = None
 ):
-    """`build_operators`, cached as `<cache_dir>/operators_<hash>.npz` (atomic write; rebuilt if corrupt)."""
-    if cache_dir is None:
-        return build_operators(garment, resolution, pad, exact)
-    path = Path(cache_dir) / f"operators_{operator_key(garment, resolution, pad, exact)}.npz"
-    if path.is_file():
-        try:
-            with np.load(path) as z:
-                return {k: z[k] for k in z.files}
-        except (OSError, ValueError, KeyError):
-            pass  # a corrupt cache is only a cache: rebuild it below
-    arrays = build_operators(garment, resolution, pad, exact)
+    """`build_operators`, cached as `operators_<hash>.npz` in `cache_dir` (atomic write).
 
-    with atomic_path(path, suffix=".npz") as tmp:
-        np.savez(tmp, **arrays)
+    A corrupt or incomplete cache file is rebuilt and overwritten. When `cache_dir` is not writable (a
+    dataset on shared read-only storage) the operators are cached in the user cache dir instead
+    (`$PBC_CACHE_DIR/operators`, else ~/.cache/pbc/operators); when neither is writable they are built
+    in memory, with a warning.
+    """
+    dirs = cache_dirs(cache_dir)
+    name = f"operators_{operator_key(garment, resolution, pad, exact)}.npz"
+    for d in dirs:
+        arrays = _read_cache(d / name, resolution)
+        if arrays is not None:
+            return arrays
+    arrays = build_operators(garment, resolution, pad, exact)
+    if dirs:
+        target = dirs[-1] / name  # the dataset's dir when writable, else the user cache
+        try:
+            with atomic_path(target, suffix=".npz") as tmp:
+                np.savez(tmp, **arrays)
+        except OSError as err:
+            warnings.warn(f"cannot cache operators at {target} ({err}); they are rebuilt on every run: "
+                          "set PBC_CACHE_DIR to a writable directory", stacklevel=2)
     return arrays
 
 
