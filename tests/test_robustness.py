@@ -102,9 +102,11 @@ def test_study_at_smoke_scale(body, tmp_path):
 
     data = stand_in_dataset(tmp_path / "data" / "standin", body)
     sweep = tmp_path / "sweep"
-    trials = ["shape_0.0", "shape_2.0", "paint_torso_arm"]
+    trials = ["shape_0.0", "shape_2.0"]  # the artifact bodies go through the same code (test above)
+    # a narrow decoder and one epoch: this tests the chain, the numbers come from `scale=smoke|cpu` runs
     rc = main(["scale=smoke", f"data.dir={data}", f"paths.data_dir={tmp_path / 'data'}", "logger=csv",
-               "--dir", str(sweep), "--trials", ",".join(trials)])
+               "model.net.start_channels=32", "trainer.max_epochs=1", "--dir", str(sweep),
+               "--trials", ",".join(trials)])
     assert rc == 0
     res = json.loads((sweep / "robustness.json").read_text())
     rows = {r["trial"]: r for r in res["rows"]}
@@ -114,9 +116,9 @@ def test_study_at_smoke_scale(body, tmp_path):
     # the cloth is the same in every trial, only body.npz differs
     for name in trials:
         assert (sweep / "bodies" / name / "verts.npy").resolve() == (data / "verts.npy").resolve()
-    assert rows["shape_2.0"]["max_vertex_move_cm"] > 7.0 and rows["paint_torso_arm"]["painted_vertices"] > 0
+    assert rows["shape_2.0"]["max_vertex_move_cm"] > 7.0 and rows["shape_0.0"]["max_vertex_move_cm"] == 0.0
     v = res["verdict"]
-    assert v["trials_done"] == 3 and v["holds"] in (True, False)
+    assert v["trials_done"] == 2 and v["holds"] in (True, False)
     assert abs(v["ratios"]["shape_0.0"] - 1.0) < 1e-9
     # the too-thick body pokes through the simulated cloth: its offsets have dn < 0 somewhere
     pen = res["penetration"]["shape_2.0"]
