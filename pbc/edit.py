@@ -273,6 +273,7 @@ def edit_figure(path: Path, images: list[Tensor], positions: list[Tensor], title
     scale = max(float(images[0].abs().max()), 1e-6)
     fig, axes = plt.subplots(2, n, figsize=(2.9 * n, 5.2), squeeze=False)
     f = faces.cpu().numpy()
+    positions = [p.reshape(-1, 3) for p in positions]  # (1, V, 3) or (V, 3)
     base = positions[0].cpu().numpy()
     disp = [np.linalg.norm(p.cpu().numpy() - base, axis=1) * CM for p in positions]
     vmax = max(max(float(d.max()) for d in disp), 1e-6)
