@@ -98,6 +98,9 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
             ],
         ),
     ]
+    if name == "robustness":  # one body per trial, then one training each and Figs. 9-10 (pbc.robustness)
+        rest = [o for o in overrides if not o.lstrip("+").startswith("scale=")]
+        cmds[1] = ("robustness", [python, "-m", "pbc.robustness", f"scale={scale}", *rest, "--dir", str(sweep_dir)])
     if name == "hierarchy":
         # Its argv names the runs, known only once training is over: see evaluate_command.
         cmds.append(("evaluate", None))

@@ -35,14 +35,14 @@ def _compose(overrides):
 
 
 def test_sweep_names_and_scales():
-    assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy"}
+    assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
     assert SCALES == ["cpu", "paper", "smoke"]
     assert sweeps.sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
     assert len(sweeps.sweep_values("experiment", "glob([whole,patch_*])")) == 29
 
 
 @pytest.mark.usefixtures("_hydra")
-@pytest.mark.parametrize("name", ["losses", "architectures", "patches", "hierarchy"])
+@pytest.mark.parametrize("name", ["losses", "architectures", "patches", "hierarchy", "robustness"])
 def test_every_sweep_composes_for_every_value(name):
     base = _compose([*SEARCH, f"+sweep={name}", "scale=smoke"])
     params = OmegaConf.to_container(base.hydra.sweeper.params)

@@ -6,6 +6,8 @@ One job: make the stitched garment smooth and consistent across patch boundaries
   everywhere or only in a soft band around the seams;
 - `inpaint`: refill the seam band of the assembled images with `skimage.restoration.inpaint_biharmonic`;
 - `hierarchy`: fill the seam band with the whole-shirt model's prediction (beyond the paper);
+- `cage`: agreed cage values carried into each patch by its Poisson blendshape basis (appendix C,
+  `pbc.stitch.cage_basis.CageSeams`);
 - `hierarchy_detail`: the whole-shirt model's prediction as the low-frequency base and the patches'
   high-frequency detail on top, split by a masked Gaussian low-pass of the 512 images (beyond the paper).
 The seam band is the seam curves rasterised in each chart and dilated by a width, with a weight that
@@ -26,9 +28,10 @@ from skimage.restoration import inpaint_biharmonic
 from torch import Tensor
 
 from pbc.stitch.assemble import Assembler
+from pbc.stitch.cage_basis import CageSeams, tensor_from_config
 from pbc.stitch.pca import PCABasis, project
 
-METHODS = ("average", "pca", "inpaint", "hierarchy", "hierarchy_detail")
+METHODS = ("average", "pca", "inpaint", "hierarchy", "hierarchy_detail", "cage")
 NEEDS_WHOLE = ("hierarchy", "hierarchy_detail")
 
 
@@ -299,6 +302,7 @@ class Stitcher:
     render: Callable[[Tensor], Tensor] | None = None
     detail_sigma: float = 16.0
     coverage: Tensor | None = None
+    cage: Callable[[Tensor], Tensor] | None = None  # CageSeams: crops -> (B, V, 3)
 
     def fold(self, sample_matrix: Tensor) -> None:
         """Precompute sample∘assemble as one sparse (V, P*h*w) matrix (same for every channel).
@@ -347,6 +351,10 @@ class Stitcher:
             if whole is None or self.render is None or self.coverage is None:
                 raise ValueError("stitch=hierarchy_detail needs the whole-shirt model's prediction and a renderer")
             return self.sample(self.base_plus_detail(self.assembler.images(crops), self.render(whole)))
+        if method == "cage":
+            if self.cage is None:
+                raise ValueError("stitch=cage needs the cage basis (build the stitcher with build_stitcher)")
+            return self.cage(crops)
         raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
 
 
@@ -374,7 +382,8 @@ def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) 
                   fill_index=nearest_fill_index(asm.coverage().numpy()), pca=pca,
                   pca_band_only=bool(cfg.pca_band_only),
                   pca_components=None if cfg.pca_components is None else int(cfg.pca_components),
-                  render=ops.render, detail_sigma=float(cfg.detail_sigma), coverage=asm.coverage())
+                  render=ops.render, detail_sigma=float(cfg.detail_sigma), coverage=asm.coverage(),
+                  cage=CageSeams(garment, cage, crops, ops.res, tensor_from_config(cfg)))
     S = ops.scipy_S().tocoo()
     st.fold(torch.sparse_coo_tensor(torch.from_numpy(np.stack([S.row, S.col]).astype(np.int64)),
                                     torch.from_numpy(S.data.astype(np.float32)), S.shape, check_invariants=False))
