@@ -41,11 +41,15 @@ def necktie_pattern(cfg) -> tuple[np.ndarray, dict]:
     jj, ii = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     x = (ii + 0.5 - band) * h  # along the tie from the knot's top (cell centres)
     y = np.abs((jj + 0.5 - half) * h)  # across, from the centre line
-    gap, bw = int(cfg.band_gap_cells), int(cfg.band_cells)
-    in_band = (x < 0) & (np.abs(jj + 0.5 - half) > gap) & (np.abs(jj + 0.5 - half) < gap + bw)
+    # the band strips fill the knot's top edge but for a gap at the centre line, so they are sewn to the
+    # knot along whole cell edges at any grid spacing (one chart); kh: the knot's top half width in cells
+    gap = int(cfg.band_gap_cells)
+    kh = max(int(round(0.5 * float(cfg.knot_width_top) / h)), gap + 1)
+    off = np.abs(jj + 0.5 - half)
+    in_band = (x < 0) & (off > gap) & (off < kh)
     knot_w = 0.5 * (float(cfg.knot_width_top) + (float(cfg.knot_width_bottom) - float(cfg.knot_width_top))
                     * x / max(float(cfg.knot_length), 1e-9))
-    in_knot = (x >= 0) & (x < knot * h) & (y < knot_w)
+    in_knot = (x >= 0) & (x < knot * h) & (off < np.maximum(knot_w / h, kh - 0.5 * (x > 0.5 * knot * h)))
     xb = x - knot * h
     blade_w = 0.5 * (float(cfg.knot_width_bottom) + (float(cfg.blade_width) - float(cfg.knot_width_bottom))
                      * xb / max(float(cfg.blade_length), 1e-9))
@@ -53,7 +57,8 @@ def necktie_pattern(cfg) -> tuple[np.ndarray, dict]:
     xt = xb - blade * h
     in_tip = (xt >= 0) & (y < 0.5 * float(cfg.blade_width) * (1.0 - xt / max(tip * h, 1e-9)))
     mask = in_band | in_knot | in_blade | in_tip
-    return mask, {"band": band, "knot": knot, "blade": blade, "tip": tip, "half": half, "gap": gap, "bw": bw}
+    return mask, {"band": band, "knot": knot, "blade": blade, "tip": tip, "half": half, "gap": gap,
+                  "band_cells": kh - gap}
 
 
 def make_necktie(cfg) -> tuple[Garment, Cage]:
