@@ -90,3 +90,14 @@ def test_necktie_shrink_wraps_onto_the_mannequin(cfg, tie, body):
     assert emb.face.shape == (g.num_vertices,) and (emb.part == 0).all()  # the torso carries the whole tie
     assert stats["max_abs_sdf"] < 0.01
     assert stats["area_after_min"] > 0.2 and stats["area_after_max"] < 5.0
+
+
+def test_necktie_obj_round_trip_keeps_the_sampled_uvs(tie, tmp_path):
+    from pbc.geometry.cage import validate_cage
+    from pbc.geometry.garment import load_garment_obj, save_garment_obj
+
+    g, cage = tie
+    save_garment_obj(g, tmp_path / "tie.obj")
+    h = load_garment_obj(tmp_path / "tie.obj")
+    assert torch.equal(h.vertex_uv, g.vertex_uv) and torch.equal(h.faces, g.faces)
+    validate_cage(cage, h, 512, 160, 16)

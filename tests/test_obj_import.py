@@ -180,3 +180,18 @@ def test_parse_ignores_materials_smoothing_objects_and_continuations():
     mesh = parse_obj("mtllib a.mtl\no A\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl m\ns 1\n"
                      "l 1 2\nf 1/1 \\\n 2/2 3/3\n")
     assert mesh.faces.tolist() == [[0, 1, 2]] and mesh.face_line.tolist() == [13]
+
+
+def test_pbc_round_trip_keeps_where_vertices_are_sampled(tmp_path):
+    """A vertex with two uvs on one side (two charts sharing an image, or a seam inside one chart) reads
+    back at the uv it was imported with, so a cage made for the import fits the dataset's garment."""
+    from pbc.geometry.garment import save_garment_obj
+
+    text = tube_obj()
+    # both islands on the front image (they are placed apart in UV), the back seam inside one chart too
+    g = import_garment(_write(tmp_path, text), uv_unit="m", charts={"front": 0, "back": 0})[0]
+    assert (g.vertex_side == 0).all()
+    save_garment_obj(g, tmp_path / "pbc.obj")
+    h = load_garment_obj(tmp_path / "pbc.obj")
+    assert torch.equal(h.vertex_uv, g.vertex_uv) and torch.equal(h.vertex_side, g.vertex_side)
+    assert h.uv_scale == g.uv_scale

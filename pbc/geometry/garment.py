@@ -462,18 +462,14 @@ def load_garment_obj(path, **options) -> Garment:
     sides = np.asarray(sides, np.int64)
     nv = len(verts)
     if vertex_side is None or len(vertex_side) != nv:
-        vertex_side = np.ones(nv, np.int64)
-        vertex_side[np.unique(faces[sides == 0])] = 0
-    vertex_tex = np.zeros(nv, np.int64)
-    for s in (1, 0):  # front written last so it wins for seam vertices
-        sel = sides == s
-        vertex_tex[faces[sel].ravel()] = fuvs[sel].ravel()
-    # honour vertex_side: pick the corner uv from a face of that side
-    for s in (0, 1):
-        sel = sides == s
-        fv, ft = faces[sel].ravel(), fuvs[sel].ravel()
-        want = vertex_side[fv] == s
-        vertex_tex[fv[want]] = ft[want]
+        vertex_side = None  # the lowest side each vertex appears on (front for seam vertices)
+    # the corner each vertex is sampled at: the rule the importer and the necktie use, so that a vertex
+    # with two uvs on one side (a seam between two charts of one image, or within one chart) reads back
+    # at the uv it was made with
+    from pbc.geometry.obj_import import sample_corners, uv_islands
+
+    chart = uv_islands(faces, uv[fuvs] + 2.0 * sides[:, None, None])
+    vertex_tex, vertex_side = sample_corners(faces, fuvs, sides, chart, vertex_side)
     return Garment(
         vertices=torch.tensor(np.asarray(verts), dtype=torch.float32),
         faces=torch.tensor(faces),

@@ -23,6 +23,7 @@ import torch
 
 from pbc.geometry.cage import Cage
 from pbc.geometry.garment import Garment, _cell_triangles
+from pbc.geometry.obj_import import sample_corners
 
 
 def necktie_pattern(cfg) -> tuple[np.ndarray, dict]:
@@ -116,10 +117,8 @@ def make_necktie(cfg) -> tuple[Garment, Cage]:
             side = 1.0 if y > 0 else -1.0
             p = (side * r * np.sin(theta), y_top + abs(y), zc + r * np.cos(theta))
         pos[v] = p
-    vertex_tex = np.zeros(nv, np.int64)
-    # a merged band-end vertex is sampled at its first uv (the right band's)
-    order = np.argsort(-tex[used])
-    vertex_tex[vid[used][order]] = tex[used][order]
+    # a merged band-end vertex has two uvs: sampled at the one the OBJ reader picks back (sample_corners)
+    vertex_tex, _ = sample_corners(faces, face_uv, np.zeros(len(faces), np.int64), np.zeros(len(faces), np.int64))
     garment = Garment(
         vertices=torch.tensor(pos, dtype=torch.float32),
         faces=torch.tensor(faces, dtype=torch.long),

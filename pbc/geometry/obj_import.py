@@ -353,12 +353,7 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
     uv = uvp.reshape(-1, 2)[first]
     face_uv = inv.reshape(-1, 3)
     # a vertex is sampled from its first chart on the lowest side (the front for front/back seams)
-    nv = len(mesh.vertices)
-    order = np.lexsort((np.repeat(island, 3), np.repeat(face_side, 3)))[::-1]  # last write wins: lowest
-    vertex_tex = np.zeros(nv, np.int64)
-    vertex_tex[mesh.faces.ravel()[order]] = face_uv.ravel()[order]
-    vertex_side = np.zeros(nv, np.int64)
-    vertex_side[mesh.faces.ravel()[order]] = np.repeat(face_side, 3)[order]
+    vertex_tex, vertex_side = sample_corners(mesh.faces, face_uv, face_side, island)
     pos = mesh.vertices * metres_per_unit(position_unit, "garment.position_unit") + np.asarray(position_offset)
     garment = Garment(
         vertices=torch.tensor(pos, dtype=torch.float32),
@@ -371,6 +366,32 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
         uv_scale=uv_scale,
     )
     return garment, names, island
+
+
+def sample_corners(faces: np.ndarray, face_uv: np.ndarray, face_side: np.ndarray, face_chart: np.ndarray,
+                   vertex_side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Which uv each vertex is sampled at, by one rule that survives an OBJ round trip:
+    the vertex's side (given, else its lowest), then its chart there that comes first, then the first
+    corner of that chart in face order. faces / face_uv (F, 3), face_side / face_chart (F,).
+    Returns vertex_tex (V,) indices into uv and vertex_side (V,).
+    """
+    v = faces.ravel()
+    nv = int(v.max()) + 1
+    side = np.repeat(face_side, 3)
+    chart = np.repeat(face_chart, 3)
+    if vertex_side is None:
+        vertex_side = np.full(nv, np.iinfo(np.int64).max)
+        np.minimum.at(vertex_side, v, side)
+    ok = side == vertex_side[v]
+    idx = np.flatnonzero(ok)
+    order = idx[np.lexsort((idx, chart[idx], v[idx]))]
+    first = order[np.r_[True, v[order][1:] != v[order][:-1]]]
+    if len(first) != nv:
+        missing = np.setdiff1d(np.arange(nv), v[first])
+        raise ValueError(f"vertices {missing[:5].tolist()} have no face on their vertex_side chart")
+    vertex_tex = np.empty(nv, np.int64)
+    vertex_tex[v[first]] = face_uv.ravel()[first]
+    return vertex_tex, np.asarray(vertex_side, np.int64)
 
 
 def face_charts(garment, tol: float = 1e-7) -> np.ndarray:
