@@ -28,8 +28,9 @@ from tqdm import tqdm
 
 from pbc.data.dataset import FORMAT_VERSION, save_embedding
 from pbc.geometry.body import Body, build_body, pose_body, save_body
-from pbc.geometry.cage import Cage, load_cage, save_cage
-from pbc.geometry.garment import Garment, load_garment_obj, make_tshirt, save_garment_obj
+from pbc.geometry.cage import Cage, save_cage
+from pbc.geometry.garment import Garment, save_garment_obj
+from pbc.geometry.garment import garment_from_config as geometry_garment_from_config
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
@@ -53,12 +54,9 @@ def dataset_dir(cfg: DictConfig) -> Path:
 
 
 def garment_from_config(gcfg: DictConfig) -> tuple[Garment, Cage]:
-    """The garment through one door: a user's OBJ + cage file when `obj` is set, else the procedural shirt."""
-    if gcfg.get("obj"):
-        garment = load_garment_obj(gcfg.obj)
-        image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
-        return garment, load_cage(gcfg.cage, garment, *image)
-    return make_tshirt(gcfg)
+    """The garment through one door (pbc.geometry.garment.garment_from_config): a user's OBJ + cage file
+    (or the automatic cage) when `obj` is set, the necktie, else the procedural shirt."""
+    return geometry_garment_from_config(gcfg)
 
 
 def fingerprint(cfg: DictConfig, scene: Scene) -> dict:

@@ -385,12 +385,30 @@ def save_garment_obj(garment: Garment, path) -> None:
     write_text(path, "\n".join(lines) + "\n")
 
 
-def load_garment_obj(path) -> Garment:
-    """Read a garment OBJ written by save_garment_obj (or any triangle OBJ with `f v/vt` faces and
-    `g front` / `g back` groups). Raises ValueError naming the file if UVs are missing or faces
-    reference missing vt. vertex_uv/vertex_side come from the `# vertex_side` comment if present,
-    else from the first chart (front before back) each vertex appears in."""
+def _is_pbc_obj(path: Path) -> bool:
+    """A file save_garment_obj wrote: its header states uv_scale, and its UVs are already pbc's."""
+    try:
+        with open(path) as fh:
+            head = [fh.readline() for _ in range(3)]
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the garment OBJ ({exc})") from None
+    return any(ln.split()[:2] == ["#", "uv_scale"] for ln in head)
+
+
+def load_garment_obj(path, **options) -> Garment:
+    """Read a garment OBJ.
+
+    A file save_garment_obj wrote (its `# uv_scale` header) is read exactly as written (`f v/vt`
+    triangles, `g front` / `g back`). Any other OBJ goes through pbc.geometry.obj_import.import_garment
+    with ``options`` (charts, uv_unit, position_unit, position_offset, uv_padding): polygons, UV
+    islands as charts, relative indices, UVs scaled to the pattern. Raises ValueError naming the file
+    (and the line) if UVs are missing, faces reference missing vt, etc.
+    """
     path = Path(path)
+    if not _is_pbc_obj(path):
+        from pbc.geometry.obj_import import import_garment
+
+        return import_garment(path, **options)[0]
     verts, uvs, faces, fuvs, sides = [], [], [], [], []
     uv_scale = None
     vertex_side = None
@@ -444,18 +462,14 @@ def load_garment_obj(path) -> Garment:
     sides = np.asarray(sides, np.int64)
     nv = len(verts)
     if vertex_side is None or len(vertex_side) != nv:
-        vertex_side = np.ones(nv, np.int64)
-        vertex_side[np.unique(faces[sides == 0])] = 0
-    vertex_tex = np.zeros(nv, np.int64)
-    for s in (1, 0):  # front written last so it wins for seam vertices
-        sel = sides == s
-        vertex_tex[faces[sel].ravel()] = fuvs[sel].ravel()
-    # honour vertex_side: pick the corner uv from a face of that side
-    for s in (0, 1):
-        sel = sides == s
-        fv, ft = faces[sel].ravel(), fuvs[sel].ravel()
-        want = vertex_side[fv] == s
-        vertex_tex[fv[want]] = ft[want]
+        vertex_side = None  # the lowest side each vertex appears on (front for seam vertices)
+    # the corner each vertex is sampled at: the rule the importer and the necktie use, so that a vertex
+    # with two uvs on one side (a seam between two charts of one image, or within one chart) reads back
+    # at the uv it was made with
+    from pbc.geometry.obj_import import sample_corners, uv_islands
+
+    chart = uv_islands(faces, uv[fuvs] + 2.0 * sides[:, None, None])
+    vertex_tex, vertex_side = sample_corners(faces, fuvs, sides, chart, vertex_side)
     return Garment(
         vertices=torch.tensor(np.asarray(verts), dtype=torch.float32),
         faces=torch.tensor(faces),
@@ -466,6 +480,51 @@ def load_garment_obj(path) -> Garment:
         vertex_side=torch.tensor(vertex_side),
         uv_scale=float(uv_scale),
     )
+
+
+def obj_options(gcfg) -> dict:
+    """The import options of a user's garment OBJ from its config node (conf/garment/obj.yaml)."""
+    out = {}
+    for key in ("uv_unit", "position_unit", "uv_padding"):
+        if gcfg.get(key) is not None:
+            out[key] = gcfg[key]
+    if gcfg.get("position_offset") is not None:
+        out["position_offset"] = tuple(float(x) for x in gcfg.position_offset)
+    if gcfg.get("charts") is not None:
+        out["charts"] = {str(k): int(v) for k, v in dict(gcfg.charts).items()}
+    return out
+
+
+def garment_from_config(gcfg) -> tuple[Garment, Cage]:
+    """The garment and its cage through one door, from the garment config node.
+
+    ``obj`` set: a user's OBJ (pbc's own files read exactly, others imported with obj_options) with
+    the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
+    (pbc.geometry.autocage). ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
+    """
+    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
+    cage_path = gcfg.get("cage", None)
+    auto = cage_path is None or str(cage_path) == "auto"
+    if gcfg.get("obj"):
+        path = resolve_path(gcfg.obj)
+        names = charts = None
+        if _is_pbc_obj(path):
+            garment = load_garment_obj(path)
+        else:
+            from pbc.geometry.obj_import import import_garment
+
+            garment, names, charts = import_garment(path, **obj_options(gcfg))
+        if auto:
+            from pbc.geometry.autocage import auto_cage
+
+            return garment, auto_cage(garment, *image, chart_names=names, face_chart=charts,
+                                      **dict(gcfg.get("autocage") or {}))
+        return garment, load_cage(resolve_path(cage_path), garment, *image)
+    if gcfg.get("kind") == "necktie":
+        from pbc.geometry.necktie import make_necktie
+
+        return make_necktie(gcfg)
+    return make_tshirt(gcfg)
 
 
 def load_garment_config(garment_yaml, image_yaml=None):

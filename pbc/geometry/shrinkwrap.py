@@ -313,6 +313,15 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     surface = _RestSurface(body, int(sw.nearest_triangles))
     part = vertex_parts(cage, garment.num_vertices)  # rays start from the bone under each patch
     x0 = garment.vertices.double().cpu().numpy()
+    far = sw.get("max_start_distance")
+    if far is not None:
+        gap = surface.sdf(x0)
+        if gap.max() > float(far):
+            k = int(gap.argmax())
+            raise ValueError(f"shrink-wrap: garment vertex {k} at {np.round(x0[k], 3).tolist()} is {gap[k]:.3f} m "
+                             f"from the body (more than shrinkwrap.max_start_distance = {float(far)} m): the "
+                             "garment is not around the T-posed mannequin. Place it there (metres, y up, root at "
+                             "the waist, x to the body's left): garment.position_offset / garment.position_unit")
     # (a) cage-guided Laplace morph of the displacements
     ids, targets = cage_targets(garment, cage, body, surface, part, int(sw.ray_bisection_steps))
     lap = pattern_laplacian(garment)

@@ -41,6 +41,7 @@ class SamplingSettings:
     prune_tolerance: float = 0.0  # m
     block_size: int = 1024
     max_blocks: int = 1000
+    posed_joints: tuple[str, ...] = ()  # joints that are sampled; the rest stay at rest. () = all
 
 
 def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
@@ -49,7 +50,7 @@ def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown sampling settings {sorted(unknown)}; known: {sorted(known)}")
-    kw = {k: (tuple(str(n) for n in v) if k == "halfnormal_joints" else v) for k, v in cfg.items()}
+    kw = {k: (tuple(str(n) for n in v) if k in ("halfnormal_joints", "posed_joints") else v) for k, v in cfg.items()}
     return SamplingSettings(**kw)
 
 
@@ -104,7 +105,13 @@ def sample_angles(skel: Skeleton, n: int, rng: np.random.Generator, settings: Sa
     altitude = np.rad2deg(np.arcsin(s_lo + u[..., Z] * (s_hi - s_lo)))
     sphere = uniform.copy()
     sphere[..., Z] = np.clip(altitude, lo[:, Z], hi[:, Z])  # arcsin round-off must not leave the limits
-    return np.where(centre[None, :, None], half, sphere)
+    out = np.where(centre[None, :, None], half, sphere)
+    if settings.posed_joints:  # a garment's own joint set (the necktie: 4 centre-line joints)
+        unknown = [name for name in settings.posed_joints if name not in skel.names]
+        if unknown:
+            raise ValueError(f"sampling.posed_joints: unknown joints {unknown}; joints: {list(skel.names)}")
+        out[:, [name not in settings.posed_joints for name in skel.names]] = 0.0
+    return out
 
 
 def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:

@@ -1,0 +1,401 @@
+"""A user's garment from an OBJ file as other tools export it (Blender, Marvelous Designer, CLO, ...).
+
+One job: turn the text of a real OBJ into a :class:`~pbc.geometry.garment.Garment`: polygons of any
+size triangulated (each corner keeps its own ``vt``, so UV seams survive), relative (negative)
+indices resolved, ``usemtl``/``mtllib``/``s``/``o``/``vn``/``l`` lines ignored, UV charts found as
+connected UV islands and named by their ``g`` group, each chart mapped to an image side by the
+config (``garment.charts``), and the UVs scaled to the flat sewing pattern with a stated unit
+(``garment.uv_unit``), then laid out in the pbc convention (v = 0 at the top, one uniform
+``uv_scale``, ``uv_padding`` of each side left empty).
+
+Bad input gets one ValueError naming the file, the line where it can be seen and the fix: no UVs, a
+loose vertex, a non-manifold edge, folded or overlapping UV islands, an unmapped chart.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import torch
+from scipy.sparse.csgraph import connected_components
+
+# metres per unit of a stated length unit
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
+# OBJ statements that carry nothing a garment needs (materials, smoothing, normals, objects, lines)
+IGNORED = {"usemtl", "mtllib", "s", "o", "vn", "vp", "l", "p", "#"}
+
+
+@dataclass
+class ObjMesh:
+    """The polygons of an OBJ, triangulated; indices 0-based. Lines are 1-based, for error messages."""
+
+    vertices: np.ndarray  # (V, 3) float64, file units
+    uv: np.ndarray  # (T, 2) float64, file convention (v up)
+    faces: np.ndarray  # (F, 3) int64 vertex ids
+    face_uv: np.ndarray  # (F, 3) int64 vt ids
+    face_group: np.ndarray  # (F,) int64 index into groups
+    face_line: np.ndarray  # (F,) int64 the `f` line each triangle came from
+    groups: list[str]
+    vertex_line: np.ndarray  # (V,) int64 the `v` line of each vertex
+
+
+def _index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
+    """A 1-based (or negative, relative) OBJ index -> 0-based, with an error naming the line."""
+    try:
+        k = int(token)
+    except ValueError:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {token!r} is not an integer") from None
+    if k == 0 or k > count or k < -count:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {k} refers to no {kind} "
+                         f"({count} defined so far; OBJ indices start at 1, negative ones count back)")
+    return k - 1 if k > 0 else count + k
+
+
+def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
+    """Parse OBJ text into triangles (fan triangulation of each polygon, corners keep their vt).
+
+    ``where`` names the source in error messages (the file path).
+    """
+    verts, vlines, uvs = [], [], []
+    faces, fuvs, fgroups, flines = [], [], [], []
+    groups: list[str] = ["default"]
+    group = 0
+    lines = text.splitlines()
+    lineno = 0
+    pending = ""
+    for raw_no, raw in enumerate(lines, 1):
+        if raw.rstrip().endswith("\\"):  # a continued statement
+            pending += raw.rstrip()[:-1] + " "
+            continue
+        line, pending = pending + raw, ""
+        lineno = raw_no
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        key = parts[0]
+        if key == "v":
+            if len(parts) < 4:
+                raise ValueError(f"{where}: line {lineno}: a vertex needs x y z, got {line.strip()!r}")
+            verts.append([float(x) for x in parts[1:4]])
+            vlines.append(lineno)
+        elif key == "vt":
+            if len(parts) < 3:
+                raise ValueError(f"{where}: line {lineno}: a texture coordinate needs u v, got {line.strip()!r}")
+            uvs.append([float(x) for x in parts[1:3]])
+        elif key == "g":
+            name = parts[1] if len(parts) > 1 else "default"
+            if name not in groups:
+                groups.append(name)
+            group = groups.index(name)
+        elif key == "f":
+            if len(parts) < 4:
+                raise ValueError(f"{where}: line {lineno}: a face needs at least 3 corners, got {len(parts) - 1}")
+            fv, ft = [], []
+            for corner in parts[1:]:
+                idx = corner.split("/")
+                if len(idx) < 2 or not idx[1]:
+                    raise ValueError(
+                        f"{where}: line {lineno}: face corner {corner!r} has no texture coordinate (vt) index; "
+                        "a garment needs UVs: unwrap it and export with UVs (Blender: 'Include UVs', "
+                        "Marvelous Designer / CLO: export with the 2D pattern as UV)")
+                fv.append(_index(idx[0], len(verts), "vertex", lineno, where))
+                ft.append(_index(idx[1], len(uvs), "texture coordinate", lineno, where))
+            if len(set(fv)) != len(fv):
+                raise ValueError(f"{where}: line {lineno}: the face uses a vertex twice; "
+                                 "remove degenerate faces (Blender: Mesh > Clean Up > Degenerate Dissolve)")
+            for k in range(1, len(fv) - 1):  # fan: every triangle keeps its corners' own vt
+                faces.append((fv[0], fv[k], fv[k + 1]))
+                fuvs.append((ft[0], ft[k], ft[k + 1]))
+                fgroups.append(group)
+                flines.append(lineno)
+        elif key in IGNORED or key.startswith("#"):
+            continue
+        # other statements (curves, surfaces, display attributes) carry nothing a garment needs
+    if not verts:
+        raise ValueError(f"{where}: no vertices (v lines)")
+    if not faces:
+        raise ValueError(f"{where}: no faces (f lines)")
+    if not uvs:
+        raise ValueError(f"{where}: no texture coordinates (vt lines); a garment needs UVs: unwrap it "
+                         "(one island per pattern piece) and export with UVs")
+    used = sorted(set(fgroups))
+    remap = {g: k for k, g in enumerate(used)}
+    return ObjMesh(
+        vertices=np.asarray(verts, np.float64),
+        uv=np.asarray(uvs, np.float64),
+        faces=np.asarray(faces, np.int64),
+        face_uv=np.asarray(fuvs, np.int64),
+        face_group=np.asarray([remap[g] for g in fgroups], np.int64),
+        face_line=np.asarray(flines, np.int64),
+        groups=[groups[g] for g in used],
+        vertex_line=np.asarray(vlines, np.int64),
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# checks and charts
+
+
+def check_mesh(mesh: ObjMesh, where: str = "<obj>") -> None:
+    """Raise ValueError unless every vertex is used and no edge has more than two faces."""
+    nv = len(mesh.vertices)
+    used = np.zeros(nv, bool)
+    used[mesh.faces.ravel()] = True
+    if not used.all():
+        k = int(np.flatnonzero(~used)[0])
+        raise ValueError(f"{where}: line {mesh.vertex_line[k]}: vertex {k + 1} is used by no face "
+                         f"({int((~used).sum())} loose vertices); delete loose vertices "
+                         "(Blender: Mesh > Clean Up > Delete Loose)")
+    f = mesh.faces
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    uniq, inv, count = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    bad = np.flatnonzero(count > 2)
+    if len(bad):
+        a, b = uniq[bad[0]]
+        lines = mesh.face_line[np.tile(np.arange(len(f)), 3)[inv.ravel() == bad[0]]]
+        raise ValueError(f"{where}: lines {sorted(set(lines.tolist()))}: the edge between vertices {a + 1} and {b + 1} "
+                         f"has {count[bad[0]]} faces ({len(bad)} non-manifold edges); a garment is a surface "
+                         "where each edge has one or two faces: split the extra panels apart "
+                         "(Blender: Select > All by Trait > Non Manifold, then Edge Split)")
+
+
+def uv_islands(faces: np.ndarray, face_uv_coords: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+    """(F,) island id per face: faces joined across an edge whose two ends have the same UV in both.
+
+    faces (F, 3) vertex ids, face_uv_coords (F, 3, 2) each corner's UV. Works whether or not the
+    exporter shares vt entries between faces. Ids follow the first face of each island.
+    """
+    nf = len(faces)
+    rec_v, rec_uv, rec_f = [], [], []
+    for k in range(3):
+        a, b = faces[:, k], faces[:, (k + 1) % 3]
+        ua, ub = face_uv_coords[:, k], face_uv_coords[:, (k + 1) % 3]
+        swap = a > b
+        rec_v.append(np.stack([np.where(swap, b, a), np.where(swap, a, b)], 1))
+        rec_uv.append(np.concatenate([np.where(swap[:, None], ub, ua), np.where(swap[:, None], ua, ub)], 1))
+        rec_f.append(np.arange(nf))
+    ev, euv, ef = np.concatenate(rec_v), np.concatenate(rec_uv), np.concatenate(rec_f)
+    scale = max(float(np.ptp(face_uv_coords.reshape(-1, 2), axis=0).max()), 1e-12)
+    q = np.round(euv / (scale * tol)).astype(np.int64)  # equal UVs -> equal keys
+    key = np.concatenate([ev, q], 1)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    same = inv[order][1:] == inv[order][:-1]
+    fa, fb = ef[order][:-1][same], ef[order][1:][same]
+    adj = sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
+    _, label = connected_components(adj, directed=False)
+    first = {}
+    for lab in label:
+        first.setdefault(int(lab), len(first))
+    return np.asarray([first[int(lab)] for lab in label], np.int64)
+
+
+def signed_uv_area(tri: np.ndarray) -> np.ndarray:
+    """(F,) signed area of UV triangles tri (F, 3, 2); positive counter-clockwise in (u, v)."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+def chart_names(island: np.ndarray, face_group: np.ndarray, groups: list[str]) -> list[str]:
+    """A name per island: its group's name (the group of most of its faces), numbered when a group
+    holds several islands (``sleeve``, ``sleeve_2``)."""
+    n = int(island.max()) + 1
+    base = [groups[int(np.bincount(face_group[island == k]).argmax())] for k in range(n)]
+    names, seen = [], {}
+    for b in base:
+        seen[b] = seen.get(b, 0) + 1
+        names.append(b if seen[b] == 1 else f"{b}_{seen[b]}")
+    return names
+
+
+def overlapping_charts(tri: np.ndarray, chart: np.ndarray, resolution: int = 512,
+                       tolerance: float = 0.005) -> tuple[int, int, int] | None:
+    """The first pair of charts whose UV triangles overlap, as (a, b, pixels), else None.
+
+    tri (F, 3, 2) UVs in [0, 1]^2 of one image side, chart (F,). Pixel centres inside triangles of two
+    charts count, beyond ``tolerance`` of the smaller chart's pixels (charts that only touch share
+    a few boundary pixels).
+    """
+    from skimage.draw import polygon
+
+    owner = -np.ones((resolution, resolution), np.int64)
+    count = np.zeros((resolution, resolution), np.int64)
+    hits: dict[tuple[int, int], int] = {}
+    sizes: dict[int, int] = {}
+    for c in np.unique(chart):
+        mask = np.zeros((resolution, resolution), bool)
+        for t in tri[chart == c] * resolution - 0.5:
+            rr, cc = polygon(t[:, 1], t[:, 0], shape=mask.shape)
+            mask[rr, cc] = True
+        sizes[int(c)] = int(mask.sum())
+        clash = mask & (owner >= 0)
+        for o in np.unique(owner[clash]):
+            hits[(int(o), int(c))] = int((clash & (owner == o)).sum())
+        owner[mask & (owner < 0)] = c
+        count += mask
+    for (a, b), n in hits.items():
+        if n > tolerance * max(1, min(sizes[a], sizes[b])):
+            return a, b, n
+    return None
+
+
+# --------------------------------------------------------------------------------------------------
+# the garment
+
+
+def metres_per_unit(unit, what: str) -> float:
+    """A stated unit (``m``/``cm``/``mm``/``in`` or metres per unit as a number) -> metres per unit."""
+    if isinstance(unit, int | float) and not isinstance(unit, bool):
+        if unit <= 0:
+            raise ValueError(f"{what}: must be positive metres per unit, got {unit}")
+        return float(unit)
+    if str(unit) in UNITS:
+        return UNITS[str(unit)]
+    raise ValueError(f"{what}: unknown unit {unit!r}; use one of {sorted(UNITS)}, 'auto' (uv only), "
+                     "or metres per unit as a number")
+
+
+def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto", position_unit="m",
+                   position_offset=(0.0, 0.0, 0.0), uv_padding: float = 0.1, overlap_resolution: int = 512):
+    """Read a garment OBJ exported by another tool into a Garment (see the module docstring).
+
+    path: the OBJ file. charts: chart name -> image side (0 front image, 1 back image); None maps
+    charts whose name starts with ``back`` to 1 and all others to 0. Charts sharing a side share its
+    image, so their UVs must not overlap. uv_unit: what one UV unit is on the flat pattern (``m``,
+    ``cm``, ``mm``, ``in``, metres per unit as a number, or ``auto``: from the 3D surface area, for
+    UVs normalised to [0, 1] as Blender writes them). position_unit / position_offset: the unit of
+    the ``v`` lines and a shift (m) placing the garment on the T-posed mannequin (root at the waist,
+    y up, x the body's left). uv_padding: fraction of each side's image left empty at every border.
+    Returns (Garment, chart_names list, face_chart (F,) int64).
+    """
+    from pbc.geometry.garment import Garment  # garment.py imports this module for its OBJ door
+
+    path = Path(path)
+    where = str(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ValueError(f"{where}: cannot read the garment OBJ ({exc})") from None
+    mesh = parse_obj(text, where)
+    check_mesh(mesh, where)
+    corners = mesh.uv[mesh.face_uv]  # (F, 3, 2) file convention, v up
+    island = uv_islands(mesh.faces, corners)
+    names = chart_names(island, mesh.face_group, mesh.groups)
+    area = signed_uv_area(corners)
+    # each island is one flat piece: its triangles all turn the same way in UV (a mirrored island
+    # is flipped back, since the rest shape must not be inverted); mixed signs are a fold
+    for k, name in enumerate(names):
+        a = area[island == k]
+        sign = 1.0 if a.sum() >= 0 else -1.0
+        bad = np.flatnonzero((island == k) & (sign * area <= 0))
+        if len(bad):
+            raise ValueError(f"{where}: line {mesh.face_line[bad[0]]}: UV island '{name}' is folded over "
+                             f"({len(bad)} triangles turn the other way or have zero UV area); re-unwrap it "
+                             "so the piece lies flat without overlapping itself")
+        if sign < 0:
+            corners[island == k, :, 0] *= -1.0
+    # chart -> image side
+    if charts is None:
+        side_of = {n: int(n.lower().startswith("back")) for n in names}
+    else:
+        side_of = {str(k): int(v) for k, v in dict(charts).items()}
+        missing = [n for n in names if n not in side_of]
+        if missing:
+            example = ",".join(f"{n}:0" for n in names)
+            raise ValueError(f"{where}: chart(s) {missing} have no image side; the charts are {names} "
+                             f"(named by their `g` group, numbered when a group has several UV islands): "
+                             f"map every one, e.g. garment.charts={{{example}}}")
+    sides = np.asarray([side_of[n] for n in names], np.int64)
+    if not set(sides.tolist()) <= {0, 1}:
+        raise ValueError(f"{where}: garment.charts sides must be 0 (front image) or 1 (back image), got {side_of}")
+    face_side = sides[island]
+
+    # UV -> metres on the pattern, y up
+    if uv_unit == "auto":
+        p3 = mesh.vertices[mesh.faces] * metres_per_unit(position_unit, "garment.position_unit")
+        a3 = 0.5 * np.linalg.norm(np.cross(p3[:, 1] - p3[:, 0], p3[:, 2] - p3[:, 0]), axis=1).sum()
+        scale = float(np.sqrt(a3 / max(np.abs(area).sum(), 1e-30)))
+    else:
+        scale = metres_per_unit(uv_unit, "garment.uv_unit")
+    pattern = corners * scale
+    # one uv_scale for all sides; each side centred in its image with uv_padding left empty
+    extent = []
+    for s in np.unique(face_side):
+        pts = pattern[face_side == s].reshape(-1, 2)
+        extent.append(np.ptp(pts, axis=0).max())
+    if not 0.0 <= uv_padding < 0.5:
+        raise ValueError(f"garment.uv_padding must be in [0, 0.5), got {uv_padding}")
+    uv_scale = float(max(extent)) / (1.0 - 2.0 * uv_padding)
+    uvp = np.empty_like(pattern)
+    for s in np.unique(face_side):
+        sel = face_side == s
+        pts = pattern[sel].reshape(-1, 2)
+        centre = 0.5 * (pts.min(0) + pts.max(0))
+        uvp[sel, :, 0] = 0.5 + (pattern[sel, :, 0] - centre[0]) / uv_scale
+        uvp[sel, :, 1] = 0.5 - (pattern[sel, :, 1] - centre[1]) / uv_scale  # pbc: v = 0 at the top
+    for s in np.unique(face_side):
+        sel = np.flatnonzero(face_side == s)
+        clash = overlapping_charts(uvp[sel], island[sel], overlap_resolution)
+        if clash is not None:
+            a, b, n = clash
+            raise ValueError(f"{where}: UV islands '{names[a]}' and '{names[b]}' overlap ({n} px at "
+                             f"{overlap_resolution}) on image side {s}; move them apart in the UV layout, or "
+                             f"put them on different sides (garment.charts={{{names[a]}:0,{names[b]}:1}})")
+
+    # one uv entry per (vt, island): an exporter may share a vt between islands we flipped apart
+    key = np.stack([mesh.face_uv.ravel(), np.repeat(island, 3)], 1)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    uv = uvp.reshape(-1, 2)[first]
+    face_uv = inv.reshape(-1, 3)
+    # a vertex is sampled from its first chart on the lowest side (the front for front/back seams)
+    vertex_tex, vertex_side = sample_corners(mesh.faces, face_uv, face_side, island)
+    pos = mesh.vertices * metres_per_unit(position_unit, "garment.position_unit") + np.asarray(position_offset)
+    garment = Garment(
+        vertices=torch.tensor(pos, dtype=torch.float32),
+        faces=torch.tensor(mesh.faces),
+        uv=torch.tensor(uv, dtype=torch.float32),
+        face_uv=torch.tensor(face_uv, dtype=torch.long),
+        face_side=torch.tensor(face_side),
+        vertex_uv=torch.tensor(uv[vertex_tex], dtype=torch.float32),
+        vertex_side=torch.tensor(vertex_side),
+        uv_scale=uv_scale,
+    )
+    return garment, names, island
+
+
+def sample_corners(faces: np.ndarray, face_uv: np.ndarray, face_side: np.ndarray, face_chart: np.ndarray,
+                   vertex_side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Which uv each vertex is sampled at, by one rule that survives an OBJ round trip:
+    the vertex's side (given, else its lowest), then its chart there that comes first, then the first
+    corner of that chart in face order. faces / face_uv (F, 3), face_side / face_chart (F,).
+    Returns vertex_tex (V,) indices into uv and vertex_side (V,).
+    """
+    v = faces.ravel()
+    nv = int(v.max()) + 1
+    side = np.repeat(face_side, 3)
+    chart = np.repeat(face_chart, 3)
+    if vertex_side is None:
+        vertex_side = np.full(nv, np.iinfo(np.int64).max)
+        np.minimum.at(vertex_side, v, side)
+    ok = side == vertex_side[v]
+    idx = np.flatnonzero(ok)
+    order = idx[np.lexsort((idx, chart[idx], v[idx]))]
+    first = order[np.r_[True, v[order][1:] != v[order][:-1]]]
+    if len(first) != nv:
+        missing = np.setdiff1d(np.arange(nv), v[first])
+        raise ValueError(f"vertices {missing[:5].tolist()} have no face on their vertex_side chart")
+    vertex_tex = np.empty(nv, np.int64)
+    vertex_tex[v[first]] = face_uv.ravel()[first]
+    return vertex_tex, np.asarray(vertex_side, np.int64)
+
+
+def face_charts(garment, tol: float = 1e-7) -> np.ndarray:
+    """(F,) chart (UV island) id of each face of a Garment, islands numbered by first face."""
+    corners = garment.uv[garment.face_uv].double().cpu().numpy()
+    corners = corners + 2.0 * garment.face_side.cpu().numpy()[:, None, None]  # sides never join
+    return uv_islands(garment.faces.cpu().numpy(), corners, tol)

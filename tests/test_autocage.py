@@ -1,0 +1,128 @@
+"""The automatic cage, and a garment pbc did not make going through import -> cage -> shrink-wrap -> drape."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pbc.geometry.autocage import _components, _edges, auto_cage
+from pbc.geometry.cage import load_cage, save_cage
+from pbc.geometry.garment import garment_from_config, load_garment_config, make_tshirt
+from pbc.geometry.obj_import import import_garment
+
+
+def tube_top_obj(cols: int = 16, rows: int = 6, band_rows: int = 2, rx: float = 0.16, rz: float = 0.115) -> str:
+    """A tube top round the torso as another tool would export it: quads, three UV islands (groups front,
+    back, band: the waistband, cut open at the back), v up, UVs in cm, `mtllib`/`o`/`usemtl`/`s` lines,
+    and relative indices in the band's faces."""
+    y_top, y_mid, y_bot = 0.30, 0.0, -0.06
+    ang = np.linspace(0, 2 * np.pi, cols, endpoint=False) + np.pi / cols
+    ys = np.concatenate([np.linspace(y_top, y_mid, rows + 1), np.linspace(y_mid, y_bot, band_rows + 1)[1:]])
+    pts = np.array([[rx * np.sin(a), y, -0.01 + rz * np.cos(a)] for y in ys for a in ang])
+    step = np.linalg.norm(np.roll(pts[:cols, [0, 2]], -1, 0) - pts[:cols, [0, 2]], axis=1).mean()
+    lines = ["# Exported from SomeCAD", "mtllib top.mtl", "o TubeTop"]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts]
+    vt: dict = {}
+
+    def add(key, u, v):
+        vt[key] = len(vt) + 1
+        lines.append(f"vt {u * 100:.5f} {v * 100:.5f}")
+
+    h = cols // 2
+    front_cols = [c % cols for c in range(-h // 2, h // 2 + 1)]
+    back_cols = [c % cols for c in range(h // 2, h // 2 + h + 1)]
+    for name, cl, u0 in (("front", front_cols, 0.0), ("back", back_cols, (h + 2) * step)):
+        for r in range(rows + 1):
+            for k in range(len(cl)):
+                add((name, r, k), u0 + k * step, ys[r])
+    for r in range(rows, len(ys)):
+        for k in range(cols + 1):
+            add(("band", r, k), k * step, ys[r] - 0.08)
+    lines += ["usemtl Fabric", "s 1"]
+    for name, cl in (("front", front_cols), ("back", back_cols)):
+        lines.append(f"g {name}")
+        for r in range(rows):
+            for k in range(h):
+                q = [(r + 1, k), (r + 1, k + 1), (r, k + 1), (r, k)]
+                lines.append("f " + " ".join(f"{rr * cols + cl[kk] + 1}/{vt[(name, rr, kk)]}" for rr, kk in q))
+    lines.append("g band")
+    nv, nt = len(pts), len(vt)
+    for r in range(rows, len(ys) - 1):
+        for k in range(cols):
+            q = [(r + 1, k), (r + 1, k + 1), (r, k + 1), (r, k)]
+            lines.append("f " + " ".join(f"{rr * cols + kk % cols - nv}/{vt[('band', rr, kk)] - nt - 1}"
+                                         for rr, kk in q))
+    return "\n".join(lines) + "\n"
+
+
+CHARTS = {"front": 0, "back": 1, "band": 0}
+IMAGE = (512, 160, 16)
+
+
+def _check_patches_connected(garment, cage):
+    edges = _edges(garment)
+    for p in cage.patches:
+        assert len(_components(p.vertices, edges, garment.num_vertices)) == 1, p.name
+
+
+def test_auto_cage_of_the_shirt_is_valid_connected_and_editable(tmp_path):
+    cfg = load_garment_config("conf/garment/tshirt_coarse.yaml")
+    garment, hand = make_tshirt(cfg)
+    cage = auto_cage(garment, *IMAGE)  # validated inside: cover, sides, box + margin fits the crop
+    _check_patches_connected(garment, cage)
+    assert {p.side for p in cage.patches} == {0, 1}
+    assert all(p.name.startswith(("front_", "back_")) for p in cage.patches)
+    # as JSON in the patches/ format: it loads back identically (so a person can edit it)
+    save_cage(cage, tmp_path / "auto.json", garment.num_vertices)
+    back = load_cage(tmp_path / "auto.json", garment, *IMAGE)
+    assert [p.vertices.tolist() for p in back.patches] == [p.vertices.tolist() for p in cage.patches]
+    assert [p.box_512 for p in back.patches] == [p.box_512 for p in cage.patches]
+    # a smaller crop needs more, smaller patches
+    small = auto_cage(garment, 512, 96, 16)
+    assert len(small.patches) > len(cage.patches)
+    assert max(max(p.box_512[2] - p.box_512[0], p.box_512[3] - p.box_512[1]) for p in small.patches) <= 96 - 32
+
+
+def test_a_chart_that_cannot_be_covered_is_refused(tmp_path):
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    tight, _, _ = import_garment(path, charts=CHARTS, uv_unit="cm", uv_padding=0.01)
+    with pytest.raises(ValueError, match=r"chart 'front' .*within the 16 px margin.*uv_padding"):
+        auto_cage(tight, *IMAGE, chart_names=["front", "back", "band"])
+    ok, names, chart = import_garment(path, charts=CHARTS, uv_unit="cm")
+    with pytest.raises(ValueError, match=r"crop of 30 px cannot hold a 16 px margin"):
+        auto_cage(ok, 512, 30, 16)
+    with pytest.raises(ValueError, match=r"past 3 patches"):
+        auto_cage(ok, *IMAGE, chart_names=names, face_chart=chart, max_patches=3)
+
+
+def test_a_garment_pbc_did_not_make_goes_through(tmp_path):
+    """A tube top of quads with three UV islands: import -> automatic cage -> shrink-wrap -> two drapes."""
+    from pbc.config import load_config
+    from pbc.data.dataset import load_dataset
+    from pbc.data.generate import build_scene, generate
+
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    overrides = ["data=tshirt_tiny", "garment=obj", f"garment.obj={path}", "garment.charts={front:0,back:1,band:0}",
+                 "garment.uv_unit=cm", "data.num_samples=2", "data.workers=1", f"paths.data_dir={tmp_path}",
+                 "body.mesh.voxel_size=0.03"]
+    cfg = load_config(overrides)
+    garment, cage = garment_from_config(cfg.garment)
+    _check_patches_connected(garment, cage)
+    assert {p.name.rsplit("_", 1)[0] for p in cage.patches} == {"front", "back", "band"}
+    # cm read as stated: the front image's widest chart is the band, the tube's perimeter long, 80% of the image
+    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    ring = np.stack([0.16 * np.sin(ang), 0.115 * np.cos(ang)], 1)
+    perimeter = np.linalg.norm(np.roll(ring, -1, 0) - ring, axis=1).mean() * 16
+    assert garment.uv_scale == pytest.approx(perimeter / 0.8, rel=1e-4)
+    scene, stats = build_scene(cfg)
+    assert stats["max_abs_sdf"] < 0.01 and stats["area_after_min"] > 0.3
+    ds = load_dataset(generate(cfg))
+    assert len(ds) >= 1 and ds.verts.shape[1] == garment.num_vertices
+    assert np.isfinite(ds.verts).all()
+    assert ds.manifest["drape_residual"]["max"] < float(cfg.sim.tolerance)  # static equilibrium reached
+    # far from the body: refused by the shrink-wrap, naming the fix
+    far = load_config([*overrides, "garment.position_offset=[0,1.5,0]"])
+    with pytest.raises(ValueError, match=r"from the body.*position_offset"):
+        build_scene(far)

@@ -1,0 +1,103 @@
+"""The necktie (appendix F): garment, cage, 4-joint poses, the configs and the 2.16M decoder preset."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from hydra.utils import instantiate
+
+from pbc.config import load_config
+from pbc.geometry.cage import boundary_loops
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.necktie import necktie_pattern
+from pbc.geometry.obj_import import face_charts, signed_uv_area
+from pbc.models.decoder import count_parameters
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_config(["+experiment=necktie", "garment.grid_spacing=0.015"])
+
+
+@pytest.fixture(scope="module")
+def tie(cfg):
+    return garment_from_config(cfg.garment)
+
+
+def test_necktie_is_one_chart_with_knot_blade_and_band(cfg, tie):
+    g, cage = tie
+    gc = cfg.garment
+    assert (face_charts(g) == 0).all() and (g.face_side == 0).all() and (g.vertex_side == 0).all()
+    assert (signed_uv_area(g.uv[g.face_uv].double().numpy()) < 0).all()  # the shirt's orientation
+    v0, v1 = gc.uv_window
+    assert g.uv[:, 1].min() >= v0 and g.uv[:, 1].max() <= v1  # inside the 64 x 256 window of the image
+    # the flat piece is as long as band + knot + blade + tip, at uv_padding from both ends
+    length = 0.5 * gc.neck_girth + gc.knot_length + gc.blade_length + gc.tip_length
+    assert float(np.ptp(g.uv[:, 0].numpy())) * g.uv_scale == pytest.approx(length, abs=gc.grid_spacing)
+    assert g.uv[:, 0].min() == pytest.approx(gc.uv_padding, abs=1e-6)
+    # the band ends are sewn behind the neck: an outline plus the hole the neck goes through
+    loops = boundary_loops(g.faces.numpy())
+    assert len(loops) == 2
+    corners_per_vertex = np.bincount(g.faces.numpy().ravel(), minlength=g.num_vertices)
+    assert corners_per_vertex.min() >= 1
+    uvs = {}
+    for v, t in zip(g.faces.numpy().ravel(), g.face_uv.numpy().ravel(), strict=True):
+        uvs.setdefault(int(v), set()).add(int(t))
+    band_cells = necktie_pattern(gc)[1]["band_cells"]
+    assert band_cells >= 1
+    assert sum(len(t) == 2 for t in uvs.values()) == band_cells + 1  # the seam's vertices, two uvs each
+    # knot at the collar, blade hanging down the front
+    y = g.vertices[:, 1].numpy()
+    assert y.max() == pytest.approx(gc.collar_height + (band_cells + gc.band_gap_cells) * gc.grid_spacing, abs=1e-6)
+    assert y.min() < gc.collar_height - gc.knot_length - gc.blade_length
+    assert all(p.side == 0 and p.name.startswith("necktie_") for p in cage.patches)
+
+
+def test_necktie_poses_vary_only_the_four_centre_line_joints(cfg, body):
+    from pbc.sim.poses import sample_poses, sampling_settings_from_config
+
+    assert list(cfg.data.pose_joints) == ["lower_back", "spine", "neck", "neck1"]
+    settings = sampling_settings_from_config(cfg.body.sampling)
+    poses, _ = sample_poses(body.skeleton, 16, 0, body, settings)
+    moved = [not torch.allclose(poses[:, j], torch.eye(3)) for j in range(poses.shape[1])]
+    assert [n for n, m in zip(body.skeleton.names, moved, strict=True) if m] == list(cfg.data.pose_joints)
+    ids = [body.skeleton.names.index(n) for n in cfg.data.pose_joints]
+    assert poses[:, ids].reshape(16, -1).shape[1] == cfg.model.net.in_features == 36
+    # the same seed without the joint set: the posed joints get the same angles (one random stream)
+    full, _ = sample_poses(body.skeleton, 16, 0, None, sampling_settings_from_config(
+        {**cfg.body.sampling, "posed_joints": []}))
+    assert not torch.equal(full, poses)
+
+
+def test_necktie_experiment_config_and_decoder(cfg):
+    assert cfg.model.space == "root" and list(cfg.model.net.output_size) == [64, 256]
+    assert cfg.model.net.out_channels == 3
+    assert (cfg.loss.norm, cfg.loss.normal_weight, cfg.loss.edge_weight) == ("l1", 0.1, 0.1)
+    assert cfg.data.name == "necktie_small" and cfg.garment.name == "necktie"
+    assert load_config(["data=necktie_paper"]).data.num_samples == 9999
+    net = instantiate(cfg.model.net)
+    n = count_parameters(net)
+    assert n == 2_161_667 and abs(n / 2.16e6 - 1) < 0.01  # appendix F: "2.16 million parameters"
+    assert net(torch.randn(2, 36)).shape == (2, 3, 64, 256)
+
+
+def test_necktie_shrink_wraps_onto_the_mannequin(cfg, tie, body):
+    from pbc.geometry.shrinkwrap import shrinkwrap
+
+    g, cage = tie
+    emb, stats = shrinkwrap(g, cage, body, cfg.garment.shrinkwrap)
+    assert emb.face.shape == (g.num_vertices,) and (emb.part == 0).all()  # the torso carries the whole tie
+    assert stats["max_abs_sdf"] < 0.01
+    assert stats["area_after_min"] > 0.2 and stats["area_after_max"] < 5.0
+
+
+def test_necktie_obj_round_trip_keeps_the_sampled_uvs(tie, tmp_path):
+    from pbc.geometry.cage import validate_cage
+    from pbc.geometry.garment import load_garment_obj, save_garment_obj
+
+    g, cage = tie
+    save_garment_obj(g, tmp_path / "tie.obj")
+    h = load_garment_obj(tmp_path / "tie.obj")
+    assert torch.equal(h.vertex_uv, g.vertex_uv) and torch.equal(h.faces, g.faces)
+    validate_cage(cage, h, 512, 160, 16)
