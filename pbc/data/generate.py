@@ -15,6 +15,7 @@ manifest is byte-identical too.
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing as mp
 import shutil
 import time
@@ -47,6 +48,7 @@ class Scene:
     cage: Cage
     embedding: Embedding
     sim: DictConfig
+    batched: object | None = None  # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch
 
 
 def dataset_dir(cfg: DictConfig) -> Path:
@@ -71,8 +73,24 @@ def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
         "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part),
         # machine-specific keys (where kernels are cached, which device) do not change the data
         "sim": {k: v for k, v in OmegaConf.to_container(scene.sim, resolve=True).items()
-                if k not in ("kernel_cache_dir", "device")},
+                if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(scene.sim))},
     }
+
+
+def batch_size(sim: DictConfig) -> int:
+    """Poses draped at once (`sim.batch_size`, 1 = the single-world drape)."""
+    k = int(sim.get("batch_size", 1) or 1)
+    if k < 1:
+        raise ValueError(f"sim.batch_size must be >= 1, got {k}")
+    return k
+
+
+def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
+    """How often the host polls never changes the data; with batch_size 1 no batch key does, so a
+    single-world dataset keeps the fingerprint (and manifest bytes) it had before batching existed."""
+    if batch_size(sim) == 1:
+        return ("batch_size", "batch_check_every", "batch_world_spacing")
+    return ("batch_check_every",)
 
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
@@ -105,6 +123,39 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
     }
 
 
+def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
+    """`drape_pose` for B poses (B, J, 3, 3) at once in the worker's batched model (built on the first
+    call, reused after). Per-sample times are the batch's shared equally."""
+    t0 = time.perf_counter()
+    starts, bodies = [], []
+    for pose in poses:  # one at a time: the same skinning, bit for bit, as `drape_pose`
+        body_v = pose_body(scene.body, torch.from_numpy(pose)[None].float())
+        starts.append(embedded_points(body_v, scene.body.faces, scene.embedding)[0].numpy())
+        bodies.append(body_v[0].numpy())
+    t1 = time.perf_counter()
+    if scene.batched is None:
+        from pbc.sim.batched import batched_drape_for_garment
+
+        scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
+                                                  batch_size(scene.sim), starts[0], bodies[0])
+    results = scene.batched.run(np.stack(starts), np.stack(bodies))
+    t2 = time.perf_counter()
+    records = []
+    for res in results:
+        ok, reason = check_garment_result(res, scene.garment, scene.sim)
+        records.append({
+            "positions": res.positions.astype(np.float32),
+            "ok": ok,
+            "reason": reason,
+            "residual": float(res.residual),
+            "residual_max": float(res.residual_max),
+            "iterations": int(res.iterations),
+            "t_skin": (t1 - t0) / len(poses),
+            "t_drape": (t2 - t1) / len(poses),
+        })
+    return records
+
+
 _SCENE: Scene | None = None
 
 
@@ -123,6 +174,18 @@ def _work(args: tuple[int, np.ndarray, str]) -> tuple[int, bool, str]:
         np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
     rec["t_write"] = time.perf_counter() - t0
     return i, rec["ok"], rec["reason"]
+
+
+def _work_batch(jobs: list[tuple[int, np.ndarray, str]]) -> list[tuple[int, bool, str]]:
+    """Drape one batch and write its samples (each atomically): a kill loses at most this batch."""
+    recs = drape_batch(_SCENE, np.stack([pose for _, pose, _ in jobs]))
+    out = []
+    for (i, _, path), rec in zip(jobs, recs, strict=True):
+        if not Path(path).is_file():  # left by a batch killed while writing: the same bytes, keep it
+            with atomic_path(path, suffix=".npz") as tmp:
+                np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
+        out.append((i, rec["ok"], rec["reason"]))
+    return out
 
 
 def _sample_path(work: Path, i: int) -> Path:
@@ -200,7 +263,13 @@ def _generate(cfg: DictConfig) -> Path:
     shards = range(n_shards) if data.shard is None else [int(data.shard)]
     if any(not 0 <= s < n_shards for s in shards):
         raise ValueError(f"data.shard={data.shard} is out of range for data.num_shards={n_shards}")
-    todo = [i for s in shards for i in range(s, len(poses), n_shards) if not _sample_path(work, i).is_file()]
+    # poses go in fixed batches of sim.batch_size (b*k ... b*k+k-1) whatever was done before, so a
+    # pose always shares its batch with the same poses; shards take every n-th batch (every n-th pose
+    # when k = 1); a batch with any sample missing is draped again whole
+    k = batch_size(cfg.sim)
+    batches = [list(range(b * k, min((b + 1) * k, len(poses)))) for b in range(math.ceil(len(poses) / k))]
+    todo = [batches[b] for s in shards for b in range(s, len(batches), n_shards)
+            if not all(_sample_path(work, i).is_file() for i in batches[b])]
     t0 = time.perf_counter()
     _run_drapes(cfg, scene, poses, todo, work)
     timings["drape_wall"] = time.perf_counter() - t0
@@ -210,27 +279,34 @@ def _generate(cfg: DictConfig) -> Path:
     return out
 
 
-def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[int], work: Path) -> None:
+def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[list[int]], work: Path) -> None:
+    """Drape the batches in `todo` (lists of pose indices; batches of one go through `drape_pose`)."""
     if not todo:
         return
+    batched = batch_size(cfg.sim) > 1
     workers = max(1, min(int(cfg.data.workers), len(todo)))
-    jobs = [(i, poses[i], str(_sample_path(work, i))) for i in todo]
-    bar = tqdm(total=len(todo), desc=f"drape ({workers} workers)", unit="sample", dynamic_ncols=True)
+    jobs = [[(i, poses[i], str(_sample_path(work, i))) for i in batch] for batch in todo]
+    if not batched:
+        jobs = [job for batch in jobs for job in batch]
+    work_fn = _work_batch if batched else _work
+    n_samples = sum(map(len, todo))
+    bar = tqdm(total=n_samples, desc=f"drape ({workers} workers)", unit="sample", dynamic_ncols=True)
     discarded = 0
     if workers == 1:
         global _SCENE
         _SCENE = scene
-        results = map(_work, jobs)
+        results = map(work_fn, jobs)
     else:
         # spawn, not fork: warp and torch threads do not survive a fork
         ctx = mp.get_context("spawn")
         # unresolved: run-dir keys (${hydra:...}) exist only in the parent; workers never read them
         pool = ctx.Pool(workers, _init_worker, (OmegaConf.to_yaml(cfg), 1))
-        results = pool.imap(_work, jobs)
+        results = pool.imap(work_fn, jobs)
     try:
-        for _, ok, _reason in results:
-            discarded += not ok
-            bar.update(1)
+        for result in results:
+            for _, ok, _reason in result if batched else [result]:
+                discarded += not ok
+                bar.update(1)
             bar.set_postfix(discarded=discarded)
     finally:
         bar.close()

@@ -1,0 +1,666 @@
+"""Drape K poses of one garment at once: one newton model, one world per pose (`sim.batch_size`).
+
+The single-world `pbc.sim.drape.drape` stays the physics of record; this module runs the same scene
+(Style3D cloth, the D.6 per-part contact pairs, the same stop and discard rules) for K poses in one
+model so that a GPU gets thousands of vertices per kernel launch instead of one cloth's worth.
+
+What keeps the worlds independent, and why each piece is needed:
+- Style3D's PCG solve takes its step sizes from inner products over *all* particles, so K worlds in
+  one model would share one alpha/beta per CG iteration and follow other trajectories than K single
+  drapes (the 10-11 mm probe disagreement of issue 10). `_WorldPcg` computes the inner products, and
+  alpha/beta, per world (fixed-order chunked sums, so the result does not depend on thread timing).
+- Style3D's cloth self-collision BVH spans all cloths and has no world filter, so its broad phase sees
+  each world moved to its own place on a horizontal grid (`_WorldCollision`, `world_offsets`), far enough
+  apart that no candidate pair crosses worlds (horizontal, so that a cloth slipping off its body falls
+  past, never into, another world). Everything else sees the true positions: every world sits where a
+  single drape would, bit for bit. Moving the particles themselves would not do: skinned start vertices
+  lie on the body surface to float32 precision, where the contact normal is rounding noise, and the
+  ~1e-7 m rounding of an offset turned it into 20-50 mm differences after one frame.
+- Body contact uses one (particle, shape) pair per particle, each pointing at its own world's part mesh.
+- Style3D sizes its body-contact launch as shapes x particles (3K x KV: quadratic in K); with one pair
+  per particle, at most KV contacts exist, so the launch is cut to KV.
+
+The stop rule runs on the device: after every frame a kernel damps velocities, measures each vertex's
+speed and counts, per world, the speeds below the tolerance; the 95% quantile is below the tolerance
+exactly when that count (with the largest speed below and the smallest above, for the interpolated
+case) says so, which needs no sort. A world that converges, blows up (NaN) or runs out of frames is
+frozen (its particles deactivated, its result copied on the device) and the rest keep going; the host
+reads one small status array every `sim.batch_check_every` frames to stop when all are done.
+
+The model is built once and reused for every later batch (`BatchedDrape.run`): new start positions,
+fresh body part meshes per world, reset velocities and flags. Everything the physics reads is a
+function of the batch alone, so a batch draped by a fresh model or a reused one gives the same bytes
+(on CPU, where warp's kernels run serially; on a GPU float atomics make every drape, single or
+batched, reproducible only to rounding).
+
+Shapes: K worlds, B <= K poses in a batch, V garment vertices, Vb body vertices. Metres, y up, float32.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import math
+import time
+
+import numpy as np
+import warp as wp
+
+from pbc.sim.drape import DrapeResult, _get, _np, _oriented_panels, _part_meshes, _validate, init_warp, pattern_triangles
+
+log = logging.getLogger(__name__)
+
+# world status (device array `status`)
+ACTIVE, CONVERGED, BLEW_UP, NOT_CONVERGED, IDLE = 0, 1, 2, 3, 4
+_PARTICLE_ACTIVE = 1  # newton.ParticleFlags.ACTIVE (checked against newton in BatchedDrape.__init__)
+_CHUNK = 64  # particles summed by one thread in the per-world inner products
+
+
+@wp.kernel
+def _chunk_dot(
+    a: wp.array(dtype=wp.vec3),
+    b: wp.array(dtype=wp.vec3),
+    chunk_begin: wp.array(dtype=wp.int32),
+    chunk_end: wp.array(dtype=wp.int32),
+    partial: wp.array(dtype=wp.float32),
+):
+    c = wp.tid()
+    s = wp.float32(0.0)
+    for i in range(chunk_begin[c], chunk_end[c]):
+        s += wp.dot(a[i], b[i])
+    partial[c] = s
+
+
+@wp.kernel
+def _world_sum(
+    partial: wp.array(dtype=wp.float32),
+    world_chunk: wp.array(dtype=wp.int32),
+    row: int,
+    out: wp.array2d(dtype=wp.float32),
+):
+    w = wp.tid()
+    s = wp.float32(0.0)
+    for c in range(world_chunk[w], world_chunk[w + 1]):
+        s += partial[c]
+    out[row, w] = s
+
+
+@wp.kernel
+def _cg_direction(
+    it: int,
+    world: wp.array(dtype=wp.int32),
+    z: wp.array(dtype=wp.vec3),
+    rTz: wp.array2d(dtype=wp.float32),
+    p: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    new_p = z[i]
+    if it > 0:
+        w = world[i]
+        num = rTz[it, w]
+        denom = rTz[it - 1, w]
+        beta = wp.float32(0.0)
+        if (wp.abs(denom) > 1.0e-30) and (not wp.isnan(denom)) and (not wp.isnan(num)):
+            beta = num / denom
+        new_p += beta * p[i]
+    p[i] = new_p
+
+
+@wp.kernel
+def _cg_step(
+    it: int,
+    world: wp.array(dtype=wp.int32),
+    rTz: wp.array2d(dtype=wp.float32),
+    pTAp: wp.array2d(dtype=wp.float32),
+    p: wp.array(dtype=wp.vec3),
+    Ap: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+    r: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    w = world[i]
+    num = rTz[it, w]
+    denom = pTAp[it, w]
+    alpha = wp.float32(0.0)
+    if (wp.abs(denom) > 1.0e-30) and (not wp.isnan(denom)) and (not wp.isnan(num)):
+        alpha = num / denom
+    r[i] = r[i] - alpha * Ap[i]
+    x[i] = x[i] + alpha * p[i]
+
+
+@wp.kernel
+def _frame_speed(
+    frame_dt: float,
+    keep: float,
+    damp: int,
+    tol: float,
+    world: wp.array(dtype=wp.int32),
+    status: wp.array(dtype=wp.int32),
+    pin: wp.array(dtype=wp.vec3),
+    q: wp.array(dtype=wp.vec3),
+    qd: wp.array(dtype=wp.vec3),
+    q_prev: wp.array(dtype=wp.vec3),
+    speed: wp.array(dtype=wp.float32),
+    nan_flag: wp.array(dtype=wp.int32),
+    n_below: wp.array(dtype=wp.int32),
+    below_max: wp.array(dtype=wp.float32),
+    above_min: wp.array(dtype=wp.float32),
+):
+    i = wp.tid()
+    w = world[i]
+    if status[w] != 0:
+        # frozen worlds stay exactly where they were retired (belt and braces: they are inactive)
+        q[i] = pin[i]
+        qd[i] = wp.vec3(0.0)
+        return
+    if damp != 0:
+        qd[i] = qd[i] * keep
+    x = q[i]
+    if not wp.isfinite(x):
+        nan_flag[w] = 1
+        speed[i] = wp.nan
+        return
+    s = wp.length(x - q_prev[i]) / frame_dt
+    speed[i] = s
+    if s < tol:
+        wp.atomic_add(n_below, w, 1)
+        wp.atomic_max(below_max, w, s)
+    else:
+        wp.atomic_min(above_min, w, s)
+
+
+@wp.kernel
+def _decide(
+    frame: int,
+    min_frames: int,
+    max_frames: int,
+    q_index: int,
+    q_frac: float,
+    tol: float,
+    status: wp.array(dtype=wp.int32),
+    done_frame: wp.array(dtype=wp.int32),
+    nan_flag: wp.array(dtype=wp.int32),
+    n_below: wp.array(dtype=wp.int32),
+    below_max: wp.array(dtype=wp.float32),
+    above_min: wp.array(dtype=wp.float32),
+):
+    w = wp.tid()
+    if status[w] == 0:
+        if nan_flag[w] != 0:
+            status[w] = 2
+            done_frame[w] = frame
+        else:
+            # numpy's linear quantile of the sorted speeds s: s[f] + frac * (s[f+1] - s[f]), f = q_index.
+            # c speeds lie below tol, so s[f] < tol iff c > f and s[f+1] < tol iff c > f + 1.
+            c = n_below[w]
+            ok = False
+            if c >= q_index + 2:
+                ok = True
+            elif c == q_index + 1:
+                a = below_max[w]
+                value = a
+                if q_frac > 0.0:
+                    b = above_min[w]
+                    if q_frac >= 0.5:
+                        value = b - (b - a) * (1.0 - q_frac)
+                    else:
+                        value = a + (b - a) * q_frac
+                ok = value < tol
+            if frame >= min_frames and ok:
+                status[w] = 1
+                done_frame[w] = frame
+            elif frame >= max_frames:
+                status[w] = 3
+                done_frame[w] = frame
+    nan_flag[w] = 0
+    n_below[w] = 0
+    below_max[w] = -1.0
+    above_min[w] = 3.4e38
+
+
+@wp.kernel
+def _retire(
+    frame: int,
+    world: wp.array(dtype=wp.int32),
+    status: wp.array(dtype=wp.int32),
+    done_frame: wp.array(dtype=wp.int32),
+    q: wp.array(dtype=wp.vec3),
+    qd: wp.array(dtype=wp.vec3),
+    q_prev: wp.array(dtype=wp.vec3),
+    speed: wp.array(dtype=wp.float32),
+    out_q: wp.array(dtype=wp.vec3),
+    out_speed: wp.array(dtype=wp.float32),
+    pin: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    w = world[i]
+    st = status[w]
+    if st == 0:
+        q_prev[i] = q[i]
+        return
+    if done_frame[w] == frame:
+        out_q[i] = q[i]
+        out_speed[i] = speed[i]
+        if st == 2:
+            # a blown-up world goes back to its last finite frame so no NaN reaches the shared BVHs
+            pin[i] = q_prev[i]
+            q[i] = q_prev[i]
+        else:
+            pin[i] = q[i]
+        qd[i] = wp.vec3(0.0)
+        flags[i] = flags[i] & ~1
+
+
+@wp.kernel
+def _shift(q: wp.array(dtype=wp.vec3), world: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.vec3),
+           out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = q[i] + offsets[world[i]]
+
+
+def _world_collision_class():
+    """Style3D's cloth self-collision, with each world moved to its own place for the broad phase only."""
+    from newton._src.solvers.style3d.collision import Collision
+
+    class _WorldCollision(Collision):
+        """The BVHs and candidate searches see every world shifted by its offset, so no candidate pair
+        crosses worlds; the contact forces then use the true (unshifted) positions, which are bit for
+        bit those of a single-world drape of the same pose."""
+
+        def __init__(self, model, world, offsets):
+            super().__init__(model)
+            self.world = world
+            self.offsets = offsets
+            self.shifted = wp.zeros(model.particle_count, dtype=wp.vec3, device=model.device)
+
+        def _shifted(self, pos):
+            wp.launch(_shift, dim=len(pos), inputs=[pos, self.world, self.offsets], outputs=[self.shifted],
+                      device=self.model.device)
+            return self.shifted
+
+        def rebuild_bvh(self, pos):
+            super().rebuild_bvh(self._shifted(pos))
+
+        def frame_begin(self, particle_q, particle_qd, dt):
+            super().frame_begin(self._shifted(particle_q), particle_qd, dt)
+
+    return _WorldCollision
+
+
+def _world_pcg_class():
+    """`PcgSolver` with per-world inner products and step sizes (built lazily: newton imports warp)."""
+    from newton._src.solvers.style3d.linear_solver import PcgSolver
+
+    class _WorldPcg(PcgSolver):
+        """Style3D's PCG, but each world's CG runs on its own: rTz and pTAp are (iterations, K)."""
+
+        def __init__(self, dim, device, particle_world: np.ndarray, n_worlds: int, max_iter: int):
+            super().__init__(dim, device, maxIter=max_iter)
+            pw = np.asarray(particle_world, dtype=np.int64)
+            bounds = np.searchsorted(pw, np.arange(n_worlds + 1))
+            begin, end, world_chunk = [], [], [0]
+            for k in range(n_worlds):
+                starts = np.arange(bounds[k], bounds[k + 1], _CHUNK)
+                begin.extend(starts.tolist())
+                end.extend(np.minimum(starts + _CHUNK, bounds[k + 1]).tolist())
+                world_chunk.append(len(begin))
+            self.world = wp.array(pw.astype(np.int32), dtype=wp.int32, device=device)
+            self.chunk_begin = wp.array(np.asarray(begin, np.int32), dtype=wp.int32, device=device)
+            self.chunk_end = wp.array(np.asarray(end, np.int32), dtype=wp.int32, device=device)
+            self.world_chunk = wp.array(np.asarray(world_chunk, np.int32), dtype=wp.int32, device=device)
+            self.partial = wp.zeros(len(begin), dtype=wp.float32, device=device)
+            self.rTz = wp.zeros((max_iter, n_worlds), dtype=wp.float32, device=device)
+            self.pTAp = wp.zeros((max_iter, n_worlds), dtype=wp.float32, device=device)
+            self.n_worlds = n_worlds
+
+        def _inner(self, a, b, out, row):
+            wp.launch(_chunk_dot, dim=len(self.partial), inputs=[a, b, self.chunk_begin, self.chunk_end],
+                      outputs=[self.partial], device=self.device)
+            wp.launch(_world_sum, dim=self.n_worlds, inputs=[self.partial, self.world_chunk, row],
+                      outputs=[out], device=self.device)
+
+        def step3_update_rTz(self, iter: int):  # noqa: A002 (newton's name)
+            self._inner(self.r, self.z, self.rTz, iter)
+
+        def step4_update_p(self, iter: int):  # noqa: A002
+            wp.launch(_cg_direction, dim=self.dim, inputs=[iter, self.world, self.z, self.rTz],
+                      outputs=[self.p], device=self.device)
+
+        def step6_update_pTAp(self, iter: int):  # noqa: A002
+            self._inner(self.p, self.Ap, self.pTAp, iter)
+
+        def step7_update_x_r(self, x, iter: int):  # noqa: A002
+            wp.launch(_cg_step, dim=self.dim, inputs=[iter, self.world, self.rTz, self.pTAp, self.p, self.Ap],
+                      outputs=[x, self.r], device=self.device)
+
+    return _WorldPcg
+
+
+def world_offsets(n_worlds: int, spacing: float) -> np.ndarray:
+    """(K, 3) offsets of K worlds on a square grid in the horizontal (x, z) plane, centred on the origin
+    so the largest offset (and float32 rounding of positions) stays small."""
+    side = math.ceil(math.sqrt(n_worlds))
+    k = np.arange(n_worlds)
+    ix, iz = k % side, k // side
+    out = np.zeros((n_worlds, 3))
+    out[:, 0] = (ix - (side - 1) / 2.0) * spacing
+    out[:, 2] = (iz - (side - 1) / 2.0) * spacing
+    return out
+
+
+def _array_bytes(*objs) -> int:
+    """Bytes held by the warp arrays that are attributes of objs (one level deep, each array once)."""
+    seen, total = set(), 0
+    for obj in objs:
+        for v in vars(obj).values():
+            if isinstance(v, wp.array) and id(v) not in seen:
+                seen.add(id(v))
+                total += int(v.capacity)
+    return total
+
+
+def _is_out_of_memory(err: BaseException) -> bool:
+    msg = str(err).lower()
+    return "out of memory" in msg or "failed to allocate" in msg or "cudaerrormemoryallocation" in msg
+
+
+class BatchedDrape:
+    """One newton model holding `n_worlds` copies of a garment; `run` drapes up to that many poses.
+
+    rest_pattern_triangles (F, 3, 2), faces (F, 3), body_faces (Fb, 3), vertex_part (V,), part_masks
+    (P, Vb): as `pbc.sim.drape.drape`. template_start (V, 3) and template_body (Vb, 3): any valid pose
+    (the model's arrays do not depend on it; positions and body meshes are replaced by every `run`).
+    """
+
+    def __init__(self, rest_pattern_triangles, faces, body_faces, vertex_part, part_masks, cfg, n_worlds: int,
+                 template_start, template_body):
+        if int(n_worlds) < 1:
+            raise ValueError(f"sim.batch_size must be >= 1, got {n_worlds}")
+        _validate(rest_pattern_triangles, faces, template_start, template_body, body_faces, vertex_part, part_masks)
+        self.cfg = cfg
+        self.n_worlds = int(n_worlds)
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self.body_faces = np.asarray(body_faces)
+        self.part_masks = np.asarray(part_masks, dtype=bool)
+        self.vertex_part = np.asarray(vertex_part, dtype=np.int64)
+        start = np.asarray(template_start, dtype=np.float64)
+        body = np.asarray(template_body, dtype=np.float64)
+        # worlds sit one body-and-cloth extent plus a clear metre apart: far beyond any contact radius
+        extent = np.ptp(np.concatenate([start, body]), axis=0).max()
+        self.spacing = float(_get(cfg, "batch_world_spacing") or (extent + 1.0))
+        self.offsets = world_offsets(self.n_worlds, self.spacing)
+        t0 = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()):  # newton's precompute prints a ScopedTimer line
+            self._build(rest_pattern_triangles, start, body)
+        self.build_seconds = time.perf_counter() - t0
+        self.bytes_per_world = _array_bytes(self.model, self.solver, self.solver.linear_solver,
+                                            self.solver.collision, self.contacts, self) / self.n_worlds
+
+    # --- model ---------------------------------------------------------------------------------------
+    def _build(self, rest_pattern_triangles, start, body):
+        wp_ = init_warp(_get(self.cfg, "kernel_cache_dir"))
+        import newton
+        from newton.solvers import SolverStyle3D, style3d
+
+        cfg = self.cfg
+        if int(newton.ParticleFlags.ACTIVE) != _PARTICLE_ACTIVE:
+            raise RuntimeError("newton's ParticleFlags changed; the batched drape needs newton==1.8.0")
+        device = _get(cfg, "device") or None
+        faces, n_faces, k = self.faces, self.faces.shape[0], self.n_worlds
+        thickness = float(_get(cfg, "thickness"))
+        friction = float(_get(cfg, "friction"))
+        gravity = wp_.vec3(0.0, -float(_get(cfg, "gravity")), 0.0)
+
+        # one world's scene, exactly as `build_drape_sim` makes it, then replicated into K worlds
+        world = newton.ModelBuilder(up_axis=newton.Axis.Y)
+        world.gravity = gravity
+        SolverStyle3D.register_custom_attributes(world)
+        style3d.add_cloth_mesh(
+            world,
+            pos=wp_.vec3(0.0, 0.0, 0.0),
+            rot=wp_.quat_identity(),
+            vel=wp_.vec3(0.0, 0.0, 0.0),
+            vertices=(start + 1.0e-5 * np.random.default_rng(0).standard_normal(start.shape)).tolist(),
+            indices=faces.reshape(-1).tolist(),
+            panel_verts=_oriented_panels(rest_pattern_triangles, faces, start).tolist(),
+            panel_indices=np.arange(3 * n_faces).tolist(),
+            density=float(_get(cfg, "density")),
+            particle_radius=thickness,
+            tri_aniso_ke=wp_.vec3(*[float(x) for x in _get(cfg, "stretch_ke")]),
+            edge_aniso_ke=wp_.vec3(*[float(x) for x in _get(cfg, "bend_ke")]),
+        )
+        if world.particle_count != start.shape[0] or len(world.tri_indices) != n_faces:
+            raise ValueError("Style3D dropped degenerate pattern triangles; the rest pattern has zero-area faces")
+        shape_cfg = newton.ModelBuilder.ShapeConfig(
+            mu=friction, margin=0.0, has_shape_collision=False, has_particle_collision=True
+        )
+        part_meshes = _part_meshes(body, self.body_faces, self.part_masks)
+        for verts, tris in part_meshes:
+            world.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
+                                                           is_solid=True), cfg=shape_cfg)
+        self.n_parts = len(part_meshes)
+        self.part_faces = [tris for _, tris in part_meshes]
+
+        builder = newton.ModelBuilder(up_axis=newton.Axis.Y)
+        builder.gravity = gravity
+        SolverStyle3D.register_custom_attributes(builder)
+        builder.replicate(world, k, separate_worlds=True)
+        model = builder.finalize(device=device)
+        model.soft_contact_ke = float(_get(cfg, "contact_ke"))
+        model.soft_contact_kd = float(_get(cfg, "contact_kd"))
+        model.soft_contact_mu = friction
+
+        n_per = start.shape[0]
+        n = model.particle_count
+        pw = model.particle_world.numpy()
+        if n != k * n_per or not np.array_equal(pw, np.repeat(np.arange(k), n_per)):
+            raise RuntimeError("newton laid out the replicated worlds unexpectedly; the batched drape needs newton==1.8.0")
+        sw = model.shape_world.numpy()
+        if not np.array_equal(sw, np.repeat(np.arange(k), self.n_parts)):
+            raise RuntimeError("newton laid out the replicated shapes unexpectedly; needs newton==1.8.0")
+
+        iterations = int(_get(cfg, "iterations"))
+        linear_iterations = int(_get(cfg, "linear_iterations"))
+        solver = SolverStyle3D(model, config=SolverStyle3D.Config(iterations=iterations,
+                                                                  linear_iterations=linear_iterations))
+        solver.linear_solver = _world_pcg_class()(n, solver.device, pw, k, max(1, linear_iterations))
+        world_arr = wp_.array(pw.astype(np.int32), dtype=wp_.int32, device=model.device)
+        offsets_arr = wp_.array(self.offsets.astype(np.float32), dtype=wp_.vec3, device=model.device)
+        solver.collision = _world_collision_class()(model, world_arr, offsets_arr)
+        if not _get(cfg, "self_collision", True):
+            solver.collision.stiff_vf = solver.collision.stiff_ee = solver.collision.stiff_ef = 0.0
+        elif _get(cfg, "self_collision_radius") is not None:
+            solver.collision.radius = float(_get(cfg, "self_collision_radius"))
+        # at most one body contact per particle (one candidate pair each): launch n threads, not 3K * n
+        solver.collision.body_contact_max = n
+
+        pipeline = newton.CollisionPipeline(model, soft_contact_gap=float(_get(cfg, "contact_gap")),
+                                            soft_contact_max=n, rigid_contact_max=0)
+        if not hasattr(pipeline, "soft_rigid_contact_pairs") or not hasattr(pipeline, "_soft_contact_pair_count"):
+            raise RuntimeError("newton's CollisionPipeline changed; per-part contact filtering needs newton==1.8.0")
+        shape_of = np.arange(k)[:, None] * self.n_parts + self.vertex_part[None, :]  # (K, V) shape per particle
+        pairs = np.stack([np.arange(n), shape_of.reshape(-1)], axis=1).astype(np.int32)
+        pipeline.soft_rigid_contact_pairs = wp_.array(pairs, dtype=wp_.vec2i, device=model.device)
+        pipeline._soft_contact_pair_count = n
+
+        self.newton, self.model, self.solver, self.pipeline = newton, model, solver, pipeline
+        self.contacts = pipeline.contacts()
+        self.states = [model.state(), model.state()]
+        self.control = model.control()
+        self.n_per_world = n_per
+        self.flags0 = model.particle_flags.numpy().copy()
+        dev = model.device
+        self.world = wp_.array(pw.astype(np.int32), dtype=wp_.int32, device=dev)
+        self.q_prev = wp_.zeros(n, dtype=wp_.vec3, device=dev)
+        self.pin = wp_.zeros(n, dtype=wp_.vec3, device=dev)
+        self.out_q = wp_.zeros(n, dtype=wp_.vec3, device=dev)
+        self.speed = wp_.zeros(n, dtype=wp_.float32, device=dev)
+        self.out_speed = wp_.zeros(n, dtype=wp_.float32, device=dev)
+        self.status = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.done_frame = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.nan_flag = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.n_below = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.below_max = wp_.zeros(k, dtype=wp_.float32, device=dev)
+        self.above_min = wp_.zeros(k, dtype=wp_.float32, device=dev)
+        self._meshes = []
+
+    def _set_bodies(self, bodies: np.ndarray) -> None:
+        """Fresh part meshes for every world (bodies (K, Vb, 3)), built as `build_drape_sim` builds them."""
+        newton, model = self.newton, self.model
+        meshes, ptrs, lo, hi = [], [], [], []
+        for k in range(self.n_worlds):
+            for verts, tris in _part_meshes(bodies[k], self.body_faces, self.part_masks):
+                m = newton.Mesh(verts, tris.reshape(-1), compute_inertia=False, is_solid=True)
+                ptrs.append(m.finalize(device=model.device))
+                # newton's local AABB of a mesh shape (builder.finalize): the vertex bounds
+                v = np.asarray(m.vertices)
+                lo.append(v.min(axis=0))
+                hi.append(v.max(axis=0))
+                meshes.append(m)
+        model.shape_source_ptr.assign(np.asarray(ptrs, dtype=np.uint64))
+        model.shape_collision_aabb_lower.assign(np.asarray(lo, dtype=np.float32))
+        model.shape_collision_aabb_upper.assign(np.asarray(hi, dtype=np.float32))
+        self._meshes = meshes  # keep the warp meshes alive while their ids are in the model
+
+    # --- stepping ------------------------------------------------------------------------------------
+    def run(self, starts, bodies, on_frame=None) -> list[DrapeResult]:
+        """Drape B <= K poses: starts (B, V, 3), bodies (B, Vb, 3) -> B `DrapeResult`s, in order.
+
+        Each result is what `drape` returns for that pose alone, up to rounding: positions at the
+        frame its world stopped, its residual over that frame, `iterations` = that frame. `seconds`
+        and `cpu_seconds` are the batch's times shared equally among its B poses. `on_frame(frame,
+        state)` (tests, debugging) runs after each frame's solver steps, before the stop rule.
+        """
+        starts = np.asarray(starts, dtype=np.float64)
+        bodies = np.asarray(bodies, dtype=np.float64)
+        b, k, n_per = len(starts), self.n_worlds, self.n_per_world
+        if b == 0:
+            return []
+        if b > k:
+            out = []
+            for i in range(0, b, k):
+                out.extend(self.run(starts[i : i + k], bodies[i : i + k], on_frame))
+            return out
+        if starts.shape[1:] != (n_per, 3) or bodies.shape[0] != b or not np.all(np.isfinite(starts)):
+            raise ValueError(f"starts must be finite (B, {n_per}, 3) and bodies (B, Vb, 3), got "
+                             f"{starts.shape} and {bodies.shape}")
+        t0, c0 = time.perf_counter(), time.process_time()
+        cfg = self.cfg
+        # idle worlds (a short last batch) hold a copy of pose 0, frozen: a pure function of the batch
+        pad = np.concatenate([np.arange(b), np.zeros(k - b, dtype=np.int64)])
+        q0 = starts[pad].reshape(-1, 3).astype(np.float32)
+        self._set_bodies(bodies[pad])
+
+        model, solver, pipeline, contacts, control = self.model, self.solver, self.pipeline, self.contacts, self.control
+        flags = self.flags0.reshape(k, n_per).copy()
+        flags[b:] &= ~_PARTICLE_ACTIVE
+        model.particle_flags.assign(flags.reshape(-1))
+        for st in self.states:
+            st.particle_q.assign(q0)
+            st.particle_qd.zero_()
+            st.particle_f.zero_()
+        for a in (self.q_prev, self.pin, self.out_q):
+            a.assign(q0)
+        self.speed.zero_()
+        self.out_speed.fill_(float("nan"))
+        self.status.assign(np.where(np.arange(k) < b, ACTIVE, IDLE).astype(np.int32))
+        self.done_frame.fill_(-1)
+        self.nan_flag.zero_()
+        self.n_below.zero_()
+        self.below_max.fill_(-1.0)
+        self.above_min.fill_(3.4e38)
+        s0, s1 = self.states
+        solver.rebuild_bvh(s0)
+
+        fps = float(_get(cfg, "fps"))
+        substeps = int(_get(cfg, "substeps"))
+        frame_dt = 1.0 / fps
+        dt = frame_dt / substeps
+        tol = float(_get(cfg, "tolerance"))
+        min_frames = int(_get(cfg, "min_frames", 1))
+        max_frames = int(_get(cfg, "max_frames"))
+        keep = 1.0 - float(_get(cfg, "velocity_damping", 0.0))
+        quantile = float(_get(cfg, "residual_quantile", 1.0))
+        h = (n_per - 1) * quantile
+        q_index = int(math.floor(h))
+        q_frac = float(h - q_index)
+        every = max(1, int(_get(cfg, "batch_check_every", 10)))
+        dev = model.device
+        n = model.particle_count
+        for frame in range(1, max_frames + 1):
+            pipeline.collide(s0, contacts)
+            for _ in range(substeps):
+                s0.clear_forces()
+                solver.step(s0, s1, control, contacts, dt)
+                s0, s1 = s1, s0
+            if on_frame is not None:
+                on_frame(frame, s0)
+            wp.launch(_frame_speed, dim=n, device=dev,
+                      inputs=[frame_dt, keep, int(keep < 1.0), tol, self.world, self.status, self.pin,
+                              s0.particle_q, s0.particle_qd, self.q_prev, self.speed, self.nan_flag,
+                              self.n_below, self.below_max, self.above_min])
+            wp.launch(_decide, dim=k, device=dev,
+                      inputs=[frame, min_frames, max_frames, q_index, q_frac, tol, self.status, self.done_frame,
+                              self.nan_flag, self.n_below, self.below_max, self.above_min])
+            wp.launch(_retire, dim=n, device=dev,
+                      inputs=[frame, self.world, self.status, self.done_frame, s0.particle_q, s0.particle_qd,
+                              self.q_prev, self.speed, self.out_q, self.out_speed, self.pin, model.particle_flags])
+            if (frame % every == 0 or frame == max_frames) and not (self.status.numpy()[:b] == ACTIVE).any():
+                break
+        self.states = [s0, s1]
+        status = self.status.numpy()[:b]
+        done = self.done_frame.numpy()[:b]
+        pos = self.out_q.numpy().reshape(k, n_per, 3)[:b]
+        speed = self.out_speed.numpy().reshape(k, n_per)[:b]
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        out = []
+        for j in range(b):
+            if status[j] == BLEW_UP or not np.all(np.isfinite(speed[j])):
+                res = res_max = float("nan")
+            else:
+                res, res_max = float(np.quantile(speed[j], quantile)), float(speed[j].max())
+            out.append(DrapeResult(positions=pos[j].astype(np.float32), residual=res, residual_max=res_max,
+                                   iterations=int(done[j]), seconds=wall / b, converged=bool(status[j] == CONVERGED),
+                                   cpu_seconds=cpu / b))
+        return out
+
+
+def make_batched_drape(rest_pattern_triangles, faces, body_faces, vertex_part, part_masks, cfg, n_worlds,
+                       template_start, template_body) -> BatchedDrape:
+    """`BatchedDrape` with the asked number of worlds, or fewer when the device runs out of memory.
+
+    Halves K until the model fits and logs what failed (K and the memory per world measured at the
+    size that fitted); raises MemoryError naming both when not even one world fits.
+    """
+    k = int(n_worlds)
+    failed = []
+    while True:
+        try:
+            sim = BatchedDrape(rest_pattern_triangles, faces, body_faces, vertex_part, part_masks, cfg, k,
+                               template_start, template_body)
+        except (RuntimeError, MemoryError) as err:
+            if not _is_out_of_memory(err):
+                raise
+            failed.append(k)
+            if k == 1:
+                raise MemoryError(
+                    f"the device ran out of memory building a batched drape of sim.batch_size={n_worlds} "
+                    f"(tried K = {failed}); not even one world fits. Free device memory or set sim.device=cpu"
+                ) from err
+            k //= 2
+            continue
+        if failed:
+            log.warning("sim.batch_size=%d does not fit the device (out of memory at K=%s); draping %d worlds at "
+                        "a time (%.1f MB per world)", n_worlds, failed, k, sim.bytes_per_world / 2**20)
+        return sim
+
+
+def batched_drape_for_garment(garment, body, embedding, cfg, n_worlds, template_start, template_body):
+    """`make_batched_drape` for pbc objects (Garment, Body, Embedding: see `drape_garment`)."""
+    return make_batched_drape(
+        pattern_triangles(_np(garment.uv), _np(garment.face_uv), float(garment.uv_scale)),
+        _np(garment.faces), _np(body.faces), _np(embedding.part), _np(body.parts), cfg, n_worlds,
+        _np(template_start), _np(template_body),
+    )
