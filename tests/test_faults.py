@@ -458,7 +458,8 @@ def test_run_records_resolved_dir_and_fingerprint_and_refuses_other_data(tiny_di
 
 
 def test_training_refuses_a_dataset_made_with_other_settings(tiny_dir):
-    from pbc.data.dataset import check_matches_config, config_mismatch, load_dataset
+    from pbc.data.dataset import load_dataset
+    from pbc.data.generate import check_matches_config, config_mismatch
 
     data = load_dataset(tiny_dir)
     same = load_config(["data=tshirt_tiny", "data.num_samples=6"])

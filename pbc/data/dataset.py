@@ -25,7 +25,7 @@ from pbc.geometry.body import Body, load_body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, load_garment_obj
 from pbc.geometry.shrinkwrap import Embedding
-from pbc.io import atomic_path, hash_arrays, load_npy, load_npz, read_json
+from pbc.io import atomic_path, load_npy, load_npz, read_json
 from pbc.validate import ROTATION_TOL, identity_diff, rotation_errors
 
 FORMAT_VERSION = 1
@@ -188,7 +188,6 @@ def check_dataset(data: ClothDataset, force: bool = False) -> None:
 # ----------------------------------------------------------------------------------------- fingerprints
 # What makes two datasets the same data (the generation fingerprint of pbc.data.generate.fingerprint)
 FINGERPRINT_KEYS = ("format_version", "seed", "num_samples", "garment_hash", "body_hash", "embedding_hash", "sim")
-MACHINE_SIM_KEYS = ("kernel_cache_dir", "device")  # where kernels are cached / which device: not the data
 
 
 def dataset_fingerprint(data: ClothDataset) -> dict:
@@ -234,42 +233,3 @@ def open_recorded_dataset(record: Mapping, directory: str | Path | None = None, 
             "config; scoring on other data would be silently wrong."
         )
     return data
-
-
-def config_mismatch(cfg, manifest: Mapping, full: bool = False) -> list[str]:
-    """Generation keys of `cfg` that disagree with a dataset's manifest, one line each (empty: they agree).
-
-    Cheap by default: seed, num_samples, sim settings, format version and the garment hash (the garment
-    is rebuilt, ~0.1 s). full=True builds the whole scene as pbc.generate does (body, shrink-wrap; seconds)
-    and compares every fingerprint key.
-    """
-    from omegaconf import OmegaConf
-
-    from pbc.data import generate as gen  # generate imports this module: import at call time
-
-    if full:
-        scene, _ = gen.build_scene(cfg)
-        want = gen.fingerprint(cfg, scene)
-    else:
-        garment, _ = gen.garment_from_config(cfg.garment)
-        want = {
-            "format_version": FORMAT_VERSION,
-            "seed": int(cfg.data.seed),
-            "num_samples": int(cfg.data.num_samples),
-            "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
-            "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
-                    if k not in MACHINE_SIM_KEYS},
-        }
-    have = {k: manifest.get(k) for k in want}
-    return identity_diff(have, want, names=("dataset", "config"))
-
-
-def check_matches_config(cfg, data: ClothDataset, full: bool = False) -> None:
-    """Refuse to train on a dataset made with other generation settings than `cfg` (see config_mismatch)."""
-    diff = config_mismatch(cfg, data.manifest, full=full)
-    if diff:
-        raise ValueError(
-            f"dataset {data.dir} was made with other settings than this config:\n  - " + "\n  - ".join(diff)
-            + "\nDrop those overrides to train on it, or set data.dir to a new directory (data.name=...) so that "
-            "`python -m pbc.generate` makes the data the config asks for."
-        )

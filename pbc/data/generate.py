@@ -27,7 +27,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from pbc.data.dataset import FORMAT_VERSION, save_embedding
+from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
 from pbc.geometry.body import Body, build_body, pose_body, save_body
 from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
@@ -36,7 +36,7 @@ from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
-from pbc.validate import check_config
+from pbc.validate import check_config, identity_diff
 
 
 @dataclass
@@ -64,17 +64,46 @@ def garment_from_config(gcfg: DictConfig) -> tuple[Garment, Cage]:
 def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
     """What makes two runs produce the same dataset. A directory made with another one is refused."""
     return {
-        "format_version": FORMAT_VERSION,
-        "seed": int(cfg.data.seed),
-        "num_samples": int(cfg.data.num_samples),
-        "garment_hash": hash_arrays(scene.garment.vertices, scene.garment.faces, scene.garment.uv),
+        **_cheap_fingerprint(cfg, scene.garment),
         "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights, scene.body.parts),
         # the rest-pose embedding and collision parts: a change to the shrink-wrap changes the data
         "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part),
-        # machine-specific keys (where kernels are cached, which device) do not change the data
-        "sim": {k: v for k, v in OmegaConf.to_container(scene.sim, resolve=True).items()
-                if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(scene.sim))},
     }
+
+
+def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
+    """The fingerprint keys that need no body or shrink-wrap (the garment is rebuilt in ~0.1 s)."""
+    return {
+        "format_version": FORMAT_VERSION,
+        "seed": int(cfg.data.seed),
+        "num_samples": int(cfg.data.num_samples),
+        "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
+        # machine-specific keys (where kernels are cached, which device) do not change the data
+        "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
+                if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(cfg.sim))},
+    }
+
+
+def config_mismatch(cfg: DictConfig, manifest: dict, full: bool = False) -> list[str]:
+    """Generation keys of `cfg` that disagree with a dataset's manifest, one line each (empty: they agree).
+
+    Cheap by default (seed, sample count, sim settings, format version, garment hash); full=True builds the
+    whole scene as generation does and compares every fingerprint key (seconds).
+    """
+    want = (fingerprint(cfg, build_scene(cfg)[0]) if full
+            else _cheap_fingerprint(cfg, garment_from_config(cfg.garment)[0]))
+    return identity_diff({k: manifest.get(k) for k in want}, want, names=("dataset", "config"))
+
+
+def check_matches_config(cfg: DictConfig, data: ClothDataset, full: bool = False) -> None:
+    """Refuse to train on a dataset made with other generation settings than `cfg` (see config_mismatch)."""
+    diff = config_mismatch(cfg, data.manifest, full=full)
+    if diff:
+        raise ValueError(
+            f"dataset {data.dir} was made with other settings than this config:\n  - " + "\n  - ".join(diff)
+            + "\nDrop those overrides to train on it, or set data.dir to a new directory (data.name=...) so that "
+            "`python -m pbc.generate` makes the data the config asks for."
+        )
 
 
 def batch_size(sim: DictConfig) -> int:
