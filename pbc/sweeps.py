@@ -39,7 +39,6 @@ from pbc.runs import (  # noqa: F401  (re-exported: the run-dir reader's names, 
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEPS_DIR = ROOT / "sweeps"
 # the sweep group lives with the other config groups: `python -m pbc.train -m +sweep=NAME`
 SWEEP_NAMES = tuple(sorted(p.stem for p in (ROOT / "conf" / "sweep").glob("*.yaml")))
 DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every conf/sweep/*.yaml
