@@ -85,12 +85,9 @@ def main() -> None:
         x = to_offsets(verts, anchors, frames, "local")
         source = f"dataset {args.data} ({len(data)} samples, {n} used)"
     else:
-        from pbc.geometry.garment import make_tshirt
+        from pbc.geometry.garment import load_garment_config, make_tshirt
 
-        cfg = OmegaConf.create(
-            {"garment": OmegaConf.load(ROOT / "conf/garment/tshirt_coarse.yaml"), "image": image_cfg}
-        )
-        garment, _ = make_tshirt(cfg.garment)
+        garment, _ = make_tshirt(load_garment_config(ROOT / "conf/garment/tshirt_coarse.yaml"))
         p = garment.vertices[None] * torch.linspace(0.5, 1.5, args.batch)[:, None, None]
         x = 0.01 * torch.stack(
             [torch.sin(9 * p[..., 1]), torch.cos(7 * p[..., 0]), torch.sin(5 * p[..., 2] + p[..., 0])], -1

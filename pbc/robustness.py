@@ -33,7 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 from pbc.io import read_json, save_figure, write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEP_CONFIG = ROOT / "sweeps" / "sweep" / "robustness.yaml"
+SWEEP_CONFIG = ROOT / "conf" / "sweep" / "robustness.yaml"
 LINKED = ("poses.npy", "verts.npy", "garment.obj", "cage.json", "embedding.npz")
 CM = 100.0
 
@@ -49,7 +49,7 @@ def shape_of(name: str) -> float | None:
 
 
 def load_settings(overrides: list[str] = ()) -> DictConfig:
-    """The `robustness` node of sweeps/sweep/robustness.yaml with `robustness.*=...` overrides applied."""
+    """The `robustness` node of conf/sweep/robustness.yaml with `robustness.*=...` overrides applied."""
     rob = OmegaConf.load(SWEEP_CONFIG).robustness
     dots = [o.split("robustness.", 1)[1] for o in overrides if o.lstrip("+").startswith("robustness.")]
     return OmegaConf.merge(rob, OmegaConf.from_dotlist(dots)) if dots else rob

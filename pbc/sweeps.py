@@ -1,7 +1,7 @@
 """Sweeps: run a named sweep end to end.
 
 `python -m pbc.sweeps NAME [overrides]` makes the data once, runs the training multirun of
-`sweeps/sweep/NAME.yaml`, then (for `hierarchy`) the stitched evaluation, then `pbc.report`; it records
+`conf/sweep/NAME.yaml`, then (for `hierarchy`) the stitched evaluation, then `pbc.report`; it records
 the exact commands and wall time in `<sweep dir>/sweep.json`. Reading run dirs back (`Run`,
 `load_runs`) lives in `pbc.runs`, which this module and `pbc.report` both import (names re-exported here).
 Nothing here plots or formats.
@@ -39,9 +39,9 @@ from pbc.runs import (  # noqa: F401  (re-exported: the run-dir reader's names, 
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEPS_DIR = ROOT / "sweeps"
-SWEEP_NAMES = tuple(sorted(p.stem for p in (SWEEPS_DIR / "sweep").glob("*.yaml")))
-DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every sweeps/sweep/*.yaml
+# the sweep group lives with the other config groups: `python -m pbc.train -m +sweep=NAME`
+SWEEP_NAMES = tuple(sorted(p.stem for p in (ROOT / "conf" / "sweep").glob("*.yaml")))
+DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every conf/sweep/*.yaml
 # Overrides that decide the data set: the data step gets these and no others (launcher keys, losses...
 # are not in a single run's config).
 _DATA_KEYS = ("data", "garment", "body", "sim", "paths", "seed")
@@ -89,8 +89,6 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
                 "-m",
                 "pbc.train",
                 "-m",
-                "-cd",
-                str(SWEEPS_DIR),
                 f"+sweep={name}",
                 f"scale={scale}",
                 *[o for o in overrides if not o.lstrip("+").startswith("scale=")],

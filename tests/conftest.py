@@ -13,6 +13,16 @@ import pytest
 
 # fixtures that drape real data: any test using them (directly or through another fixture) is `slow`
 SLOW_FIXTURES = {"tiny_dataset", "draped"}
+# and tests that take tens of seconds on the 2-core CPU without such a fixture (measured with --durations):
+# node-id prefixes, kept here so the tiers are one list
+SLOW_TESTS = (
+    "tests/test_drape.py::",                                         # the physics engine itself
+    "tests/test_evaluate.py::test_evaluate_writes_all_outputs",      # every seam method on 28 crops
+    "tests/test_evaluate.py::test_stacked_patch_net_matches_loop",
+    "tests/test_stitch.py::test_ground_truth_crops_on_the_real_garment",
+    "tests/test_train.py::test_every_config_composes_and_instantiates",  # builds every experiment's net
+    "tests/test_sweeps.py::test_every_sweep_composes_for_every_value",
+)
 TINY_SAMPLES = 10  # poses requested; the distortion check discards some (see the manifest)
 
 
@@ -62,5 +72,5 @@ def body(body_cfg):
 
 def pytest_collection_modifyitems(config, items):
     for item in items:
-        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())) or item.nodeid.startswith(SLOW_TESTS):
             item.add_marker(pytest.mark.slow)

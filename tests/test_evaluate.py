@@ -37,12 +37,11 @@ def _rotations(n: int, j: int, seed: int = 0) -> np.ndarray:
 def fake_dataset(d: Path) -> ClothDataset:
     """Coarse T-shirt + cage, a shrunk-garment body, N random poses, smooth pose-dependent offsets."""
     from pbc.geometry.body import Body
-    from pbc.geometry.garment import make_tshirt
+    from pbc.geometry.garment import load_garment_config, make_tshirt
     from pbc.geometry.skeleton import skeleton_from_config
     from pbc.pixels.reconstruct import Skinner
 
-    gcfg = OmegaConf.create({"garment": OmegaConf.load(ROOT / "conf/garment/tshirt_coarse.yaml"), "image": IMAGE})
-    garment, cage = make_tshirt(gcfg.garment)
+    garment, cage = make_tshirt(load_garment_config(ROOT / "conf/garment/tshirt_coarse.yaml"))
     skel = skeleton_from_config(OmegaConf.load(ROOT / "conf/body/mannequin.yaml"))
     V, J = garment.vertices.shape[0], len(skel.names)
     w = torch.zeros(V, J + 1)

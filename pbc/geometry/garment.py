@@ -536,8 +536,21 @@ def load_garment_config(garment_yaml, image_yaml=None):
     if image_yaml is None:
         image_yaml = garment_yaml.parents[1] / "image" / "default.yaml"
     image_yaml = resolve_path(image_yaml)
-    root = OmegaConf.create({"garment": OmegaConf.load(garment_yaml), "image": OmegaConf.load(image_yaml)})
+    root = OmegaConf.create({"garment": _load_with_defaults(garment_yaml), "image": OmegaConf.load(image_yaml)})
     return root.garment
+
+
+def _load_with_defaults(path):
+    """A config file merged over the sibling files its ``defaults:`` list names (as Hydra composes a group
+    option that inherits from another, e.g. tshirt_coarse.yaml over tshirt.yaml)."""
+    from omegaconf import OmegaConf
+
+    node = OmegaConf.load(path)
+    defaults = list(node.pop("defaults", None) or [])
+    if "_self_" not in defaults:
+        defaults.append("_self_")
+    parts = [node if d == "_self_" else _load_with_defaults(Path(path).parent / f"{d}.yaml") for d in defaults]
+    return OmegaConf.merge(*parts)
 
 
 if __name__ == "__main__":

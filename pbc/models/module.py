@@ -122,7 +122,7 @@ class ClothModule(L.LightningModule):
         # 3D is always built: the cm metric needs it; only the optional losses add graph work
         pos = self.positions(pred, t)
         ids = self.target.vertices
-        faces, edges = self.target.faces.to(pos.device), self.target.edges.to(pos.device)
+        faces, edges = self.target.topology(pos.device)
         n_pred = n_gt = None
         if lc["normal_weight"] > 0 or split != "train":
             n_pred = vertex_normals(pos, faces)

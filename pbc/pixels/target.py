@@ -76,6 +76,7 @@ class VertexTarget:
         self.faces = torch.as_tensor(faces).long()
         self.edges = mesh_edges(self.faces)
         self.num_vertices = int(num_vertices) if num_vertices is not None else int(self.faces.max()) + 1
+        self._on: dict[str, tuple[Tensor, Tensor]] = {}
 
     # ------------------------------------------------------------------ what is served
     @property
@@ -107,6 +108,13 @@ class VertexTarget:
             "space": self.space,
             "crop_size": size[0] if self.patch_id is not None else None,
         }
+
+    def topology(self, device) -> tuple[Tensor, Tensor]:
+        """(faces (F, 3), edges (E, 2)) on `device`, copied there once."""
+        key = str(device)
+        if key not in self._on:
+            self._on[key] = (self.faces.to(device), self.edges.to(device))
+        return self._on[key]
 
     # ------------------------------------------------------------------ vertices -> target
     @torch.no_grad()
