@@ -92,7 +92,7 @@ def rasterize(tri_uv: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray, np.
     pix, face, bary = row[inside] * res + col[inside], face[inside], bary[inside]
     order = np.lexsort((-bary.min(1), pix))  # per pixel, most-inside triangle first
     pix, face, bary = pix[order], face[order], bary[order]
-    first = np.r_[True, pix[1:] != pix[:-1]]
+    first = np.r_[len(pix) > 0, pix[1:] != pix[:-1]]  # a side with no faces (one-chart garments) is empty
     return pix[first], face[first], np.clip(bary[first], 0.0, 1.0)
 
 
