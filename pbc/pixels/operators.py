@@ -92,7 +92,7 @@ def rasterize(tri_uv: np.ndarray, res: int) -> tuple[np.ndarray, np.ndarray, np.
     pix, face, bary = row[inside] * res + col[inside], face[inside], bary[inside]
     order = np.lexsort((-bary.min(1), pix))  # per pixel, most-inside triangle first
     pix, face, bary = pix[order], face[order], bary[order]
-    first = np.r_[len(pix) > 0, pix[1:] != pix[:-1]]  # a side with no faces (one-chart garments) is empty
+    first = np.r_[True, pix[1:] != pix[:-1]]
     return pix[first], face[first], np.clip(bary[first], 0.0, 1.0)
 
 
@@ -148,6 +148,8 @@ def build_operators(
     label = np.full((2, hw), -1, np.int64)
     for side in (0, 1):
         fs = np.nonzero(g["face_side"] == side)[0]
+        if len(fs) == 0:  # a one-chart garment (the necktie): its back image stays empty
+            continue
         pix, f, bary = rasterize(g["uv"][g["face_uv"][fs]], res)
         verts = g["faces"][fs][f]  # (M, 3)
         chart[side, pix] = True
