@@ -164,3 +164,17 @@ def test_smoke_training_on_a_garment_pbc_did_not_make(foreign, exp):
     assert r.returncode == 0, r.stderr[-3000:]
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
+
+
+def test_cli_writes_an_editable_cage(tmp_path, capsys):
+    from pbc.geometry.autocage import main
+
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    out = tmp_path / "top.json"
+    main(["garment=obj", f"garment.obj={path}", "garment.uv_unit=cm", "garment.charts={front:0,back:1,band:0}",
+          "--out", str(out)])
+    garment, names, _ = import_garment(path, charts=CHARTS, uv_unit="cm")
+    cage = load_cage(out, garment, *IMAGE)
+    assert {p.name.rsplit("_", 1)[0] for p in cage.patches} == set(names)
+    assert f"wrote {out}" in capsys.readouterr().out
