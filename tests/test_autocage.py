@@ -178,3 +178,13 @@ def test_cli_writes_an_editable_cage(tmp_path, capsys):
     cage = load_cage(out, garment, *IMAGE)
     assert {p.name.rsplit("_", 1)[0] for p in cage.patches} == set(names)
     assert f"wrote {out}" in capsys.readouterr().out
+
+
+def test_a_cage_file_of_another_garment_is_refused_with_the_fix(tmp_path):
+    from pbc.config import load_config
+
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    cfg = load_config([f"garment.obj={path}"])  # the shirt's config: its cage file is the shirt's
+    with pytest.raises(ValueError, match=r"made for a garment of 3153 vertices.*garment.cage=auto"):
+        garment_from_config(cfg.garment)
