@@ -106,3 +106,10 @@ def test_necktie_obj_round_trip_keeps_the_sampled_uvs(tie, tmp_path):
     h = load_garment_obj(tmp_path / "tie.obj")
     assert torch.equal(h.vertex_uv, g.vertex_uv) and torch.equal(h.faces, g.faces)
     validate_cage(cage, h, 512, 160, 16)
+
+
+def test_an_unknown_posed_joint_is_refused(body):
+    from pbc.sim.poses import SamplingSettings, sample_poses
+
+    with pytest.raises(ValueError, match=r"posed_joints: unknown joints \['neck2'\]"):
+        sample_poses(body.skeleton, 2, 0, None, SamplingSettings(posed_joints=("neck", "neck2")))
