@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from pbc.geometry.autocage import _components, _edges, auto_cage
-from pbc.geometry.cage import load_cage, save_cage
+from pbc.geometry.cage import load_cage, save_cage, validate_cage
 from pbc.geometry.garment import garment_from_config, load_garment_config, make_tshirt
 from pbc.geometry.obj_import import import_garment
 
@@ -96,17 +97,31 @@ def test_a_chart_that_cannot_be_covered_is_refused(tmp_path):
         auto_cage(ok, *IMAGE, chart_names=names, face_chart=chart, max_patches=3)
 
 
-def test_a_garment_pbc_did_not_make_goes_through(tmp_path):
-    """A tube top of quads with three UV islands: import -> automatic cage -> shrink-wrap -> two drapes."""
+OVERRIDES = ["data=tshirt_tiny", "garment=obj", "garment.charts={front:0,back:1,band:0}", "garment.uv_unit=cm",
+             "data.num_samples=3", "data.workers=1", "body.mesh.voxel_size=0.03"]
+
+
+@pytest.fixture(scope="module")
+def foreign(tmp_path_factory):
+    """A tube top of quads with three UV islands (not made by pbc): its OBJ, config overrides and dataset
+    (import -> automatic cage -> shrink-wrap -> three drapes on the coarse body)."""
+    from pbc.config import load_config
+    from pbc.data.generate import generate
+
+    root = tmp_path_factory.mktemp("foreign")
+    path = root / "top.obj"
+    path.write_text(tube_top_obj())
+    overrides = [*OVERRIDES, f"garment.obj={path}", f"paths.data_dir={root}"]
+    return root, overrides, generate(load_config(overrides))
+
+
+def test_a_garment_pbc_did_not_make_goes_through(foreign):
+    """Import -> automatic cage -> shrink-wrap -> drapes, and the dataset reads back with a valid cage."""
     from pbc.config import load_config
     from pbc.data.dataset import load_dataset
-    from pbc.data.generate import build_scene, generate
+    from pbc.data.generate import build_scene
 
-    path = tmp_path / "top.obj"
-    path.write_text(tube_top_obj())
-    overrides = ["data=tshirt_tiny", "garment=obj", f"garment.obj={path}", "garment.charts={front:0,back:1,band:0}",
-                 "garment.uv_unit=cm", "data.num_samples=2", "data.workers=1", f"paths.data_dir={tmp_path}",
-                 "body.mesh.voxel_size=0.03"]
+    root, overrides, data_dir = foreign
     cfg = load_config(overrides)
     garment, cage = garment_from_config(cfg.garment)
     _check_patches_connected(garment, cage)
@@ -118,11 +133,58 @@ def test_a_garment_pbc_did_not_make_goes_through(tmp_path):
     assert garment.uv_scale == pytest.approx(perimeter / 0.8, rel=1e-4)
     scene, stats = build_scene(cfg)
     assert stats["max_abs_sdf"] < 0.01 and stats["area_after_min"] > 0.3
-    ds = load_dataset(generate(cfg))
+    ds = load_dataset(data_dir)
     assert len(ds) >= 1 and ds.verts.shape[1] == garment.num_vertices
     assert np.isfinite(ds.verts).all()
     assert ds.manifest["drape_residual"]["max"] < float(cfg.sim.tolerance)  # static equilibrium reached
+    # the dataset's garment (read back from its OBJ) is sampled where the cage was made for
+    assert torch.equal(ds.garment.vertex_uv, garment.vertex_uv)
+    validate_cage(ds.cage, ds.garment, *IMAGE)
     # far from the body: refused by the shrink-wrap, naming the fix
     far = load_config([*overrides, "garment.position_offset=[0,1.5,0]"])
     with pytest.raises(ValueError, match=r"from the body.*position_offset"):
         build_scene(far)
+
+
+@pytest.mark.parametrize("exp", ["whole", "patch_03"])
+def test_smoke_training_on_a_garment_pbc_did_not_make(foreign, exp):
+    """`python -m pbc.train` on its dataset, unchanged: the whole model and one patch model."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root, _, data_dir = foreign
+    run = root / "runs" / exp
+    r = subprocess.run([sys.executable, "-m", "pbc.train", "data=tshirt_tiny", "trainer=smoke",
+                        "image.whole_resolution=64", "image.patch_resolution=128", f"data.dir={data_dir}",
+                        f"+experiment={exp}", f"hydra.run.dir={run}"], cwd=Path(__file__).resolve().parents[1],
+                       env=dict(os.environ, PBC_ROOT=str(root)), capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
+
+
+def test_cli_writes_an_editable_cage(tmp_path, capsys):
+    from pbc.geometry.autocage import main
+
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    out = tmp_path / "top.json"
+    main(["garment=obj", f"garment.obj={path}", "garment.uv_unit=cm", "garment.charts={front:0,back:1,band:0}",
+          "--out", str(out)])
+    garment, names, _ = import_garment(path, charts=CHARTS, uv_unit="cm")
+    cage = load_cage(out, garment, *IMAGE)
+    assert {p.name.rsplit("_", 1)[0] for p in cage.patches} == set(names)
+    assert f"wrote {out}" in capsys.readouterr().out
+
+
+def test_a_cage_file_of_another_garment_is_refused_with_the_fix(tmp_path):
+    from pbc.config import load_config
+
+    path = tmp_path / "top.obj"
+    path.write_text(tube_top_obj())
+    cfg = load_config([f"garment.obj={path}"])  # the shirt's config: its cage file is the shirt's
+    with pytest.raises(ValueError, match=r"made for a garment of 3153 vertices.*garment.cage=auto"):
+        garment_from_config(cfg.garment)

@@ -52,6 +52,11 @@ def test_necktie_is_one_chart_with_knot_blade_and_band(cfg, tie):
     assert y.max() == pytest.approx(gc.collar_height + (band_cells + gc.band_gap_cells) * gc.grid_spacing, abs=1e-6)
     assert y.min() < gc.collar_height - gc.knot_length - gc.blade_length
     assert all(p.side == 0 and p.name.startswith("necktie_") for p in cage.patches)
+    # faces turn like the outward normal (away from the body), as the shirt's: the blade's face forward
+    tri = g.vertices[g.faces].double()
+    normal = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    blade = tri[:, :, 1].mean(1) < gc.collar_height - gc.knot_length
+    assert (normal[blade, 2] > 0).all()
 
 
 def test_necktie_poses_vary_only_the_four_centre_line_joints(cfg, body):
@@ -101,3 +106,10 @@ def test_necktie_obj_round_trip_keeps_the_sampled_uvs(tie, tmp_path):
     h = load_garment_obj(tmp_path / "tie.obj")
     assert torch.equal(h.vertex_uv, g.vertex_uv) and torch.equal(h.faces, g.faces)
     validate_cage(cage, h, 512, 160, 16)
+
+
+def test_an_unknown_posed_joint_is_refused(body):
+    from pbc.sim.poses import SamplingSettings, sample_poses
+
+    with pytest.raises(ValueError, match=r"posed_joints: unknown joints \['neck2'\]"):
+        sample_poses(body.skeleton, 2, 0, None, SamplingSettings(posed_joints=("neck", "neck2")))

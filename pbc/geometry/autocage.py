@@ -257,50 +257,35 @@ def cage_summary(cage: Cage) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Write the automatic cage of a garment config as an editable JSON and compare it with the
-    config's own cage file when it has one:
+    """Write the automatic cage of a garment as an editable JSON (patches/ format) and compare it with
+    the garment config's own cage file when it has one. Arguments: Hydra overrides choosing the garment.
 
-        python -m pbc.geometry.autocage conf/garment/obj.yaml garment.obj=my.obj --out patches/my.json
-        python -m pbc.geometry.autocage conf/garment/tshirt.yaml --out /tmp/tshirt_auto.json
+        python -m pbc.geometry.autocage garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
+        python -m pbc.geometry.autocage garment=tshirt --out /tmp/tshirt_auto.json
     """
     import argparse
 
-    from omegaconf import OmegaConf
-
+    from pbc.config import load_config
     from pbc.geometry.cage import load_cage, save_cage
-    from pbc.geometry.garment import _is_pbc_obj, garment_from_config, load_garment_config, resolve_path
+    from pbc.geometry.garment import garment_from_config, make_tshirt, resolve_path
 
     ap = argparse.ArgumentParser(description=main.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("config", help="garment config YAML (conf/garment/NAME.yaml)")
-    ap.add_argument("overrides", nargs="*", help="garment.KEY=VALUE overrides")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. garment=obj garment.obj=my.obj")
     ap.add_argument("--out", required=True, help="where to write the cage JSON")
     args = ap.parse_args(argv)
-    path = resolve_path(args.config)
-    gcfg = load_garment_config(path)
-    if "defaults" in gcfg:  # a config that inherits (obj.yaml): merge its parents by hand
-        base = OmegaConf.create({})
-        for name in gcfg.defaults:
-            if name != "_self_":
-                base = OmegaConf.merge(base, load_garment_config(path.parent / f"{name}.yaml"))
-        gcfg = OmegaConf.merge(base, gcfg)
-    for ov in args.overrides:
-        key, _, value = ov.partition("=")
-        OmegaConf.update(gcfg, key.removeprefix("garment."), OmegaConf.create({"v": value}).v if value else None)
+    gcfg = load_config(args.overrides).garment
+    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     own = gcfg.get("cage")
     gcfg.cage = "auto"
-    if gcfg.get("obj") and _is_pbc_obj(resolve_path(gcfg.obj)):
-        raise SystemExit("a pbc-written OBJ has its cage next to it (cage.json)")
-    garment, cage = garment_from_config(gcfg) if (gcfg.get("obj") or gcfg.get("kind") == "necktie") else (None, None)
-    if garment is None:  # the procedural shirt: its mesh, with the automatic cage
-        from pbc.geometry.garment import make_tshirt
-
+    if gcfg.get("obj") or gcfg.get("kind") == "necktie":
+        garment, cage = garment_from_config(gcfg)
+    else:  # the procedural shirt: its mesh with the automatic cage
         garment, _ = make_tshirt(gcfg, use_cage_file=False)
-        cage = auto_cage(garment, int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
+        cage = auto_cage(garment, *image)
     save_cage(cage, args.out, garment.num_vertices)
-    print(f"wrote {args.out}: automatic {cage_summary(cage)}")
+    print(f"wrote {args.out}: automatic cage {cage_summary(cage)}")
     if own and str(own) != "auto" and resolve_path(own).exists():
-        ref = load_cage(resolve_path(own), garment, int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
-        print(f"{own}: {cage_summary(ref)}")
+        print(f"{own}: {cage_summary(load_cage(resolve_path(own), garment, *image))}")
 
 
 if __name__ == "__main__":

@@ -519,7 +519,13 @@ def garment_from_config(gcfg) -> tuple[Garment, Cage]:
 
             return garment, auto_cage(garment, *image, chart_names=names, face_chart=charts,
                                       **dict(gcfg.get("autocage") or {}))
-        return garment, load_cage(resolve_path(cage_path), garment, *image)
+        try:
+            return garment, load_cage(resolve_path(cage_path), garment, *image)
+        except ValueError as exc:
+            if "made for a garment of" not in str(exc):
+                raise
+            raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
+                             "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
     if gcfg.get("kind") == "necktie":
         from pbc.geometry.necktie import make_necktie
 

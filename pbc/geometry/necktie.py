@@ -110,11 +110,13 @@ def make_necktie(cfg) -> tuple[Garment, Cage]:
     lb = land["band"] * h
     for k, (x, y) in enumerate(pattern):
         v = vid[jj[k], ii[k]]
-        if x >= 0:  # knot + blade: down the front, across = the body's x
-            p = (y, y_top - x, zf + 0.4 * x * float(cfg.blade_lean))
-        else:  # band: angle round the neck from the front (0) to the back (pi), left band to +x
+        # across the tie (pattern Y) runs to the body's right (-x): faces then turn like the outward normal,
+        # as the shirt's charts do (seen from outside)
+        if x >= 0:  # knot + blade: down the front
+            p = (-y, y_top - x, zf + 0.4 * x * float(cfg.blade_lean))
+        else:  # band: angle round the neck from the front (0) to the back (pi)
             theta = np.pi * min(-x / lb, 1.0)
-            side = 1.0 if y > 0 else -1.0
+            side = -1.0 if y > 0 else 1.0
             p = (side * r * np.sin(theta), y_top + abs(y), zc + r * np.cos(theta))
         pos[v] = p
     # a merged band-end vertex has two uvs: sampled at the one the OBJ reader picks back (sample_corners)

@@ -148,6 +148,8 @@ def build_operators(
     label = np.full((2, hw), -1, np.int64)
     for side in (0, 1):
         fs = np.nonzero(g["face_side"] == side)[0]
+        if len(fs) == 0:  # a one-chart garment (the necktie): its back image stays empty
+            continue
         pix, f, bary = rasterize(g["uv"][g["face_uv"][fs]], res)
         verts = g["faces"][fs][f]  # (M, 3)
         chart[side, pix] = True
