@@ -8,7 +8,8 @@ import torch
 
 from pbc.geometry.autocage import _components, _edges, auto_cage
 from pbc.geometry.cage import load_cage, save_cage, validate_cage
-from pbc.geometry.garment import garment_from_config, load_garment_config, make_tshirt
+from pbc.geometry.garment import load_garment_config, make_tshirt
+from pbc.geometry.garments import garment_from_config
 from pbc.geometry.obj_import import import_garment
 
 
@@ -167,7 +168,7 @@ def test_smoke_training_on_a_garment_pbc_did_not_make(foreign, exp):
 
 
 def test_cli_writes_an_editable_cage(tmp_path, capsys):
-    from pbc.geometry.autocage import main
+    from pbc.geometry.garments import main
 
     path = tmp_path / "top.obj"
     path.write_text(tube_top_obj())

@@ -9,7 +9,7 @@ from hydra.utils import instantiate
 
 from pbc.config import load_config
 from pbc.geometry.cage import boundary_loops
-from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garments import garment_from_config
 from pbc.geometry.necktie import necktie_pattern
 from pbc.geometry.obj_import import face_charts, signed_uv_area
 from pbc.models.decoder import count_parameters

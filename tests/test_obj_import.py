@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from pbc.geometry.garment import load_garment_obj
+from pbc.geometry.garments import load_any_obj
 from pbc.geometry.obj_import import import_garment, parse_obj, signed_uv_area
 
 
@@ -131,7 +132,7 @@ def test_mirrored_island_is_turned_back(tmp_path):
 
 def test_the_garment_door_reads_foreign_files(tmp_path):
     path = _write(tmp_path, tube_obj())
-    a = load_garment_obj(path, uv_unit="m")
+    a = load_any_obj(path, uv_unit="m")
     b = import_garment(path, uv_unit="m")[0]
     assert torch.equal(a.uv, b.uv) and torch.equal(a.faces, b.faces)
 

@@ -31,7 +31,7 @@ from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
 from pbc.geometry.body import Body, build_body, pose_body, save_body
 from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
-from pbc.geometry.garment import garment_from_config as geometry_garment_from_config
+from pbc.geometry.garments import garment_from_config
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
@@ -53,12 +53,6 @@ class Scene:
 
 def dataset_dir(cfg: DictConfig) -> Path:
     return Path(cfg.data.dir)
-
-
-def garment_from_config(gcfg: DictConfig) -> tuple[Garment, Cage]:
-    """The garment through one door (pbc.geometry.garment.garment_from_config): a user's OBJ + cage file
-    (or the automatic cage) when `obj` is set, the necktie, else the procedural shirt."""
-    return geometry_garment_from_config(gcfg)
 
 
 def fingerprint(cfg: DictConfig, scene: Scene) -> dict:

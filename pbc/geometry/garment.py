@@ -20,6 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
+from scipy.sparse.csgraph import connected_components
 from torch import Tensor
 
 from pbc.geometry.cage import Cage, load_cage, save_cage, tshirt_cage, validate_cage
@@ -364,6 +365,64 @@ def write_tshirt_cage(cfg) -> Path:
 _SIDES = ("front", "back")
 
 
+def uv_islands(faces: np.ndarray, face_uv_coords: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+    """(F,) island id per face: faces joined across an edge whose two ends have the same UV in both.
+
+    faces (F, 3) vertex ids, face_uv_coords (F, 3, 2) each corner's UV. Works whether or not the
+    exporter shares vt entries between faces. Ids follow the first face of each island.
+    """
+    nf = len(faces)
+    rec_v, rec_uv, rec_f = [], [], []
+    for k in range(3):
+        a, b = faces[:, k], faces[:, (k + 1) % 3]
+        ua, ub = face_uv_coords[:, k], face_uv_coords[:, (k + 1) % 3]
+        swap = a > b
+        rec_v.append(np.stack([np.where(swap, b, a), np.where(swap, a, b)], 1))
+        rec_uv.append(np.concatenate([np.where(swap[:, None], ub, ua), np.where(swap[:, None], ua, ub)], 1))
+        rec_f.append(np.arange(nf))
+    ev, euv, ef = np.concatenate(rec_v), np.concatenate(rec_uv), np.concatenate(rec_f)
+    scale = max(float(np.ptp(face_uv_coords.reshape(-1, 2), axis=0).max()), 1e-12)
+    q = np.round(euv / (scale * tol)).astype(np.int64)  # equal UVs -> equal keys
+    key = np.concatenate([ev, q], 1)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    same = inv[order][1:] == inv[order][:-1]
+    fa, fb = ef[order][:-1][same], ef[order][1:][same]
+    adj = sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
+    _, label = connected_components(adj, directed=False)
+    first = {}
+    for lab in label:
+        first.setdefault(int(lab), len(first))
+    return np.asarray([first[int(lab)] for lab in label], np.int64)
+
+
+def sample_corners(faces: np.ndarray, face_uv: np.ndarray, face_side: np.ndarray, face_chart: np.ndarray,
+                   vertex_side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Which uv each vertex is sampled at, by one rule that survives an OBJ round trip:
+    the vertex's side (given, else its lowest), then its chart there that comes first, then the first
+    corner of that chart in face order. faces / face_uv (F, 3), face_side / face_chart (F,).
+    Returns vertex_tex (V,) indices into uv and vertex_side (V,).
+    """
+    v = faces.ravel()
+    nv = int(v.max()) + 1
+    side = np.repeat(face_side, 3)
+    chart = np.repeat(face_chart, 3)
+    if vertex_side is None:
+        vertex_side = np.full(nv, np.iinfo(np.int64).max)
+        np.minimum.at(vertex_side, v, side)
+    ok = side == vertex_side[v]
+    idx = np.flatnonzero(ok)
+    order = idx[np.lexsort((idx, chart[idx], v[idx]))]
+    first = order[np.r_[True, v[order][1:] != v[order][:-1]]]
+    if len(first) != nv:
+        missing = np.setdiff1d(np.arange(nv), v[first])
+        raise ValueError(f"vertices {missing[:5].tolist()} have no face on their vertex_side chart")
+    vertex_tex = np.empty(nv, np.int64)
+    vertex_tex[v[first]] = face_uv.ravel()[first]
+    return vertex_tex, np.asarray(vertex_side, np.int64)
+
+
 def save_garment_obj(garment: Garment, path) -> None:
     """Write the garment as OBJ: v, vt, `g front`/`g back` groups of `f v/vt`; uv_scale in a header
     comment, vertex_side in `# vs` comments. Floats are written with repr so a round trip is exact."""
@@ -395,20 +454,19 @@ def _is_pbc_obj(path: Path) -> bool:
     return any(ln.split()[:2] == ["#", "uv_scale"] for ln in head)
 
 
-def load_garment_obj(path, **options) -> Garment:
+def load_garment_obj(path) -> Garment:
     """Read a garment OBJ.
 
     A file save_garment_obj wrote (its `# uv_scale` header) is read exactly as written (`f v/vt`
-    triangles, `g front` / `g back`). Any other OBJ goes through pbc.geometry.obj_import.import_garment
-    with ``options`` (charts, uv_unit, position_unit, position_offset, uv_padding): polygons, UV
-    islands as charts, relative indices, UVs scaled to the pattern. Raises ValueError naming the file
-    (and the line) if UVs are missing, faces reference missing vt, etc.
+    triangles, `g front` / `g back`); another tool's OBJ is refused with a pointer to
+    pbc.geometry.garments.load_any_obj (the importer). Raises ValueError naming the file (and the line)
+    if UVs are missing, faces reference missing vt, etc.
     """
     path = Path(path)
     if not _is_pbc_obj(path):
-        from pbc.geometry.obj_import import import_garment
-
-        return import_garment(path, **options)[0]
+        raise ValueError(f"{path} is not a garment file pbc wrote (no '# uv_scale' header): import another "
+                         "tool's OBJ with pbc.geometry.garments.load_any_obj, or from a config with "
+                         "garment=obj garment.obj=<path>")
     verts, uvs, faces, fuvs, sides = [], [], [], [], []
     uv_scale = None
     vertex_side = None
@@ -466,8 +524,6 @@ def load_garment_obj(path, **options) -> Garment:
     # the corner each vertex is sampled at: the rule the importer and the necktie use, so that a vertex
     # with two uvs on one side (a seam between two charts of one image, or within one chart) reads back
     # at the uv it was made with
-    from pbc.geometry.obj_import import sample_corners, uv_islands
-
     chart = uv_islands(faces, uv[fuvs] + 2.0 * sides[:, None, None])
     vertex_tex, vertex_side = sample_corners(faces, fuvs, sides, chart, vertex_side)
     return Garment(
@@ -480,57 +536,6 @@ def load_garment_obj(path, **options) -> Garment:
         vertex_side=torch.tensor(vertex_side),
         uv_scale=float(uv_scale),
     )
-
-
-def obj_options(gcfg) -> dict:
-    """The import options of a user's garment OBJ from its config node (conf/garment/obj.yaml)."""
-    out = {}
-    for key in ("uv_unit", "position_unit", "uv_padding"):
-        if gcfg.get(key) is not None:
-            out[key] = gcfg[key]
-    if gcfg.get("position_offset") is not None:
-        out["position_offset"] = tuple(float(x) for x in gcfg.position_offset)
-    if gcfg.get("charts") is not None:
-        out["charts"] = {str(k): int(v) for k, v in dict(gcfg.charts).items()}
-    return out
-
-
-def garment_from_config(gcfg) -> tuple[Garment, Cage]:
-    """The garment and its cage through one door, from the garment config node.
-
-    ``obj`` set: a user's OBJ (pbc's own files read exactly, others imported with obj_options) with
-    the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
-    (pbc.geometry.autocage). ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
-    """
-    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
-    cage_path = gcfg.get("cage", None)
-    auto = cage_path is None or str(cage_path) == "auto"
-    if gcfg.get("obj"):
-        path = resolve_path(gcfg.obj)
-        names = charts = None
-        if _is_pbc_obj(path):
-            garment = load_garment_obj(path)
-        else:
-            from pbc.geometry.obj_import import import_garment
-
-            garment, names, charts = import_garment(path, **obj_options(gcfg))
-        if auto:
-            from pbc.geometry.autocage import auto_cage
-
-            return garment, auto_cage(garment, *image, chart_names=names, face_chart=charts,
-                                      **dict(gcfg.get("autocage") or {}))
-        try:
-            return garment, load_cage(resolve_path(cage_path), garment, *image)
-        except ValueError as exc:
-            if "made for a garment of" not in str(exc):
-                raise
-            raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
-                             "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
-    if gcfg.get("kind") == "necktie":
-        from pbc.geometry.necktie import make_necktie
-
-        return make_necktie(gcfg)
-    return make_tshirt(gcfg)
 
 
 def load_garment_config(garment_yaml, image_yaml=None):

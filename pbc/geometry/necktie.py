@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from pbc.geometry.autocage import auto_cage
 from pbc.geometry.cage import Cage
-from pbc.geometry.garment import Garment, _cell_triangles
-from pbc.geometry.obj_import import sample_corners
+from pbc.geometry.garment import Garment, _cell_triangles, sample_corners
 
 
 def necktie_pattern(cfg) -> tuple[np.ndarray, dict]:
@@ -64,7 +64,6 @@ def necktie_pattern(cfg) -> tuple[np.ndarray, dict]:
 
 def make_necktie(cfg) -> tuple[Garment, Cage]:
     """The necktie garment and its automatic cage. cfg: conf/garment/necktie.yaml."""
-    from pbc.geometry.autocage import auto_cage
 
     h = float(cfg.grid_spacing)
     mask, land = necktie_pattern(cfg)

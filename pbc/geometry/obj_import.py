@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 import torch
-from scipy.sparse.csgraph import connected_components
+
+from pbc.geometry.garment import Garment, sample_corners, uv_islands
 
 # metres per unit of a stated length unit
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
@@ -163,38 +163,6 @@ def check_mesh(mesh: ObjMesh, where: str = "<obj>") -> None:
                          "(Blender: Select > All by Trait > Non Manifold, then Edge Split)")
 
 
-def uv_islands(faces: np.ndarray, face_uv_coords: np.ndarray, tol: float = 1e-7) -> np.ndarray:
-    """(F,) island id per face: faces joined across an edge whose two ends have the same UV in both.
-
-    faces (F, 3) vertex ids, face_uv_coords (F, 3, 2) each corner's UV. Works whether or not the
-    exporter shares vt entries between faces. Ids follow the first face of each island.
-    """
-    nf = len(faces)
-    rec_v, rec_uv, rec_f = [], [], []
-    for k in range(3):
-        a, b = faces[:, k], faces[:, (k + 1) % 3]
-        ua, ub = face_uv_coords[:, k], face_uv_coords[:, (k + 1) % 3]
-        swap = a > b
-        rec_v.append(np.stack([np.where(swap, b, a), np.where(swap, a, b)], 1))
-        rec_uv.append(np.concatenate([np.where(swap[:, None], ub, ua), np.where(swap[:, None], ua, ub)], 1))
-        rec_f.append(np.arange(nf))
-    ev, euv, ef = np.concatenate(rec_v), np.concatenate(rec_uv), np.concatenate(rec_f)
-    scale = max(float(np.ptp(face_uv_coords.reshape(-1, 2), axis=0).max()), 1e-12)
-    q = np.round(euv / (scale * tol)).astype(np.int64)  # equal UVs -> equal keys
-    key = np.concatenate([ev, q], 1)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.ravel()
-    order = np.argsort(inv, kind="stable")
-    same = inv[order][1:] == inv[order][:-1]
-    fa, fb = ef[order][:-1][same], ef[order][1:][same]
-    adj = sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
-    _, label = connected_components(adj, directed=False)
-    first = {}
-    for lab in label:
-        first.setdefault(int(lab), len(first))
-    return np.asarray([first[int(lab)] for lab in label], np.int64)
-
-
 def signed_uv_area(tri: np.ndarray) -> np.ndarray:
     """(F,) signed area of UV triangles tri (F, 3, 2); positive counter-clockwise in (u, v)."""
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
@@ -273,7 +241,6 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
     y up, x the body's left). uv_padding: fraction of each side's image left empty at every border.
     Returns (Garment, chart_names list, face_chart (F,) int64).
     """
-    from pbc.geometry.garment import Garment  # garment.py imports this module for its OBJ door
 
     path = Path(path)
     where = str(path)
@@ -366,32 +333,6 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
         uv_scale=uv_scale,
     )
     return garment, names, island
-
-
-def sample_corners(faces: np.ndarray, face_uv: np.ndarray, face_side: np.ndarray, face_chart: np.ndarray,
-                   vertex_side: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Which uv each vertex is sampled at, by one rule that survives an OBJ round trip:
-    the vertex's side (given, else its lowest), then its chart there that comes first, then the first
-    corner of that chart in face order. faces / face_uv (F, 3), face_side / face_chart (F,).
-    Returns vertex_tex (V,) indices into uv and vertex_side (V,).
-    """
-    v = faces.ravel()
-    nv = int(v.max()) + 1
-    side = np.repeat(face_side, 3)
-    chart = np.repeat(face_chart, 3)
-    if vertex_side is None:
-        vertex_side = np.full(nv, np.iinfo(np.int64).max)
-        np.minimum.at(vertex_side, v, side)
-    ok = side == vertex_side[v]
-    idx = np.flatnonzero(ok)
-    order = idx[np.lexsort((idx, chart[idx], v[idx]))]
-    first = order[np.r_[True, v[order][1:] != v[order][:-1]]]
-    if len(first) != nv:
-        missing = np.setdiff1d(np.arange(nv), v[first])
-        raise ValueError(f"vertices {missing[:5].tolist()} have no face on their vertex_side chart")
-    vertex_tex = np.empty(nv, np.int64)
-    vertex_tex[v[first]] = face_uv.ravel()[first]
-    return vertex_tex, np.asarray(vertex_side, np.int64)
 
 
 def face_charts(garment, tol: float = 1e-7) -> np.ndarray:

@@ -47,7 +47,16 @@ import time
 import numpy as np
 import warp as wp
 
-from pbc.sim.drape import DrapeResult, _get, _np, _oriented_panels, _part_meshes, _validate, init_warp, pattern_triangles
+from pbc.sim.drape import (
+    DrapeResult,
+    _get,
+    _np,
+    _oriented_panels,
+    _part_meshes,
+    _validate,
+    init_warp,
+    pattern_triangles,
+)
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,106 @@
+"""The garments a config can name, through one door: the procedural T-shirt, the necktie (appendix F),
+or a user's OBJ with its cage file or the automatic cage.
+
+One job: choose and build. The garment data and pbc's own OBJ format live in `garment.py`, other
+tools' OBJ files in `obj_import.py`, the automatic cage in `autocage.py`, the tie in `necktie.py`;
+this module sits above them all (so none of them imports another's door).
+
+    python -m pbc.geometry.garments garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
+        writes the automatic cage of a garment as editable JSON (patches/ format)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pbc.geometry.autocage import auto_cage, cage_summary
+from pbc.geometry.cage import Cage, load_cage, save_cage
+from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt, resolve_path
+from pbc.geometry.necktie import make_necktie
+from pbc.geometry.obj_import import import_garment
+
+
+def load_any_obj(path, **options) -> Garment:
+    """A garment OBJ of any origin: a file pbc wrote is read exactly (`load_garment_obj`), any other goes
+    through the importer with ``options`` (charts, uv_unit, position_unit, position_offset, uv_padding)."""
+    path = Path(path)
+    return load_garment_obj(path) if _is_pbc_obj(path) else import_garment(path, **options)[0]
+
+
+def obj_options(gcfg) -> dict:
+    """The import options of a user's garment OBJ from its config node (conf/garment/obj.yaml)."""
+    out = {}
+    for key in ("uv_unit", "position_unit", "uv_padding"):
+        if gcfg.get(key) is not None:
+            out[key] = gcfg[key]
+    if gcfg.get("position_offset") is not None:
+        out["position_offset"] = tuple(float(x) for x in gcfg.position_offset)
+    if gcfg.get("charts") is not None:
+        out["charts"] = {str(k): int(v) for k, v in dict(gcfg.charts).items()}
+    return out
+
+
+def garment_from_config(gcfg) -> tuple[Garment, Cage]:
+    """The garment and its cage through one door, from the garment config node.
+
+    ``obj`` set: a user's OBJ (pbc's own files read exactly, others imported with obj_options) with
+    the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
+    (pbc.geometry.autocage). ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
+    """
+    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
+    cage_path = gcfg.get("cage", None)
+    auto = cage_path is None or str(cage_path) == "auto"
+    if gcfg.get("obj"):
+        path = resolve_path(gcfg.obj)
+        names = charts = None
+        if _is_pbc_obj(path):
+            garment = load_garment_obj(path)
+        else:
+            garment, names, charts = import_garment(path, **obj_options(gcfg))
+        if auto:
+            return garment, auto_cage(garment, *image, chart_names=names, face_chart=charts,
+                                      **dict(gcfg.get("autocage") or {}))
+        try:
+            return garment, load_cage(resolve_path(cage_path), garment, *image)
+        except ValueError as exc:
+            if "made for a garment of" not in str(exc):
+                raise
+            raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
+                             "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
+    if gcfg.get("kind") == "necktie":
+        return make_necktie(gcfg)
+    return make_tshirt(gcfg)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Write the automatic cage of a garment as an editable JSON (patches/ format) and compare it with
+    the garment config's own cage file when it has one. Arguments: Hydra overrides choosing the garment.
+
+        python -m pbc.geometry.garments garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
+        python -m pbc.geometry.garments garment=tshirt --out /tmp/tshirt_auto.json
+    """
+    import argparse
+
+    from pbc.config import load_config
+
+    ap = argparse.ArgumentParser(description=main.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. garment=obj garment.obj=my.obj")
+    ap.add_argument("--out", required=True, help="where to write the cage JSON")
+    args = ap.parse_args(argv)
+    gcfg = load_config(args.overrides).garment
+    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
+    own = gcfg.get("cage")
+    gcfg.cage = "auto"
+    if gcfg.get("obj") or gcfg.get("kind") == "necktie":
+        garment, cage = garment_from_config(gcfg)
+    else:  # the procedural shirt: its mesh with the automatic cage
+        garment, _ = make_tshirt(gcfg, use_cage_file=False)
+        cage = auto_cage(garment, *image)
+    save_cage(cage, args.out, garment.num_vertices)
+    print(f"wrote {args.out}: automatic cage {cage_summary(cage)}")
+    if own and str(own) != "auto" and resolve_path(own).exists():
+        print(f"{own}: {cage_summary(load_cage(resolve_path(own), garment, *image))}")
+
+
+if __name__ == "__main__":
+    main()
