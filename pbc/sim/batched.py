@@ -47,7 +47,16 @@ import time
 import numpy as np
 import warp as wp
 
-from pbc.sim.drape import DrapeResult, _get, _np, _oriented_panels, _part_meshes, _validate, init_warp, pattern_triangles
+from pbc.sim.drape import (
+    DrapeResult,
+    _get,
+    _np,
+    _oriented_panels,
+    _part_meshes,
+    _validate,
+    init_warp,
+    pattern_triangles,
+)
 
 log = logging.getLogger(__name__)
 
@@ -458,7 +467,7 @@ class BatchedDrape:
         n = model.particle_count
         pw = model.particle_world.numpy()
         if n != k * n_per or not np.array_equal(pw, np.repeat(np.arange(k), n_per)):
-            raise RuntimeError("newton laid out the replicated worlds unexpectedly; the batched drape needs newton==1.8.0")
+            raise RuntimeError("newton laid out the replicated worlds unexpectedly; batching needs newton==1.8.0")
         sw = model.shape_world.numpy()
         if not np.array_equal(sw, np.repeat(np.arange(k), self.n_parts)):
             raise RuntimeError("newton laid out the replicated shapes unexpectedly; needs newton==1.8.0")
