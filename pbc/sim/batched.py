@@ -25,7 +25,10 @@ speed and counts, per world, the speeds below the tolerance; the 95% quantile is
 exactly when that count (with the largest speed below and the smallest above, for the interpolated
 case) says so, which needs no sort. A world that converges, blows up (NaN) or runs out of frames is
 frozen (its particles deactivated, its result copied on the device) and the rest keep going; the host
-reads one small status array every `sim.batch_check_every` frames to stop when all are done.
+reads one small status array every `sim.batch_check_every` frames, collects the stopped worlds' results
+and gives each the batch's next pose (so a slow pose holds up one world, not K), until all are done.
+Frozen worlds still pass through every kernel (they are not compacted away); refilling them is what
+keeps the work per sample at the single drape's.
 
 The model is built once and reused for every later batch (`BatchedDrape.run`): new start positions,
 fresh body part meshes per world, reset velocities and flags. Everything the physics reads is a
@@ -378,7 +381,7 @@ def _is_out_of_memory(err: BaseException) -> bool:
 
 
 class BatchedDrape:
-    """One newton model holding `n_worlds` copies of a garment; `run` drapes up to that many poses.
+    """One newton model holding `n_worlds` copies of a garment; `run` drapes any number of poses in it.
 
     rest_pattern_triangles (F, 3, 2), faces (F, 3), body_faces (Fb, 3), vertex_part (V,), part_masks
     (P, Vb): as `pbc.sim.drape.drape`. template_start (V, 3) and template_body (Vb, 3): any valid pose
