@@ -352,6 +352,34 @@ def _world_pcg_class():
     return _WorldPcg
 
 
+class _PartTopology:
+    """What `_part_meshes` derives from the body's faces and part masks alone, kept so that a new pose
+    costs a gather and a few means (`vertices`), not a connected-components search per part. The
+    result is bit for bit `_part_meshes`'s (same float64 means over the same sorted index sets)."""
+
+    def __init__(self, body_vertices, body_faces, part_masks):
+        bf = np.asarray(body_faces, dtype=np.int64)
+        self.parts = []
+        for (verts, faces), mask in zip(_part_meshes(body_vertices, body_faces, part_masks),
+                                        np.asarray(part_masks, dtype=bool), strict=True):
+            used = np.unique(bf[mask[bf].all(axis=1)])
+            n_loops = len(verts) - len(used)
+            # the lid faces fan each loop around its centroid vertex n + k: the loop's vertices are the
+            # other corners of the faces that use that centroid (what _cap_holes averaged)
+            loops = [np.unique(faces[(faces == len(used) + k).any(axis=1)][:, :2]) for k in range(n_loops)]
+            self.parts.append((used, loops, faces))
+
+    def meshes(self, body_vertices) -> list[tuple[np.ndarray, np.ndarray]]:
+        bv = np.asarray(body_vertices, dtype=np.float64)
+        out = []
+        for used, loops, faces in self.parts:
+            v = bv[used]
+            if loops:
+                v = np.concatenate([v, np.stack([v[idx].mean(0) for idx in loops])])
+            out.append((v.astype(np.float32), faces))
+        return out
+
+
 def world_offsets(n_worlds: int, spacing: float) -> np.ndarray:
     """(K, 3) offsets of K worlds on a square grid in the horizontal (x, z) plane, centred on the origin
     so the largest offset (and float32 rounding of positions) stays small."""
@@ -450,7 +478,8 @@ class BatchedDrape:
         shape_cfg = newton.ModelBuilder.ShapeConfig(
             mu=friction, margin=0.0, has_shape_collision=False, has_particle_collision=True
         )
-        part_meshes = _part_meshes(body, self.body_faces, self.part_masks)
+        self.topology = _PartTopology(body, self.body_faces, self.part_masks)
+        part_meshes = self.topology.meshes(body)
         for verts, tris in part_meshes:
             world.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
                                                            is_solid=True), cfg=shape_cfg)
@@ -524,7 +553,7 @@ class BatchedDrape:
     def _set_body(self, k: int, body: np.ndarray) -> None:
         """Fresh part meshes for world k (body (Vb, 3)), built as `build_drape_sim` builds them; the
         model's arrays are written by `_push_bodies`."""
-        for p, (verts, tris) in enumerate(_part_meshes(body, self.body_faces, self.part_masks)):
+        for p, (verts, tris) in enumerate(self.topology.meshes(body)):
             m = self.newton.Mesh(verts, tris.reshape(-1), compute_inertia=False, is_solid=True)
             j = k * self.n_parts + p
             self._ptrs[j] = m.finalize(device=self.model.device)
