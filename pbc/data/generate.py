@@ -8,7 +8,9 @@ Why it survives SIGKILL: every drape result goes to `work/samples/NNNNNN.npz` vi
 rename, so a sample is either complete or absent. A re-run skips the samples that exist. Pose i depends
 only on the seed, and the drape is deterministic, so the merged arrays are byte-identical to an
 uninterrupted run. Shards (`data.shard=i data.num_shards=n`) take every n-th pose; the merge (any run
-with `data.shard=null`) collects them. Timings go to `timings.json`, apart from the manifest, so that the
+with `data.shard=null`) collects them. With `sim.batch_size=k > 1` poses are draped k at a time in one
+model (`pbc.sim.batched`): fixed batches of k consecutive poses are the unit of resume and of sharding.
+Timings go to `timings.json`, apart from the manifest, so that the
 manifest is byte-identical too.
 """
 
