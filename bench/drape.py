@@ -9,6 +9,17 @@ mesh and against each vertex's own part (what D.6 asks the solver to enforce), t
 min/max against the pattern, D.6 verdict) and, as the last line,
 one JSON object of the figures. CPU seconds are the per-core cost (the wall clock includes waiting for a
 shared core); the first drape of the process is a warm-up that loads (or compiles) warp's kernels.
+
+    python bench/drape.py batch=1,8,32 [garment=tshirt_coarse] [poses=N] [single=4] [overrides...]
+
+Single-world against batched (pbc/sim/batched.py) side by side in one run, on warp's default device
+(cuda:0 when present): `single` poses draped one at a time, then for each K one model of K worlds
+(built once, the build timed apart) draping `poses` poses (default 2K: a world that stops takes the
+next pose). Per row: samples/s (steady state, build excluded), CPU seconds per sample (the per-core
+cost) and per drape-frame, build seconds, mean frames, the largest per-drape residual, kept samples,
+and the mean/max distance in mm of the batched drapes from the single drapes of the same poses.
+Extra `key=value` arguments are config overrides
+(e.g. sim.max_frames=100).
 """
 
 from __future__ import annotations
@@ -137,5 +148,116 @@ def main(argv: list[str]) -> dict:
     return figures
 
 
+def device_name(cache_dir=None) -> str:
+    """What the drape runs on, in words: the GPU's name, or the CPU's model and core count."""
+    import os
+    import platform
+
+    from pbc.sim.drape import init_warp
+
+    wp = init_warp(cache_dir)  # the config's kernel cache: a bare init would compile every kernel afresh
+    dev = wp.get_device()
+    if dev.is_cuda:
+        return f"{dev.alias} ({dev.name})"
+    model = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"cpu ({model}, {os.cpu_count()} cores visible)"
+
+
+def batched_main(argv: list[str]) -> dict:
+    """Single-world vs batched drape, side by side (see the module docstring)."""
+    from pbc.data.generate import build_scene
+    from pbc.sim.batched import batched_drape_for_garment
+    from pbc.sim.poses import sample_poses, sampling_settings_from_config
+
+    args = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith(("sim.", "body.", "+")))
+    overrides = [a for a in argv if a.startswith(("sim.", "body.", "+"))]
+    ks = [int(k) for k in args["batch"].split(",")]
+    n_single = int(args.get("single", 4))
+    n_poses = args.get("poses")
+    cfg = load_config([f"garment={args.get('garment', 'tshirt_coarse')}", *overrides])
+    scene, _ = build_scene(cfg)
+    n_all = max(n_single, 2 * max(ks) if n_poses is None else int(n_poses))
+    settings = sampling_settings_from_config(cfg.body.sampling)
+    poses, _ = sample_poses(scene.body.skeleton, n_all, int(cfg.data.seed), scene.body, settings)
+    starts, bodies = [], []
+    for pose in poses:
+        bv = pose_body(scene.body, pose[None].float())
+        starts.append(embedded_points(bv, scene.body.faces, scene.embedding)[0].numpy())
+        bodies.append(bv[0].numpy())
+    starts, bodies = np.stack(starts), np.stack(bodies)
+    garment, body, emb, sim = scene.garment, scene.body, scene.embedding, cfg.sim
+    device = device_name(sim.kernel_cache_dir)
+    print(f"# device: {device}; garment {garment.vertices.shape[0]} vertices; {n_all} sampled poses", flush=True)
+
+    t0 = time.perf_counter()  # warm-up: load (or compile) the kernels of both paths outside the timings
+    drape_garment(garment, starts[0], bodies[0], body, emb, sim)
+    batched_drape_for_garment(garment, body, emb, sim, 1, starts[0], bodies[0]).run(starts[:1], bodies[:1])
+    print(f"# warm-up: {time.perf_counter() - t0:.1f} s", flush=True)
+
+    def row(mode, k, results, wall, cpu, build, ref=None):
+        n = len(results)
+        kept = sum(check_garment_result(r, garment, sim)[0] for r in results)
+        out = {"mode": mode, "K": k, "poses": n, "build_s": round(build, 2), "wall_s": round(wall, 2),
+               "samples_per_s": round(n / wall, 3), "cpu_s_per_sample": round(cpu / n, 3),
+               "frames_max": max(r.iterations for r in results),
+               "frames_mean": round(float(np.mean([r.iterations for r in results])), 1),
+               # the kernels' efficiency apart from how long the poses take to settle
+               "cpu_ms_per_drape_frame": round(1000 * cpu / sum(r.iterations for r in results), 3),
+               "residual_max": round(max(float(r.residual) for r in results), 5),
+               "converged": sum(r.converged for r in results), "kept": int(kept)}
+        if ref is not None:
+            m = min(len(ref), n)
+            d = 1000 * np.linalg.norm(np.stack([r.positions for r in results[:m]]).astype(np.float64)
+                                      - np.stack([r.positions for r in ref[:m]]), axis=-1)
+            out.update(vs_single_poses=m, vs_single_mean_mm=round(float(d.mean()), 4),
+                       vs_single_max_mm=round(float(d.max()), 4),
+                       same_decisions=all(check_garment_result(a, garment, sim) == check_garment_result(b, garment, sim)
+                                          for a, b in zip(results[:m], ref[:m], strict=True)))
+        return out
+
+    rows = []
+    t0, c0 = time.perf_counter(), time.process_time()
+    single = [drape_garment(garment, starts[i], bodies[i], body, emb, sim) for i in range(n_single)]
+    rows.append(row("single", 1, single, time.perf_counter() - t0, time.process_time() - c0, 0.0))
+    for k in ks:
+        n = 2 * k if n_poses is None else int(n_poses)
+        t0 = time.perf_counter()
+        bd = batched_drape_for_garment(garment, body, emb, sim, k, starts[0], bodies[0])
+        build = time.perf_counter() - t0
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = bd.run(starts[:n], bodies[:n])
+        rows.append(row("batched", bd.n_worlds, res, time.perf_counter() - t0, time.process_time() - c0, build, single))
+        rows[-1]["mb_per_world"] = round(bd.bytes_per_world / 2**20, 2)
+        del bd
+
+    base = rows[0]
+    print(f"{'mode':8s} {'K':>4s} {'poses':>5s} {'build s':>8s} {'samples/s':>10s} {'cpu s/sample':>13s} "
+          f"{'vs single':>10s} {'cpu ms/frame':>12s} {'frames':>6s} {'residual':>9s} {'kept':>5s} "
+          f"{'mean mm':>8s} {'max mm':>8s}")
+    for r in rows:
+        r["speedup_samples_per_s"] = round(r["samples_per_s"] / base["samples_per_s"], 2)
+        r["cpu_per_sample_vs_single"] = round(r["cpu_s_per_sample"] / base["cpu_s_per_sample"], 3)
+        print(f"{r['mode']:8s} {r['K']:4d} {r['poses']:5d} {r['build_s']:8.2f} {r['samples_per_s']:10.3f} "
+              f"{r['cpu_s_per_sample']:13.3f} {r['cpu_per_sample_vs_single']:9.2f}x "
+              f"{r['cpu_ms_per_drape_frame']:12.2f} {r['frames_mean']:6.1f} "
+              f"{r['residual_max']:9.5f} {r['kept']:3d}/{r['poses']:<3d} {r.get('vs_single_mean_mm', 0.0):8.4f} "
+              f"{r.get('vs_single_max_mm', 0.0):8.4f}", flush=True)
+    figures = {"device": device, "garment": cfg.garment.name, "vertices": int(garment.vertices.shape[0]),
+               "sim": {k: cfg.sim[k] for k in ("fps", "substeps", "iterations", "linear_iterations", "tolerance",
+                                               "max_frames", "batch_check_every")},
+               "cpu_per_sample_vs_single": {f"K={r['K']}": r["cpu_per_sample_vs_single"] for r in rows[1:]},
+               "rows": rows}
+    print(json.dumps(figures))
+    return figures
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    if any(a.startswith("batch=") for a in sys.argv[1:]):
+        batched_main(sys.argv[1:])
+    else:
+        main(sys.argv[1:])

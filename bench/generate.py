@@ -3,7 +3,10 @@
     python bench/generate.py [data=tshirt_small] [n=6]
 
 Prints a table and, as the last line, one JSON object of the figures. Samples/minute is projected for
-`data.workers` processes (one drape per core: warp's CPU kernels are single-threaded).
+`data.workers` processes (one drape per core: warp's CPU kernels are single-threaded). With
+`sim.batch_size` > 1 (e.g. `data=tshirt_gpu n=512`) the n poses go through the batched drape as one
+batch, after a warm-up batch that builds the worker's model (its build time, which includes loading
+warp's kernels, is reported apart).
 """
 
 from __future__ import annotations
@@ -17,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from pbc.config import load_config
-from pbc.data.generate import build_scene, drape_pose
+from pbc.data.generate import batch_size, build_scene, drape_batch, drape_pose
 from pbc.io import atomic_path
+from pbc.sim.drape import init_warp
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 
@@ -36,16 +40,22 @@ def main(argv: list[str]) -> dict:
     t_pose = (time.perf_counter() - t0) / n
     poses = poses.numpy().astype(np.float32)
 
-    drape_pose(scene, poses[0])  # warm-up: warp compiles or loads its kernels once per process
-    recs, t_write = [], []
+    batched = batch_size(cfg.sim) > 1
+    # warm-up: warp compiles or loads its kernels once per process (and a batched worker builds its model)
+    if batched:
+        drape_batch(scene, poses[:1])
+    else:
+        drape_pose(scene, poses[0])
+    recs, t_write = (drape_batch(scene, poses) if batched else []), []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(n):
-            rec = drape_pose(scene, poses[i])
+            rec = recs[i] if batched else drape_pose(scene, poses[i])
             t0 = time.perf_counter()
             with atomic_path(Path(tmp) / f"{i}.npz", suffix=".npz") as f:
                 np.savez(f, positions=rec["positions"])
             t_write.append(time.perf_counter() - t0)
-            recs.append(rec)
+            if not batched:
+                recs.append(rec)
     skin = float(np.mean([r["t_skin"] for r in recs]))
     drape = float(np.mean([r["t_drape"] for r in recs]))
     write = float(np.mean(t_write))
@@ -53,6 +63,10 @@ def main(argv: list[str]) -> dict:
     workers = int(cfg.data.workers)
     figures = {
         "data": cfg.data.name,
+        "device": str(init_warp(cfg.sim.kernel_cache_dir).get_device()),
+        "batch_size": batch_size(cfg.sim),
+        "batch_worlds": scene.batched.n_worlds if batched else 1,
+        "model_build_s": round(scene.batched.build_seconds, 2) if batched else 0.0,
         "vertices": int(scene.garment.vertices.shape[0]),
         "samples": n,
         "scene_s": round(t_scene, 2),

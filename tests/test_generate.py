@@ -112,6 +112,8 @@ def test_manifest_records_provenance(reference: Path):
     for key in ("format_version", "seed", "garment_hash", "body_hash", "splits", "counts", "shrinkwrap"):
         assert key in m
     assert json.loads((reference / "timings.json").read_text())["drape_wall"] > 0
+    # single-world datasets (sim.batch_size=1) keep the fingerprint they had before batching existed
+    assert not any(k.startswith("batch_") for k in m["sim"])
 
 
 def test_split_sizes_never_leave_a_split_empty():

@@ -8,7 +8,9 @@ Why it survives SIGKILL: every drape result goes to `work/samples/NNNNNN.npz` vi
 rename, so a sample is either complete or absent. A re-run skips the samples that exist. Pose i depends
 only on the seed, and the drape is deterministic, so the merged arrays are byte-identical to an
 uninterrupted run. Shards (`data.shard=i data.num_shards=n`) take every n-th pose; the merge (any run
-with `data.shard=null`) collects them. Timings go to `timings.json`, apart from the manifest, so that the
+with `data.shard=null`) collects them. With `sim.batch_size=k > 1` poses are draped k at a time in one
+model (`pbc.sim.batched`): fixed batches of k consecutive poses are the unit of resume and of sharding.
+Timings go to `timings.json`, apart from the manifest, so that the
 manifest is byte-identical too.
 """
 
@@ -108,12 +110,18 @@ def batch_size(sim: DictConfig) -> int:
     return k
 
 
+def batch_worlds(sim: DictConfig) -> int:
+    """Worlds in the batched model (`sim.batch_worlds`, default the batch size)."""
+    return min(batch_size(sim), int(sim.get("batch_worlds") or batch_size(sim)))
+
+
 def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
-    """How often the host polls never changes the data; with batch_size 1 no batch key does, so a
-    single-world dataset keeps the fingerprint (and manifest bytes) it had before batching existed."""
+    """With batch_size 1 no batch key changes the data, so a single-world dataset keeps the
+    fingerprint (and manifest bytes) it had before batching existed. In a batched run they all do,
+    to rounding: which poses share the model and when a stopped world takes the next one."""
     if batch_size(sim) == 1:
-        return ("batch_size", "batch_check_every", "batch_world_spacing")
-    return ("batch_check_every",)
+        return ("batch_size", "batch_worlds", "batch_check_every", "batch_world_spacing")
+    return ()
 
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
@@ -160,7 +168,7 @@ def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
         from pbc.sim.batched import batched_drape_for_garment
 
         scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
-                                                  batch_size(scene.sim), starts[0], bodies[0])
+                                                  batch_worlds(scene.sim), starts[0], bodies[0])
     results = scene.batched.run(np.stack(starts), np.stack(bodies))
     t2 = time.perf_counter()
     records = []

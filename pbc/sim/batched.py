@@ -25,7 +25,10 @@ speed and counts, per world, the speeds below the tolerance; the 95% quantile is
 exactly when that count (with the largest speed below and the smallest above, for the interpolated
 case) says so, which needs no sort. A world that converges, blows up (NaN) or runs out of frames is
 frozen (its particles deactivated, its result copied on the device) and the rest keep going; the host
-reads one small status array every `sim.batch_check_every` frames to stop when all are done.
+reads one small status array every `sim.batch_check_every` frames, collects the stopped worlds' results
+and gives each the batch's next pose (so a slow pose holds up one world, not K), until all are done.
+Frozen worlds still pass through every kernel (they are not compacted away); refilling them is what
+keeps the work per sample at the single drape's.
 
 The model is built once and reused for every later batch (`BatchedDrape.run`): new start positions,
 fresh body part meshes per world, reset velocities and flags. Everything the physics reads is a
@@ -187,6 +190,7 @@ def _decide(
     q_index: int,
     q_frac: float,
     tol: float,
+    start_frame: wp.array(dtype=wp.int32),
     status: wp.array(dtype=wp.int32),
     done_frame: wp.array(dtype=wp.int32),
     nan_flag: wp.array(dtype=wp.int32),
@@ -216,10 +220,11 @@ def _decide(
                     else:
                         value = a + (b - a) * q_frac
                 ok = value < tol
-            if frame >= min_frames and ok:
+            wf = frame - start_frame[w]  # this world's own frame count (worlds are refilled mid-run)
+            if wf >= min_frames and ok:
                 status[w] = 1
                 done_frame[w] = frame
-            elif frame >= max_frames:
+            elif wf >= max_frames:
                 status[w] = 3
                 done_frame[w] = frame
     nan_flag[w] = 0
@@ -347,6 +352,34 @@ def _world_pcg_class():
     return _WorldPcg
 
 
+class _PartTopology:
+    """What `_part_meshes` derives from the body's faces and part masks alone, kept so that a new pose
+    costs a gather and a few means (`vertices`), not a connected-components search per part. The
+    result is bit for bit `_part_meshes`'s (same float64 means over the same sorted index sets)."""
+
+    def __init__(self, body_vertices, body_faces, part_masks):
+        bf = np.asarray(body_faces, dtype=np.int64)
+        self.parts = []
+        for (verts, faces), mask in zip(_part_meshes(body_vertices, body_faces, part_masks),
+                                        np.asarray(part_masks, dtype=bool), strict=True):
+            used = np.unique(bf[mask[bf].all(axis=1)])
+            n_loops = len(verts) - len(used)
+            # the lid faces fan each loop around its centroid vertex n + k: the loop's vertices are the
+            # other corners of the faces that use that centroid (what _cap_holes averaged)
+            loops = [np.unique(faces[(faces == len(used) + k).any(axis=1)][:, :2]) for k in range(n_loops)]
+            self.parts.append((used, loops, faces))
+
+    def meshes(self, body_vertices) -> list[tuple[np.ndarray, np.ndarray]]:
+        bv = np.asarray(body_vertices, dtype=np.float64)
+        out = []
+        for used, loops, faces in self.parts:
+            v = bv[used]
+            if loops:
+                v = np.concatenate([v, np.stack([v[idx].mean(0) for idx in loops])])
+            out.append((v.astype(np.float32), faces))
+        return out
+
+
 def world_offsets(n_worlds: int, spacing: float) -> np.ndarray:
     """(K, 3) offsets of K worlds on a square grid in the horizontal (x, z) plane, centred on the origin
     so the largest offset (and float32 rounding of positions) stays small."""
@@ -376,7 +409,7 @@ def _is_out_of_memory(err: BaseException) -> bool:
 
 
 class BatchedDrape:
-    """One newton model holding `n_worlds` copies of a garment; `run` drapes up to that many poses.
+    """One newton model holding `n_worlds` copies of a garment; `run` drapes any number of poses in it.
 
     rest_pattern_triangles (F, 3, 2), faces (F, 3), body_faces (Fb, 3), vertex_part (V,), part_masks
     (P, Vb): as `pbc.sim.drape.drape`. template_start (V, 3) and template_body (Vb, 3): any valid pose
@@ -445,7 +478,8 @@ class BatchedDrape:
         shape_cfg = newton.ModelBuilder.ShapeConfig(
             mu=friction, margin=0.0, has_shape_collision=False, has_particle_collision=True
         )
-        part_meshes = _part_meshes(body, self.body_faces, self.part_masks)
+        self.topology = _PartTopology(body, self.body_faces, self.part_masks)
+        part_meshes = self.topology.meshes(body)
         for verts, tris in part_meshes:
             world.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
                                                            is_solid=True), cfg=shape_cfg)
@@ -465,7 +499,7 @@ class BatchedDrape:
         n = model.particle_count
         pw = model.particle_world.numpy()
         if n != k * n_per or not np.array_equal(pw, np.repeat(np.arange(k), n_per)):
-            raise RuntimeError("newton laid out the replicated worlds unexpectedly; the batched drape needs newton==1.8.0")
+            raise RuntimeError("newton laid out the replicated worlds unexpectedly; batching needs newton==1.8.0")
         sw = model.shape_world.numpy()
         if not np.array_equal(sw, np.repeat(np.arange(k), self.n_parts)):
             raise RuntimeError("newton laid out the replicated shapes unexpectedly; needs newton==1.8.0")
@@ -509,60 +543,72 @@ class BatchedDrape:
         self.out_speed = wp_.zeros(n, dtype=wp_.float32, device=dev)
         self.status = wp_.zeros(k, dtype=wp_.int32, device=dev)
         self.done_frame = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.start_frame = wp_.zeros(k, dtype=wp_.int32, device=dev)
         self.nan_flag = wp_.zeros(k, dtype=wp_.int32, device=dev)
         self.n_below = wp_.zeros(k, dtype=wp_.int32, device=dev)
         self.below_max = wp_.zeros(k, dtype=wp_.float32, device=dev)
         self.above_min = wp_.zeros(k, dtype=wp_.float32, device=dev)
-        self._meshes = []
+        self._meshes: list = []
 
-    def _set_bodies(self, bodies: np.ndarray) -> None:
-        """Fresh part meshes for every world (bodies (K, Vb, 3)), built as `build_drape_sim` builds them."""
-        newton, model = self.newton, self.model
-        meshes, ptrs, lo, hi = [], [], [], []
-        for k in range(self.n_worlds):
-            for verts, tris in _part_meshes(bodies[k], self.body_faces, self.part_masks):
-                m = newton.Mesh(verts, tris.reshape(-1), compute_inertia=False, is_solid=True)
-                ptrs.append(m.finalize(device=model.device))
-                # newton's local AABB of a mesh shape (builder.finalize): the vertex bounds
-                v = np.asarray(m.vertices)
-                lo.append(v.min(axis=0))
-                hi.append(v.max(axis=0))
-                meshes.append(m)
-        model.shape_source_ptr.assign(np.asarray(ptrs, dtype=np.uint64))
-        model.shape_collision_aabb_lower.assign(np.asarray(lo, dtype=np.float32))
-        model.shape_collision_aabb_upper.assign(np.asarray(hi, dtype=np.float32))
-        self._meshes = meshes  # keep the warp meshes alive while their ids are in the model
+    def _set_body(self, k: int, body: np.ndarray) -> None:
+        """Fresh part meshes for world k (body (Vb, 3)), built as `build_drape_sim` builds them; the
+        model's arrays are written by `_push_bodies`."""
+        for p, (verts, tris) in enumerate(self.topology.meshes(body)):
+            m = self.newton.Mesh(verts, tris.reshape(-1), compute_inertia=False, is_solid=True)
+            j = k * self.n_parts + p
+            self._ptrs[j] = m.finalize(device=self.model.device)
+            # newton's local AABB of a mesh shape (builder.finalize): the vertex bounds
+            v = np.asarray(m.vertices)
+            self._lo[j], self._hi[j] = v.min(axis=0), v.max(axis=0)
+            self._meshes[j] = m  # keeps the warp mesh alive while its id is in the model
+
+    def _push_bodies(self) -> None:
+        self.model.shape_source_ptr.assign(self._ptrs)
+        self.model.shape_collision_aabb_lower.assign(self._lo)
+        self.model.shape_collision_aabb_upper.assign(self._hi)
+
+    def _start_world(self, k: int, start: np.ndarray, state, frame: int) -> None:
+        """Put a new pose into world k at global frame `frame`: positions, zero velocity, active."""
+        a, b = k * self.n_per_world, (k + 1) * self.n_per_world
+        q = start.astype(np.float32)
+        for arr in (state.particle_q, self.q_prev, self.pin):
+            arr[a:b].assign(q)
+        state.particle_qd[a:b].zero_()
+        self.model.particle_flags[a:b].assign(self.flags0[a:b])
 
     # --- stepping ------------------------------------------------------------------------------------
     def run(self, starts, bodies, on_frame=None) -> list[DrapeResult]:
-        """Drape B <= K poses: starts (B, V, 3), bodies (B, Vb, 3) -> B `DrapeResult`s, in order.
+        """Drape B poses in the K worlds: starts (B, V, 3), bodies (B, Vb, 3) -> B `DrapeResult`s, in order.
 
-        Each result is what `drape` returns for that pose alone, up to rounding: positions at the
-        frame its world stopped, its residual over that frame, `iterations` = that frame. `seconds`
-        and `cpu_seconds` are the batch's times shared equally among its B poses. `on_frame(frame,
-        state)` (tests, debugging) runs after each frame's solver steps, before the stop rule.
+        Poses 0..K-1 start in worlds 0..K-1; when a world stops (seen at the host's next look, every
+        `sim.batch_check_every` frames) it takes the next waiting pose, so a slow pose holds up one
+        world, not the batch. Each result is what `drape` returns for that pose alone, up to rounding:
+        positions at the frame its world stopped, its residual over that frame, `iterations` = frames
+        it ran. `seconds` and `cpu_seconds` are the batch's shared equally among its B poses.
+        `on_frame(frame, state)` (tests, debugging) runs after each frame's solver steps.
         """
         starts = np.asarray(starts, dtype=np.float64)
         bodies = np.asarray(bodies, dtype=np.float64)
         b, k, n_per = len(starts), self.n_worlds, self.n_per_world
         if b == 0:
             return []
-        if b > k:
-            out = []
-            for i in range(0, b, k):
-                out.extend(self.run(starts[i : i + k], bodies[i : i + k], on_frame))
-            return out
         if starts.shape[1:] != (n_per, 3) or bodies.shape[0] != b or not np.all(np.isfinite(starts)):
             raise ValueError(f"starts must be finite (B, {n_per}, 3) and bodies (B, Vb, 3), got "
                              f"{starts.shape} and {bodies.shape}")
         t0, c0 = time.perf_counter(), time.process_time()
         cfg = self.cfg
-        # idle worlds (a short last batch) hold a copy of pose 0, frozen: a pure function of the batch
-        pad = np.concatenate([np.arange(b), np.zeros(k - b, dtype=np.int64)])
-        q0 = starts[pad].reshape(-1, 3).astype(np.float32)
-        self._set_bodies(bodies[pad])
-
         model, solver, pipeline, contacts, control = self.model, self.solver, self.pipeline, self.contacts, self.control
+        # the first K poses fill the worlds; idle worlds (fewer poses than worlds) hold a frozen copy of
+        # pose 0, so everything the physics reads is a function of the batch alone
+        first = [j if j < b else 0 for j in range(k)]
+        self._ptrs = np.zeros(k * self.n_parts, dtype=np.uint64)
+        self._lo = np.zeros((k * self.n_parts, 3), dtype=np.float32)
+        self._hi = np.zeros((k * self.n_parts, 3), dtype=np.float32)
+        self._meshes = [None] * (k * self.n_parts)
+        for w in range(k):
+            self._set_body(w, bodies[first[w]])
+        self._push_bodies()
+        q0 = starts[first].reshape(-1, 3).astype(np.float32)
         flags = self.flags0.reshape(k, n_per).copy()
         flags[b:] &= ~_PARTICLE_ACTIVE
         model.particle_flags.assign(flags.reshape(-1))
@@ -575,6 +621,7 @@ class BatchedDrape:
         self.speed.zero_()
         self.out_speed.fill_(float("nan"))
         self.status.assign(np.where(np.arange(k) < b, ACTIVE, IDLE).astype(np.int32))
+        self.start_frame.zero_()
         self.done_frame.fill_(-1)
         self.nan_flag.zero_()
         self.n_below.zero_()
@@ -598,7 +645,14 @@ class BatchedDrape:
         every = max(1, int(_get(cfg, "batch_check_every", 10)))
         dev = model.device
         n = model.particle_count
-        for frame in range(1, max_frames + 1):
+        pose_of = np.array([j if j < b else -1 for j in range(k)])  # the pose each world drapes now
+        start_of = np.zeros(k, dtype=np.int64)  # the global frame each world's pose started at
+        waiting = list(range(k, b))
+        results: list[DrapeResult | None] = [None] * b
+        remaining = b
+        frame = 0
+        while remaining:
+            frame += 1
             pipeline.collide(s0, contacts)
             for _ in range(substeps):
                 s0.clear_forces()
@@ -611,29 +665,51 @@ class BatchedDrape:
                               s0.particle_q, s0.particle_qd, self.q_prev, self.speed, self.nan_flag,
                               self.n_below, self.below_max, self.above_min])
             wp.launch(_decide, dim=k, device=dev,
-                      inputs=[frame, min_frames, max_frames, q_index, q_frac, tol, self.status, self.done_frame,
-                              self.nan_flag, self.n_below, self.below_max, self.above_min])
+                      inputs=[frame, min_frames, max_frames, q_index, q_frac, tol, self.start_frame, self.status,
+                              self.done_frame, self.nan_flag, self.n_below, self.below_max, self.above_min])
             wp.launch(_retire, dim=n, device=dev,
                       inputs=[frame, self.world, self.status, self.done_frame, s0.particle_q, s0.particle_qd,
                               self.q_prev, self.speed, self.out_q, self.out_speed, self.pin, model.particle_flags])
-            if (frame % every == 0 or frame == max_frames) and not (self.status.numpy()[:b] == ACTIVE).any():
-                break
+            if frame % every:
+                continue
+            status = self.status.numpy()
+            finished = [w for w in range(k) if pose_of[w] >= 0 and status[w] not in (ACTIVE, IDLE)]
+            if not finished:
+                continue
+            done = self.done_frame.numpy()
+            out_q = self.out_q.numpy().reshape(k, n_per, 3)
+            out_speed = self.out_speed.numpy().reshape(k, n_per)
+            for w in finished:
+                results[pose_of[w]] = self._result(status[w], int(done[w] - start_of[w]), out_q[w], out_speed[w],
+                                                   quantile)
+                remaining -= 1
+                pose_of[w] = -1
+            status_new = status.copy()
+            for w in finished:
+                if waiting:
+                    j = waiting.pop(0)
+                    self._set_body(w, bodies[j])
+                    self._start_world(w, starts[j], s0, frame)
+                    pose_of[w], start_of[w], status_new[w] = j, frame, ACTIVE
+                else:
+                    status_new[w] = IDLE
+            self._push_bodies()
+            self.start_frame.assign(start_of.astype(np.int32))
+            self.status.assign(status_new)
         self.states = [s0, s1]
-        status = self.status.numpy()[:b]
-        done = self.done_frame.numpy()[:b]
-        pos = self.out_q.numpy().reshape(k, n_per, 3)[:b]
-        speed = self.out_speed.numpy().reshape(k, n_per)[:b]
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-        out = []
-        for j in range(b):
-            if status[j] == BLEW_UP or not np.all(np.isfinite(speed[j])):
-                res = res_max = float("nan")
-            else:
-                res, res_max = float(np.quantile(speed[j], quantile)), float(speed[j].max())
-            out.append(DrapeResult(positions=pos[j].astype(np.float32), residual=res, residual_max=res_max,
-                                   iterations=int(done[j]), seconds=wall / b, converged=bool(status[j] == CONVERGED),
-                                   cpu_seconds=cpu / b))
-        return out
+        for r in results:
+            r.seconds, r.cpu_seconds = wall / b, cpu / b
+        return results
+
+    @staticmethod
+    def _result(status, frames, positions, speed, quantile) -> DrapeResult:
+        if status == BLEW_UP or not np.all(np.isfinite(speed)):
+            res = res_max = float("nan")
+        else:
+            res, res_max = float(np.quantile(speed, quantile)), float(speed.max())
+        return DrapeResult(positions=np.array(positions, dtype=np.float32), residual=res, residual_max=res_max,
+                           iterations=frames, seconds=float("nan"), converged=bool(status == CONVERGED))
 
 
 def make_batched_drape(rest_pattern_triangles, faces, body_faces, vertex_part, part_masks, cfg, n_worlds,
