@@ -451,7 +451,8 @@ def main(argv=None) -> int:
     lines = [f"# How much of a patch is its cage ({ds.dir.name}, {args.split}: {len(idx)} samples)", "",
              f"{res['interior_vertices']} interior vertices filled from {res['cage_vertices']} cage vertices "
              f"(28 patches); mean error over interior vertices, cm.", "",
-             "| basis | fill of the offsets | mean + fill of (offsets - mean) | cage-mean constant | interior offset size |",
+             "| basis | fill of the offsets | mean + fill of (offsets - mean) | cage-mean constant "
+             "| interior offset size |",
              "|---|---|---|---|---|"]
     for name, r in res["results"].items():
         a, b = r["raw"], r["train_mean_plus_fill"]
@@ -463,12 +464,13 @@ def main(argv=None) -> int:
         ss = res["seam_study"]
         lines += [f"## Seam methods on ground-truth crops offset per patch ({ss['bias_cm']} cm std per channel, "
                   f"{ss['samples']} val+test samples, {ss['resolution']} px)", "",
-                  "| method | vertex error cm | seam jump cm | interior jump cm | same, exact crops: vertex / seam cm |",
+                  "| method | vertex error cm | seam jump cm | interior jump cm "
+                  "| same, exact crops: vertex / seam cm |",
                   "|---|---|---|---|---|"]
         for m, r in ss["methods"].items():
             b, e = r["biased"], r["exact"]
-            lines.append(f"| {m} | {b['vertex_error_cm']:.4f} | {b['seam_jump_cm']:.4f} | {b['interior_jump_cm']:.4f} | "
-                         f"{e['vertex_error_cm']:.4f} / {e['seam_jump_cm']:.4f} |")
+            lines.append(f"| {m} | {b['vertex_error_cm']:.4f} | {b['seam_jump_cm']:.4f} | "
+                         f"{b['interior_jump_cm']:.4f} | {e['vertex_error_cm']:.4f} / {e['seam_jump_cm']:.4f} |")
         lines.append("")
     write_text(out / "cage_basis.md", "\n".join(lines))
     k = args.figure_patch if args.figure_patch is not None else int(np.argmax([len(b.interior) for b in iso]))
