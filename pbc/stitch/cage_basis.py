@@ -259,8 +259,19 @@ class CageSeams:
                     reads_pix.append(pix)
         self.read_vertex = torch.as_tensor(np.asarray(reads_v, np.int64))
         self.read_patch = torch.as_tensor(np.asarray(reads_p, np.int64))
-        self.read_pix = torch.as_tensor(np.stack(reads_pix)).float()
-        self.origins = torch.as_tensor(origins).float()
+        # bilinear taps of every reading as flat indices into the (P * size * size) crops, precomputed so a
+        # batch costs one gather (pixel centres at integer (row, col); taps outside the crop weigh 0)
+        local = np.stack(reads_pix) - origins[np.asarray(reads_p)]
+        r0, c0 = np.floor(local[:, 0]), np.floor(local[:, 1])
+        fr, fc = local[:, 0] - r0, local[:, 1] - c0
+        rows = np.stack([r0, r0, r0 + 1, r0 + 1], 1).astype(np.int64)
+        cols = np.stack([c0, c0 + 1, c0, c0 + 1], 1).astype(np.int64)
+        w = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc], 1)
+        inside = (rows >= 0) & (rows < size) & (cols >= 0) & (cols < size)
+        flat = (np.asarray(reads_p)[:, None] * size * size + np.clip(rows, 0, size - 1) * size
+                + np.clip(cols, 0, size - 1))
+        self.tap_index = torch.as_tensor(flat)
+        self.tap_weight = torch.as_tensor(np.where(inside, w, 0.0)).float()
         counts = torch.zeros(V).index_add_(0, self.read_vertex, torch.ones(len(reads_v)))
         self.readers = counts  # (V,) how many patches read each vertex (1 = its own patch only)
         # a front/back seam vertex read in its other chart: exact sampling (S R = I) holds only in the
@@ -273,9 +284,10 @@ class CageSeams:
 
     def agreed(self, crops: Tensor) -> tuple[Tensor, Tensor]:
         """crops (B, P, 3, h, w) -> own readings (B, V, 3) and agreed values (B, V, 3) (mean of readers)."""
-        from pbc.stitch.seams import sample_crops
-
-        vals = sample_crops(crops, self.read_patch, self.read_pix, self.origins)  # (B, R, 3)
+        B, P, C, h, w = crops.shape
+        flat = crops.permute(0, 2, 1, 3, 4).reshape(B, C, P * h * w)
+        taps = flat[:, :, self.tap_index.to(crops.device)]  # (B, C, R, 4)
+        vals = (taps * self.tap_weight.to(crops)).sum(-1).transpose(1, 2)  # (B, R, C)
         own = vals[:, : self.num_own]
         total = crops.new_zeros(crops.shape[0], self.num_vertices, vals.shape[-1])
         total = total.index_add(1, self.read_vertex.to(crops.device), vals)
