@@ -262,8 +262,8 @@ def image_rgb(image: Tensor, chart: Tensor, scale: float) -> np.ndarray:
 
 def edit_figure(path: Path, images: list[Tensor], positions: list[Tensor], titles: list[str], faces: Tensor,
                 chart: Tensor) -> Path:
-    """Fig. 2 of the appendix: cloth images (top) and their garments (bottom), one column per image;
-    the displacement from the first column is colour-coded (cm) on the bottom meshes after the first."""
+    """Fig. 2 of the appendix: cloth images (top), their garments (middle), one column per image, and the
+    displacement from the first column colour-coded in cm (bottom)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -271,7 +271,7 @@ def edit_figure(path: Path, images: list[Tensor], positions: list[Tensor], title
 
     n = len(images)
     scale = max(float(images[0].abs().max()), 1e-6)
-    fig, axes = plt.subplots(2, n, figsize=(2.9 * n, 5.2), squeeze=False)
+    fig, axes = plt.subplots(3, n, figsize=(2.9 * n, 7.6), squeeze=False)
     f = faces.cpu().numpy()
     positions = [p.reshape(-1, 3) for p in positions]  # (1, V, 3) or (V, 3)
     base = positions[0].cpu().numpy()
@@ -281,11 +281,14 @@ def edit_figure(path: Path, images: list[Tensor], positions: list[Tensor], title
         axes[0, c].imshow(image_rgb(images[c][0], chart, scale))
         axes[0, c].set_title(titles[c], fontsize=8)
         axes[0, c].axis("off")
-        draw_mesh(axes[1, c], positions[c].cpu().numpy(), f, None if c == 0 else disp[c], vmax)
+        draw_mesh(axes[1, c], positions[c].cpu().numpy(), f)
         if c:
-            axes[1, c].set_title(f"moved {disp[c].mean():.2f} cm mean, {disp[c].max():.2f} max", fontsize=7)
+            draw_mesh(axes[2, c], positions[c].cpu().numpy(), f, disp[c], vmax)
+            axes[2, c].set_title(f"moved {disp[c].mean():.2f} cm mean, {disp[c].max():.2f} max", fontsize=7)
+        else:
+            axes[2, c].axis("off")
     sm = plt.cm.ScalarMappable(cmap="viridis", norm=matplotlib.colors.Normalize(0, vmax))
-    fig.colorbar(sm, ax=axes[1].tolist(), shrink=0.7, label="displacement (cm)")
+    fig.colorbar(sm, ax=axes[2].tolist(), shrink=0.7, label="displacement (cm)")
     return save_figure(fig, path, dpi=90)
 
 

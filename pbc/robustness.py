@@ -345,7 +345,8 @@ def markdown(res: dict) -> str:
     v = res["verdict"]
     lines = [f"# The wrong-body study (appendix D.2) at scale={res['scale']}", "",
              "Same simulated cloth in every trial; only the body used for skinning and embedding changes.", "",
-             "| trial | shape t | body change | train cm | test cm | test / true body | mean-offsets baseline: train / test cm |",
+             "| trial | shape t | body change | train cm | test cm | test / true body "
+             "| mean-offsets baseline: train / test cm |",
              "|---|---|---|---|---|---|---|"]
     for r in res["rows"]:
         change = (f"max {r.get('max_vertex_move_cm', 0):.1f} cm move" if r["shape"] is not None

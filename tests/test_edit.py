@@ -94,3 +94,48 @@ def test_bad_region_is_one_clear_error(scene):
         rect_mask(RES, 0, (0.5, 0.2, 0.4, 0.6))
     with pytest.raises(ValueError, match=r"\(2, H, W\)"):
         apply_edit(image, torch.ones(2, 8, 8), EditSpec(normal=0.01))
+
+
+def _whole_run(run, res: int = 64):
+    """A run dir as pbc.train leaves it (metrics.json + checkpoint of a ClothModule's `net.*`), written
+    without Lightning: a narrow untrained decoder whose mean image is random."""
+    import json
+
+    from pbc.models.decoder import ConvDecoder
+
+    net_cfg = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": 6,
+               "output_size": [res, res], "start_size": [8, 8], "start_channels": 16,
+               "first_layer": "conv_transpose"}
+    net = ConvDecoder(**{k: v for k, v in net_cfg.items() if k != "_target_"})
+    net.output_mean.copy_(0.01 * torch.randn_like(net.output_mean))
+    identity = {"garment_hash": "fake", "kind": "whole", "patch_id": None, "space": "local", "resolution": res}
+    ck = run / "checkpoints" / "epoch_000.ckpt"
+    ck.parent.mkdir(parents=True)
+    torch.save({"hyper_parameters": {"net": net_cfg, "space": "local", "identity": identity},
+                "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ck)
+    (run / "metrics.json").write_text(json.dumps({"status": "ok", "best_checkpoint": str(ck), "identity": identity}))
+    return run
+
+
+def test_prediction_source_edits_a_models_image(tmp_path):
+    """--run: the image is a whole-shirt model's output for the sample's pose, masked to the charts."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_evaluate import fake_dataset
+
+    from pbc.edit import source_from_dataset
+
+    ds = fake_dataset(tmp_path / "ds")
+    run = _whole_run(tmp_path / "whole")
+    src = source_from_dataset(ds, 3, RES, 4, run=str(run))
+    assert src.image.shape == (1, 6, RES, RES) and src.ops.res == RES
+    assert (src.image * (1 - src.ops.image_mask())).abs().max() == 0
+    assert src.image.abs().max() > 0
+    after = reconstruct(apply_edit(src.image, torch.ones(2, RES, RES), EditSpec(normal=0.01), src.ops.mask),
+                        src.ops, src.anchors, src.frames)
+    before = reconstruct(src.image, src.ops, src.anchors, src.frames)
+    torch.testing.assert_close(after - before, 0.01 * src.frames[:, :, 2], atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="out of range"):
+        source_from_dataset(ds, 99, RES, 4)
