@@ -389,7 +389,7 @@ def test_every_bad_sample_is_named_when_the_dataset_opens(tmp_path):
 def _tiny_dataset_dir(root: Path, n: int = 6) -> Path:
     """A loadable dataset dir of the coarse shirt: identity-ish poses, rest-shape vertices, no drape."""
     from pbc.data.dataset import FORMAT_VERSION, save_embedding
-    from pbc.data.generate import garment_from_config
+    from pbc.data.generate import garment_from_config, sim_fingerprint
     from pbc.geometry.body import build_body, save_body
     from pbc.geometry.cage import save_cage
     from pbc.geometry.garment import save_garment_obj
@@ -410,8 +410,7 @@ def _tiny_dataset_dir(root: Path, n: int = 6) -> Path:
                              part=torch.zeros(V, dtype=torch.long)), d / "embedding.npz")
     save_npy(d / "poses.npy", np.broadcast_to(np.eye(3, dtype=np.float32), (n, len(body.skeleton.names), 3, 3)))
     save_npy(d / "verts.npy", np.broadcast_to(garment.vertices.numpy(), (n, V, 3)).astype(np.float32))
-    sim = {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
-           if k not in ("kernel_cache_dir", "device")}
+    sim = sim_fingerprint(cfg.sim)
     write_json(d / "manifest.json", {
         "format_version": FORMAT_VERSION, "seed": 0, "num_samples": n, "sim": sim,
         "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv), "body_hash": "b",

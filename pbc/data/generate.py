@@ -74,10 +74,15 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
         "seed": int(cfg.data.seed),
         "num_samples": int(cfg.data.num_samples),
         "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
-        # machine-specific keys (where kernels are cached, which device) do not change the data
-        "sim": {k: v for k, v in OmegaConf.to_container(cfg.sim, resolve=True).items()
-                if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(cfg.sim))},
+        "sim": sim_fingerprint(cfg.sim),
     }
+
+
+def sim_fingerprint(sim: DictConfig) -> dict:
+    """The simulation settings that change the data: machine-specific keys (where kernels are cached,
+    which device) and how often the host polls do not."""
+    return {k: v for k, v in OmegaConf.to_container(sim, resolve=True).items()
+            if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(sim))}
 
 
 def config_mismatch(cfg: DictConfig, manifest: dict, full: bool = False) -> list[str]:
