@@ -11,7 +11,7 @@ PKG = Path(__file__).resolve().parents[1] / "pbc"
 # The data flow, lowest first; a module may import its own stage or an earlier one. The longest matching
 # prefix names a module's stage. The ground floor (io, config, runs) reads and writes files only.
 STAGES = [
-    ("pbc.io", "pbc.config", "pbc.runs"),
+    ("pbc.io", "pbc.config", "pbc.runs", "pbc.validate"),
     ("pbc.geometry",),
     ("pbc.sim",),
     ("pbc.pixels",),
