@@ -45,7 +45,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from pbc.data.datamodule import ClothDataModule
 from pbc.data.dataset import dataset_fingerprint, run_data_record
-from pbc.io import load_checkpoint, require_writable_dir, write_json
+from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write_json
 from pbc.models.module import MONITOR, TEST_SPLITS, ClothModule, flat_summary
 from pbc.pixels.target import VertexTarget
 from pbc.validate import check_config, check_resume, identity_diff, training_identity
@@ -230,9 +230,10 @@ def main(cfg: DictConfig) -> float:
         metrics = train(cfg)
     except Exception as e:  # report, record, re-raise: see the module docstring
         log.error("training failed: %s", e)
-        write_metrics(output_dir(cfg), {"status": "failed", "error": f"{type(e).__name__}: {e}",
-                                        "traceback": traceback.format_exc(),
-                                        "config": OmegaConf.to_container(cfg, resolve=False)})
+        if is_writable_dir(output_dir(cfg)):  # a read-only run dir: the one clear error, not a second one chained
+            write_metrics(output_dir(cfg), {"status": "failed", "error": f"{type(e).__name__}: {e}",
+                                            "traceback": traceback.format_exc(),
+                                            "config": OmegaConf.to_container(cfg, resolve=False)})
         raise
     log.info("test metrics: %s", json.dumps(metrics["test"]))
     return metrics["val_best"]["vertex_error_cm"]
