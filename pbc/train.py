@@ -187,6 +187,10 @@ def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
     check_config(cfg, num_patches=len(dm.data.cage.patches))
     if OmegaConf.select(cfg, "garment") is None or OmegaConf.select(cfg, "sim") is None:
         return  # a config without generation settings (a bare data.dir) has nothing to compare
+    if not {"seed", "num_samples", "sim"} <= set(dm.data.manifest):
+        # made by hand or imported, not by pbc.generate: no generation record to compare with
+        log.info("dataset %s records no generation settings: not compared with the config", dm.data.dir)
+        return
     from pbc.data.generate import check_matches_config  # pulls in the sim: only once data is open
 
     check_matches_config(cfg, dm.data)
