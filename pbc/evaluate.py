@@ -29,13 +29,15 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from pbc.io import save_figure, write_text
+from pbc.data.dataset import dataset_fingerprint, run_data_record
+from pbc.io import require_writable_dir, save_figure, write_text
 from pbc.models.module import write_obj
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
 from pbc.predict import ClothPredictor
 from pbc.stitch.pca import dataset_hash, fit_pca, load_pca, save_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, edge_jump, patch_disagreement, seam_edges, uv_to_pixel
+from pbc.validate import check_config
 
 log = logging.getLogger(__name__)
 CM = 100.0
@@ -56,7 +58,7 @@ def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int 
             j = idx[i:i + batch]
             offs.append(_offsets_of(predictor, torch.from_numpy(ds.poses[j]).float(),
                                     torch.from_numpy(ds.verts[j]).float())[0])
-    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir))
+    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
 
 
 def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
@@ -72,18 +74,20 @@ def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
 
 def evaluate(cfg: DictConfig, out: Path) -> dict:
     t0 = time.time()
+    require_writable_dir(out, "evaluation dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
     unknown = [m for m in cfg.methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown seam methods {unknown}; choose from {METHODS}")
     patch_runs = OmegaConf.to_container(cfg.patch_runs) if OmegaConf.is_list(cfg.patch_runs) else cfg.patch_runs
-    pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch)
+    # the dataset the runs recorded (resolved dir + fingerprint); data_dir only to point at a moved copy
+    pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch, data_dir=cfg.get("data_dir"))
     ds = pred.dataset
     if cfg.pca_path:
         basis = load_pca(cfg.pca_path, dataset_hash(ds.dir))
     else:
         basis = fit_training_pca(pred, int(cfg.stitch.pca_components), int(cfg.pca_fit_max))
         save_pca(basis, out / "pca.pt")
-    pred.stitcher.pca = basis
+    pred.use_pca(basis)
 
     faces = pred.faces
     vp = pred.stitcher.vertex_patch
@@ -144,7 +148,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
 
     entries = {name: {k: float(torch.cat(v).mean()) for k, v in d.items()} for name, d in acc.items()}
     metrics = {
-        "split": cfg.split, "num_samples": len(idx), "dataset": str(ds.dir),
+        "split": cfg.split, "num_samples": len(idx), "dataset": str(ds.dir), "data": run_data_record(ds),
         "whole_run": str(cfg.whole_run), "patch_runs": patch_runs if isinstance(patch_runs, list)
         else str(patch_runs),
         "stitch": OmegaConf.to_container(cfg.stitch), "pca": {"components": basis.num_components,
@@ -220,6 +224,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
 def main(cfg: DictConfig) -> float:
     out = Path(HydraConfig.get().runtime.output_dir)
+    check_config(cfg)
     metrics = evaluate(cfg, out)
     log.info("\n%s", markdown_table(metrics))
     return metrics["entries"].get(f"patches_{cfg.stitch.method}", {}).get("vertex_error_cm", float("nan"))

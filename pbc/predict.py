@@ -23,12 +23,15 @@ from omegaconf import OmegaConf
 from torch import Tensor, nn
 
 import pbc.data.dataset as datasets
+from pbc.io import load_checkpoint
 from pbc.models.decoder import ConvDecoder
 from pbc.pixels.frames import from_offsets
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import image_operators, patch_crops
 from pbc.runs import NUM_PATCHES, RunInfo, find_runs, read_run, select_patch_runs  # noqa: F401  (re-exported)
+from pbc.stitch.pca import check_pca_matches
 from pbc.stitch.seams import NEEDS_WHOLE, build_stitcher
+from pbc.validate import as_poses
 
 # measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
 DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
@@ -41,12 +44,22 @@ PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
     """The network of a ClothModule checkpoint, in eval mode, and the checkpoint's hparams."""
 
-    ck = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    ck = load_checkpoint(checkpoint)  # a corrupt file is named, with the fix
     hp = ck["hyper_parameters"]
     net = instantiate(hp["net"])
     state = {k[4:]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
     net.load_state_dict(state)
     return net.eval(), hp
+
+
+def open_run_dataset(run: RunInfo, directory: str | Path | None = None) -> datasets.ClothDataset:
+    """The dataset `run` was trained on: its recorded resolved dir and fingerprint (metrics.json "data"),
+    or `directory` (a moved copy), refused with both fingerprints' differences when it is other data.
+    Runs written before the record existed fall back to their config's data.dir (or `directory`)."""
+    if run.data:
+        return datasets.open_recorded_dataset(run.data, directory)
+    d = directory if directory is not None else OmegaConf.select(OmegaConf.create(run.config), "data.dir")
+    return datasets.load_dataset(d)
 
 
 # ----------------------------------------------------------------------------- stacked patches
@@ -191,16 +204,24 @@ class ClothPredictor:
         self.precision = precision
         self.patch_net = (StackedPatchNet(self.patch_nets, layer_modes, dtype=PRECISIONS[precision])
                           if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval()
+        if pca is not None:
+            self.use_pca(pca)
+
+    def use_pca(self, basis) -> None:
+        """Filter with PCA basis `basis`; refused when it was fitted on another dataset than this one."""
+        check_pca_matches(basis, self.dataset)
+        self.stitcher.pca = basis
 
     @classmethod
-    def from_runs(cls, whole_run, patch_runs, stitch_cfg, pca=None, **kw) -> ClothPredictor:
-        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches)."""
+    def from_runs(cls, whole_run, patch_runs, stitch_cfg, pca=None, data_dir=None, **kw) -> ClothPredictor:
+        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches).
+        data_dir: where the runs' dataset is when it moved (default: where the runs recorded it)."""
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind != "whole":
             raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
         first = whole or read_run(find_runs(patch_runs)[0])
         cfg = OmegaConf.create(first.config)
-        dataset = datasets.load_dataset(OmegaConf.select(cfg, "data.dir"))
+        dataset = open_run_dataset(first, data_dir)
         ghash = str(dataset.manifest.get("garment_hash", ""))
         if whole is not None and whole.garment_hash != ghash:
             raise ValueError(f"{whole.dir}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
@@ -231,10 +252,12 @@ class ClothPredictor:
         return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1)))
 
     @torch.inference_mode()
-    def __call__(self, pose: Tensor, model: str = "patches", method: str | None = None) -> Tensor:
-        single = pose.ndim == 3
-        pose = pose[None] if single else pose
-        pose = pose.float()
+    def __call__(self, pose, model: str = "patches", method: str | None = None) -> Tensor:
+        """pose: torch or numpy, (J, 3, 3) / (J*9,) for one pose -> (V, 3), or (B, J, 3, 3) / (B, J*9) ->
+        (B, V, 3); checked first (shape, finite, rotations: pbc.validate.as_poses)."""
+        names = list(self.dataset.body.skeleton.names)
+        pose, batched = as_poses(pose, len(names), joint_names=names)
+        single = not batched
         if model == "whole":
             off = self.whole_offsets(pose)
         else:

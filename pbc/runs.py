@@ -18,12 +18,15 @@ from pathlib import Path
 
 import yaml
 
+from pbc.io import load_checkpoint, read_json
+
 NUM_PATCHES = 28
 METRICS_FILE = "metrics.json"
 # Keys under which a failing job records why it failed in its metrics.json (pbc.train writes "error").
 ERROR_KEYS = ("error", "exception", "traceback")
 # Blocks of metrics.json that describe the run rather than measure it (their numbers are not metrics).
-NON_METRIC_KEYS = ("config", "identity", "summary", "status", "optimized_metric", "best_checkpoint")
+NON_METRIC_KEYS = ("config", "identity", "summary", "status", "optimized_metric", "best_checkpoint",
+                   "training_identity", "data")
 # Other names for the same metric, mapped onto the name pbc.train logs.
 ALIASES = {"normal_error": "normal_distance"}
 EVENTS_PREFIX = "events.out.tfevents."
@@ -266,6 +269,7 @@ class RunInfo:
     garment_hash: str
     checkpoint: Path
     config: dict
+    data: dict | None = None  # metrics.json "data": the dataset's resolved dir and fingerprint (newer runs)
 
 
 def _best_checkpoint(run_dir: Path, metrics: dict) -> Path | None:
@@ -285,7 +289,7 @@ def read_run(run_dir: str | Path) -> RunInfo:
     mpath = d / "metrics.json"
     if not mpath.is_file():
         raise ValueError(f"{d}: not a finished training run (no metrics.json)")
-    metrics = json.loads(mpath.read_text())
+    metrics = read_json(mpath, "run metrics")
     if metrics.get("status") not in (None, "ok"):
         raise ValueError(f"{d}: the run failed ({metrics.get('error', 'status ' + str(metrics.get('status')))})")
     ckpt = _best_checkpoint(d, metrics)
@@ -293,12 +297,10 @@ def read_run(run_dir: str | Path) -> RunInfo:
         raise ValueError(f"{d}: no checkpoint under {d / 'checkpoints'}")
     ident = metrics.get("identity") or {}
     if not ident:  # older runs: the identity lives in the checkpoint's hparams
-        import torch  # heavy: only for runs that predate metrics.json's identity block
-
-        ident = torch.load(ckpt, map_location="cpu", weights_only=False)["hyper_parameters"]["identity"]
+        ident = load_checkpoint(ckpt)["hyper_parameters"]["identity"]
     pid = ident.get("patch_id")
     return RunInfo(d, str(ident.get("kind")), None if pid is None else int(pid),
-                   str(ident.get("garment_hash", "")), ckpt, metrics.get("config") or {})
+                   str(ident.get("garment_hash", "")), ckpt, metrics.get("config") or {}, metrics.get("data"))
 
 
 def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:

@@ -17,8 +17,16 @@ the other jobs of the multirun still run (the basic and joblib launchers run the
 sweeper re-raises the first failure; the Optuna sweeper records the trial as failed and continues), and
 the process exits non-zero so CI notices.
 
-Resume: ``ckpt_path=last`` continues the newest ``last.ckpt`` of the same setup (this run dir first,
-then sibling run dirs of the same job); ``ckpt_path=<run dir>`` or ``ckpt_path=<file.ckpt>`` are explicit.
+Resume: ``ckpt_path=last`` continues the newest ``last.ckpt`` of the same training (this run dir first,
+then sibling run dirs of the same job whose training identity -- model, loss, optimiser, batch, image sizes,
+seed, dataset fingerprint; ``pbc.validate.training_identity`` -- equals this run's);
+``ckpt_path=<run dir>`` or ``ckpt_path=<file.ckpt>`` are explicit. A checkpoint of another training
+identity is refused, listing the differences (``pbc.validate.check_resume``).
+
+Checks at the door (docs/reliability.md): config types first (``check_config``), a writable run dir, then,
+once the data is open, the patch id against its cage and the dataset against the config's generation
+settings (``check_matches_config``). ``metrics.json`` records the data by resolved dir and fingerprint
+(``"data"``), so ``pbc.evaluate`` and the predictor reopen exactly that dataset from any shell.
 """
 
 from __future__ import annotations
@@ -31,15 +39,16 @@ from pathlib import Path
 
 import hydra
 import lightning as L
-import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.data.datamodule import ClothDataModule
-from pbc.io import write_json
+from pbc.data.dataset import dataset_fingerprint, run_data_record
+from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write_json
 from pbc.models.module import MONITOR, TEST_SPLITS, ClothModule, flat_summary
 from pbc.pixels.target import VertexTarget
+from pbc.validate import check_config, check_resume, identity_diff, training_identity
 
 log = logging.getLogger(__name__)
 
@@ -92,9 +101,15 @@ def run_summary(cfg: DictConfig, dm: ClothDataModule) -> dict:
     }
 
 
-def resolve_ckpt_path(spec: str | None, out_dir: Path, identity: dict) -> str | None:
+def resolve_ckpt_path(spec: str | None, out_dir: Path, identity: dict, training: dict | None = None) -> str | None:
     """``null`` -> None; ``last`` -> newest matching last.ckpt (this run dir, then siblings); a run dir ->
-    its checkpoints/last.ckpt; a file -> itself. Raises FileNotFoundError naming where it looked."""
+    its checkpoints/last.ckpt; a file -> itself. Raises FileNotFoundError naming where it looked.
+
+    identity: the target identity (garment, kind, resolution, patch, space); training: the full training
+    identity (``pbc.validate.training_identity``). A sibling run is adopted only when both match; this run
+    dir's own or an explicit checkpoint of another training identity is refused (ValueError listing the
+    differences), never silently resumed with the checkpoint's settings.
+    """
     if spec in (None, "", "null"):
         return None
     if spec != "last":
@@ -103,33 +118,48 @@ def resolve_ckpt_path(spec: str | None, out_dir: Path, identity: dict) -> str | 
             p = p / "checkpoints" / "last.ckpt"
         if not p.is_file():
             raise FileNotFoundError(f"ckpt_path={spec}: no checkpoint at {p}")
-        return str(p)
+        return _checked(p, training)
     own = out_dir / "checkpoints" / "last.ckpt"
     if own.is_file():
-        return str(own)
+        return _checked(own, training)
     candidates = sorted(out_dir.parent.glob("*/checkpoints/last.ckpt"), key=lambda p: p.stat().st_mtime,
                         reverse=True)
     for c in candidates:
-        hp = torch.load(c, map_location="cpu", weights_only=False).get("hyper_parameters", {})
-        if hp.get("identity") == identity:
+        hp = load_checkpoint(c).get("hyper_parameters", {})
+        if hp.get("identity") != identity:
+            continue
+        if training is None or identity_diff(hp.get("training_identity") or {}, training) == []:
             return str(c)
-    raise FileNotFoundError(f"ckpt_path=last: no last.ckpt of this setup in {out_dir} or {out_dir.parent}/*/")
+        log.info("not resuming %s: trained with other settings (%s)", c,
+                 "; ".join(identity_diff(hp.get("training_identity") or {}, training)))
+    raise FileNotFoundError(f"ckpt_path=last: no last.ckpt of this setup in {out_dir} or {out_dir.parent}/*/ "
+                            "(sibling runs must match the model, loss, optimiser, batch, image sizes, seed and data)")
+
+
+def _checked(path: Path, training: dict | None) -> str:
+    """An explicit or this run dir's checkpoint: refused when its training identity differs."""
+    if training is not None:
+        check_resume(load_checkpoint(path).get("hyper_parameters", {}).get("training_identity"), training, path)
+    return str(path)
 
 
 def train(cfg: DictConfig) -> dict:
     """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict."""
     t0, out = time.time(), output_dir(cfg)
-    out.mkdir(parents=True, exist_ok=True)
+    check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3
+    require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
     L.seed_everything(int(cfg.seed), workers=True)
     dm = datamodule(cfg)
+    check_opened_data(cfg, dm)
     identity, summary = dm.target.identity(dm.data), run_summary(cfg, dm)
+    training = training_identity(cfg, dataset_fingerprint(dm.data))
     module: ClothModule = instantiate(cfg.model, net=net_config(cfg, dm.target), identity=identity,
-                                      summary=summary).attach(dm.target)
+                                      summary=summary, training_identity=training).attach(dm.target)
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
     trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
 
-    ckpt = resolve_ckpt_path(cfg.get("ckpt_path"), out, identity)
+    ckpt = resolve_ckpt_path(cfg.get("ckpt_path"), out, identity, training)
     if ckpt:
         log.info("resuming from %s", ckpt)
     trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
@@ -143,11 +173,36 @@ def train(cfg: DictConfig) -> dict:
         "status": "ok", "optimized_metric": MONITOR, "val_best": {"vertex_error_cm": best_val},
         "test": scores.get("test", {}), "train": scores.get("train_final", {}), "best_checkpoint": best_path,
         "epochs": trainer.current_epoch, "seconds": round(time.time() - t0, 2), "summary": summary,
-        "identity": identity, "config": OmegaConf.to_container(cfg, resolve=False),
+        "identity": identity, "training_identity": training, "data": run_data_record(dm.data),
+        "config": recorded_config(cfg, dm),
     }
     log_final(trainer, summary, metrics)
     write_metrics(out, metrics)
     return metrics
+
+
+def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
+    """Once the dataset is open: the patch id against its cage, and its generation settings against the
+    config's (garment, sim, seed, num_samples), so a run never records settings it did not train on."""
+    check_config(cfg, num_patches=len(dm.data.cage.patches))
+    if OmegaConf.select(cfg, "garment") is None or OmegaConf.select(cfg, "sim") is None:
+        return  # a config without generation settings (a bare data.dir) has nothing to compare
+    if not {"seed", "num_samples", "sim"} <= set(dm.data.manifest):
+        # made by hand or imported, not by pbc.generate: no generation record to compare with
+        log.info("dataset %s records no generation settings: not compared with the config", dm.data.dir)
+        return
+    from pbc.data.generate import check_matches_config  # pulls in the sim: only once data is open
+
+    check_matches_config(cfg, dm.data)
+
+
+def recorded_config(cfg: DictConfig, dm: ClothDataModule) -> dict:
+    """The run's config as metrics.json keeps it: unresolved, except data.dir, resolved to the directory
+    actually read (``${oc.env:PBC_ROOT,.}`` would re-resolve to another place in another shell)."""
+    out = OmegaConf.to_container(cfg, resolve=False)
+    if isinstance(out.get("data"), dict):
+        out["data"]["dir"] = str(Path(dm.data.dir).resolve())
+    return out
 
 
 def score(trainer: L.Trainer, module: ClothModule, dm: ClothDataModule, ckpt: str) -> dict[str, dict]:
@@ -179,9 +234,10 @@ def main(cfg: DictConfig) -> float:
         metrics = train(cfg)
     except Exception as e:  # report, record, re-raise: see the module docstring
         log.error("training failed: %s", e)
-        write_metrics(output_dir(cfg), {"status": "failed", "error": f"{type(e).__name__}: {e}",
-                                        "traceback": traceback.format_exc(),
-                                        "config": OmegaConf.to_container(cfg, resolve=False)})
+        if is_writable_dir(output_dir(cfg)):  # a read-only run dir: the one clear error, not a second one chained
+            write_metrics(output_dir(cfg), {"status": "failed", "error": f"{type(e).__name__}: {e}",
+                                            "traceback": traceback.format_exc(),
+                                            "config": OmegaConf.to_container(cfg, resolve=False)})
         raise
     log.info("test metrics: %s", json.dumps(metrics["test"]))
     return metrics["val_best"]["vertex_error_cm"]

@@ -3,6 +3,7 @@ per-batch rendering that decodes back to the draped vertices, clear errors."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -71,18 +72,12 @@ def test_clear_errors(dm_factory, dataset, tmp_path):
         dm_factory(target="vertices")
     with pytest.raises(FileNotFoundError, match="no dataset"):
         dmmod.ClothDataModule(str(tmp_path / "missing"), IMAGE).prepare_data()
+    # non-finite data is refused when the DataModule opens the dataset (the whole-data check at open,
+    # pbc.data.dataset.check_dataset), wherever the bad row is
+    corrupt = tmp_path / "corrupt"
+    shutil.copytree(dataset.dir, corrupt)
     bad = np.array(dataset.verts)
     bad[-1, 0, 0] = np.nan
-    corrupt = ClothDataset(
-        dataset.dir,
-        dataset.manifest,
-        dataset.poses,
-        bad,
-        dataset.garment,
-        dataset.cage,
-        dataset.body,
-        dataset.embedding,
-    )
-    dm = dm_factory()
+    np.save(corrupt / "verts.npy", bad)
     with pytest.raises(ValueError, match="corrupt"):
-        dm._check(corrupt)
+        dmmod.ClothDataModule(str(corrupt), IMAGE).setup()

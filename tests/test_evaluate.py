@@ -246,3 +246,56 @@ def test_predictor_rejects_unknown_precision(tmp_path):
     with pytest.raises(ValueError, match="precision must be one of"):
         ClothPredictor(fake_dataset(tmp_path / "fake"), IMAGE, None, [], OmegaConf.load(
             ROOT / "conf/stitch/average.yaml"), precision="fp16")
+
+
+@pytest.fixture(scope="module")
+def predictor(world):
+    """One predictor for the door tests (building one costs seconds)."""
+    from pbc.predict import ClothPredictor
+
+    root, ds, whole = world
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(dsmod, "load_dataset", lambda d: ds)
+        return ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("average"))
+
+
+def test_predictor_checks_its_poses_first(world, predictor):
+    _, ds, _ = world
+    pred = predictor
+    pose = np.asarray(ds.poses[:2])
+    ref = pred(torch.from_numpy(pose))
+    assert torch.allclose(pred(pose), ref, atol=1e-6)  # numpy accepted (was an AttributeError)
+    one = pred(pose[0].reshape(-1))  # (J*9,) is one pose: one result
+    assert one.shape == ref.shape[1:] and torch.allclose(one, ref[0], atol=1e-5)
+    with pytest.raises(ValueError, match=r"that is 9 joints; this model takes 10"):
+        pred(pose[:, :9])  # was "mat1 and mat2 shapes cannot be multiplied"
+    bad = pose.copy()
+    bad[1, 2, 0, 0] = np.inf
+    with pytest.raises(ValueError, match=r"NaN or infinite values in batch rows \[1\]"):
+        pred(bad)
+    scaled = pose.copy()
+    scaled[0, 3] *= 2.0  # a scaled matrix used to give a mesh metres away
+    name = ds.body.skeleton.names[3]
+    with pytest.raises(ValueError, match=rf"pose\[0, 3\] \({name}\) is not a rotation"):
+        pred(scaled)
+    with pytest.raises(TypeError, match="pass a torch tensor or a numpy array"):
+        pred(pose.tolist())
+
+
+def test_predictor_refuses_a_pca_basis_of_another_dataset(predictor, tmp_path):
+    from pbc.evaluate import fit_training_pca
+    from pbc.stitch.pca import load_pca, save_pca
+
+    pred = predictor
+    basis = fit_training_pca(pred, 4, 100)
+    assert basis.fingerprint is not None and basis.fingerprint["kept"] == N
+    save_pca(basis, tmp_path / "pca.pt")
+    again = load_pca(tmp_path / "pca.pt")
+    assert again.fingerprint == basis.fingerprint
+    pred.use_pca(again)
+    assert pred.stitcher.pca is again
+    other = type(basis)(basis.mean, basis.components, basis.singular_values, basis.dataset_hash,
+                        dict(basis.fingerprint, seed=7, kept=N + 5))
+    with pytest.raises(ValueError, match=r"another dataset(.|\n)*kept: recorded 15 vs found 10(.|\n)*seed: recorded 7"):
+        pred.use_pca(other)
+    assert pred.stitcher.pca is again  # the refused basis was not taken

@@ -388,13 +388,13 @@ def test_every_bad_sample_is_named_when_the_dataset_opens(tmp_path):
 
 def _tiny_dataset_dir(root: Path, n: int = 6) -> Path:
     """A loadable dataset dir of the coarse shirt: identity-ish poses, rest-shape vertices, no drape."""
-    from pbc.data.dataset import FORMAT_VERSION, save_embedding
-    from pbc.data.generate import garment_from_config, sim_fingerprint
+    from pbc.data.dataset import save_embedding
+    from pbc.data.generate import _cheap_fingerprint, garment_from_config
     from pbc.geometry.body import build_body, save_body
     from pbc.geometry.cage import save_cage
     from pbc.geometry.garment import save_garment_obj
     from pbc.geometry.shrinkwrap import Embedding
-    from pbc.io import hash_arrays, save_npy
+    from pbc.io import save_npy
 
     cfg = load_config(["data=tshirt_tiny", f"data.num_samples={n}"])
     bcfg = cfg.body.copy()
@@ -410,10 +410,9 @@ def _tiny_dataset_dir(root: Path, n: int = 6) -> Path:
                              part=torch.zeros(V, dtype=torch.long)), d / "embedding.npz")
     save_npy(d / "poses.npy", np.broadcast_to(np.eye(3, dtype=np.float32), (n, len(body.skeleton.names), 3, 3)))
     save_npy(d / "verts.npy", np.broadcast_to(garment.vertices.numpy(), (n, V, 3)).astype(np.float32))
-    sim = sim_fingerprint(cfg.sim)
+    # the generation settings exactly as pbc.generate records them (seed, num_samples, sim, garment hash)
     write_json(d / "manifest.json", {
-        "format_version": FORMAT_VERSION, "seed": 0, "num_samples": n, "sim": sim,
-        "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv), "body_hash": "b",
+        **_cheap_fingerprint(cfg, garment), "body_hash": "b",
         "embedding_hash": "e", "counts": {"requested": n, "kept": n}, "source_index": list(range(n)),
         "splits": {"train": [0, 1, 2, 3], "val": [4], "test": [5]}})
     return d
@@ -519,3 +518,158 @@ def test_generator_checks_config_types_first(tmp_path):
     cfg = load_config(["data=tshirt_tiny", f"paths.data_dir={tmp_path}", "data.num_shards=2", "data.shard=1.0"])
     with pytest.raises(ValueError, match=r"data.shard=1.0 \(float\)"):
         generate(cfg)
+
+
+# ============================================================================ the doors, wired in
+# One real (seconds-long) training run on the stand-in dataset: a fully connected model (no image operators),
+# two epochs of two batches; the tests below resume from it, reopen its data and feed its module bad poses.
+FC = ["data=tshirt_tiny", "data.num_samples=6", "+experiment=fc_direct_local", "trainer=smoke",
+      "callbacks=minimal", "logger=csv"]
+
+
+def _cfg(data_dir: Path, out: Path, *extra: str):
+    return load_config([*FC, f"data.dir={data_dir}", f"paths.output_dir={out}", *extra])
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_dir, tmp_path_factory):
+    from pbc.train import train
+
+    runs = tmp_path_factory.mktemp("runs")
+    metrics = train(_cfg(tiny_dir, runs / "a"))
+    assert metrics["status"] == "ok" and (runs / "a" / "checkpoints" / "last.ckpt").is_file()
+    return runs, metrics
+
+
+def test_resume_last_adopts_only_a_run_of_the_same_training(trained, tiny_dir):
+    from pbc.train import resolve_ckpt_path, train
+
+    runs, metrics = trained
+    ident, training = metrics["identity"], metrics["training_identity"]
+    assert training["loss"]["norm"] == "l1" and training["data"]["seed"] == 0
+    # the same training, asked in a sibling run dir: adopts run a's last.ckpt
+    assert resolve_ckpt_path("last", runs / "b", ident, training) == str(runs / "a" / "checkpoints" / "last.ckpt")
+    # another loss and learning rate in a sibling dir: not adopted (it used to resume the L1 / 1e-3 run)
+    with pytest.raises(FileNotFoundError, match="no last.ckpt of this setup"):
+        train(_cfg(tiny_dir, runs / "c", "loss=l2", "model.lr=0.01", "ckpt_path=last"))
+    assert not (runs / "c" / "checkpoints").exists()
+    # ...and in run a's own dir (or naming its checkpoint): refused, listing every difference
+    for spec in ("last", str(runs / "a")):
+        with pytest.raises(ValueError, match=r"refusing to resume(.|\n)*loss.norm: checkpoint 'l1' vs this run 'l2'"
+                                             r"(.|\n)*optimizer.lr: checkpoint 0.001 vs this run 0.01"):
+            train(_cfg(tiny_dir, runs / "a", "loss=l2", "model.lr=0.01", f"ckpt_path={spec}"))
+    # the checkpoint itself carries the identity it was trained with
+    hp = load_checkpoint(runs / "a" / "checkpoints" / "last.ckpt")["hyper_parameters"]
+    assert identity_diff(hp["training_identity"], training) == []
+
+
+def test_train_refuses_a_dataset_made_with_other_settings(tiny_dir, tmp_path):
+    from pbc.train import train
+
+    with pytest.raises(ValueError, match=r"other settings(.|\n)*num_samples: dataset 6 vs config 9"):
+        train(_cfg(tiny_dir, tmp_path / "r", "data.num_samples=9"))
+    assert not (tmp_path / "r" / "checkpoints").exists()  # refused before training, nothing recorded
+
+
+@pytest.mark.parametrize("value, needle", [("3.0", r"model.patch_id=3.0 \(float\)"),
+                                           ("true", r"model.patch_id=True \(bool\)"),
+                                           ("99", r"(unknown patch_id 99|patch_id=99).*0..27")])
+def test_train_checks_config_types_at_the_door(tiny_dir, tmp_path, value, needle):
+    from pbc.train import train
+
+    cfg = load_config(["data=tshirt_tiny", "data.num_samples=6", "+experiment=patch_03", f"model.patch_id={value}",
+                       f"data.dir={tiny_dir}", f"paths.output_dir={tmp_path / 'r'}"])
+    with pytest.raises(ValueError, match=needle):
+        train(cfg)
+    assert not (tmp_path / "r" / "checkpoints").exists()
+
+
+def test_train_names_a_read_only_run_dir_first(tiny_dir, tmp_path):
+    from pbc.train import train
+
+    blocker = tmp_path / "runs"
+    blocker.write_text("a file where the runs dir would be")  # read-only for root too
+    with pytest.raises(PermissionError, match=rf"run dir {blocker}/r is not writable; set hydra.run.dir"):
+        train(_cfg(tiny_dir, blocker / "r"))
+
+
+def test_run_remembers_its_data_from_any_shell(trained, tiny_dir, tmp_path, monkeypatch):
+    from pbc.predict import open_run_dataset
+    from pbc.runs import read_run
+
+    runs, metrics = trained
+    assert metrics["data"]["dir"] == str(tiny_dir.resolve())
+    assert metrics["config"]["data"]["dir"] == str(tiny_dir.resolve())  # no ${oc.env:PBC_ROOT,.} left
+    info = read_run(runs / "a")
+    assert info.data == metrics["data"]
+    monkeypatch.chdir(tmp_path)  # another shell: other cwd, other PBC_ROOT
+    monkeypatch.setenv("PBC_ROOT", str(tmp_path))
+    assert len(open_run_dataset(info)) == 6
+    other = tmp_path / "other"
+    shutil.copytree(tiny_dir, other)
+    m = read_json(other / "manifest.json")
+    m["seed"] = 7
+    write_json(other / "manifest.json", m)
+    with pytest.raises(ValueError, match=r"not the data the run was trained on(.|\n)*seed: recorded 0 vs found 7"):
+        open_run_dataset(info, other)
+    # a run written before the record existed still opens its config's data.dir
+    old = type(info)(info.dir, info.kind, info.patch_id, info.garment_hash, info.checkpoint,
+                     {"data": {"dir": str(tiny_dir)}}, None)
+    assert len(open_run_dataset(old)) == 6
+
+
+def test_module_forward_checks_its_poses(trained):
+    from pbc.models.module import ClothModule
+
+    runs, _ = trained
+    m = ClothModule.load_from_checkpoint(runs / "a" / "checkpoints" / "last.ckpt", map_location="cpu").eval()
+    r = rotations(2)
+    with torch.no_grad():
+        ref = m(torch.from_numpy(r))
+        assert torch.allclose(m(r), ref) and torch.allclose(m(torch.from_numpy(r).reshape(2, -1)), ref)  # numpy too
+        with pytest.raises(ValueError, match=r"one pose of shape \(90,\).*pose\[None\]"):
+            m(torch.from_numpy(r[0]).reshape(-1))  # used to broadcast into a batch of 90
+        bad = r.copy()
+        bad[1, 4, 0, 0] = np.nan
+        with pytest.raises(ValueError, match=r"NaN or infinite values in batch rows \[1\]"):
+            m(bad)
+        with pytest.raises(ValueError, match=r"not a rotation"):
+            m(2.0 * r)
+        with pytest.raises(ValueError, match=r"that is 9 joints; this model takes 10"):
+            m(r[:, :9])
+
+
+def test_corrupt_run_files_are_named(trained, tmp_path):
+    from pbc.data.generate import _read_sample
+    from pbc.predict import load_decoder
+    from pbc.runs import read_run
+
+    runs, _ = trained
+    run = tmp_path / "run"
+    shutil.copytree(runs / "a", run)
+    (run / "metrics.json").write_text('{"status": "ok", "test": {')
+    with pytest.raises(ValueError, match=rf"run metrics {run}/metrics.json is corrupt"):
+        read_run(run)
+    ck = run / "checkpoints" / "last.ckpt"
+    ck.write_bytes(ck.read_bytes()[:1000])
+    with pytest.raises(ValueError, match=rf"checkpoint {ck} is corrupt or truncated"):
+        load_decoder(ck)
+    sample = tmp_path / "000003.npz"
+    np.savez(sample, positions=np.zeros((4, 3), np.float32), meta=np.array('{"ok": true}'))
+    assert _read_sample(sample)[1] == {"ok": True}
+    sample.write_bytes(sample.read_bytes()[:100])
+    with pytest.raises(ValueError, match=rf"sample file {sample} is corrupt or truncated.*delete it and re-run"):
+        _read_sample(sample)
+
+
+def test_datamodule_finds_a_nan_anywhere_when_it_opens(tiny_dir, tmp_path):
+    from pbc.data.datamodule import ClothDataModule
+
+    d = tmp_path / "copy"
+    shutil.copytree(tiny_dir, d)
+    p = np.load(d / "poses.npy")
+    p[2, 5, 1, 1] = np.nan  # a middle row: the old first/last-row spot check never saw it
+    np.save(d / "poses.npy", p)
+    dm = ClothDataModule(str(d), load_config(["data=tshirt_tiny"]).image, target="fc")
+    with pytest.raises(ValueError, match=r"pose not finite: rows \[2\]"):
+        dm.setup("fit")

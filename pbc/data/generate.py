@@ -35,7 +35,7 @@ from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
 from pbc.geometry.garments import garment_from_config
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.io import atomic_path, dir_lock, hash_arrays, read_json, save_npy, write_json
+from pbc.io import atomic_path, dir_lock, hash_arrays, load_npz, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 from pbc.validate import check_config, identity_diff
@@ -229,11 +229,12 @@ def _sample_path(work: Path, i: int) -> Path:
 
 
 def _read_sample(path: Path) -> tuple[np.ndarray, dict]:
+    fix = "delete it and re-run to redo that sample"
+    z = load_npz(path, ("positions", "meta"), "sample file", fix)  # a truncated zip is named, not BadZipFile
     try:
-        with np.load(path) as z:
-            return np.array(z["positions"]), json.loads(str(z["meta"]))
-    except (OSError, ValueError, KeyError, EOFError) as err:
-        raise ValueError(f"sample file {path} is corrupt ({err}); delete it and re-run to redo that sample") from err
+        return z["positions"], json.loads(str(z["meta"]))
+    except ValueError as err:
+        raise ValueError(f"sample file {path} is corrupt ({err}); {fix}") from err
 
 
 def _check_or_write_fingerprint(out: Path, fp: dict) -> None:

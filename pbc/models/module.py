@@ -29,6 +29,7 @@ from pbc.metrics import normal_cosine_distance, vertex_error_cm
 from pbc.models.fc import fit_pca as fit_pca_values
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.pixels.target import KINDS, VertexTarget
+from pbc.validate import as_poses
 
 log = logging.getLogger(__name__)
 # the identity keys a checkpoint must share with the run that loads it
@@ -54,11 +55,17 @@ class ClothModule(L.LightningModule):
             false = the paper's plain decoder).
         optimizer: a ``_partial_`` optimiser node (``model.optimizer``); None = Adam at ``lr``.
         scheduler: an optional ``_partial_`` LR scheduler node (``model.scheduler``), stepped per epoch.
+        training_identity: what a resumed run must match (``pbc.validate.training_identity``: model, loss,
+            optimiser, batch, image sizes, seed, data fingerprint); ``pbc.train`` stores it here so every
+            checkpoint carries it, and refuses to resume a checkpoint of another one.
+        check_rotation: test that input poses are rotations in :meth:`forward`; None (default) = outside
+            training only (training batches come from the dataset, checked whole when it opened).
     """
 
     def __init__(self, net: dict, kind: str, space: str, loss: dict, lr: float, identity: dict | None = None,
                  patch_id: int | None = None, summary: dict | None = None, mean_image: bool = True,
-                 optimizer: dict | None = None, scheduler: dict | None = None) -> None:
+                 optimizer: dict | None = None, scheduler: dict | None = None,
+                 training_identity: dict | None = None, check_rotation: bool | None = None) -> None:
         super().__init__()
         if kind not in KINDS:
             raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
@@ -97,7 +104,19 @@ class ClothModule(L.LightningModule):
                                                    "monitor": MONITOR, "interval": "epoch"}}
 
     def forward(self, pose: Tensor) -> Tensor:
-        return self.net(pose.reshape(pose.shape[0], -1))
+        """pose (B, J*9) or (B, J, 3, 3) (torch or numpy) -> the net's output for the batch.
+
+        Checked first (pbc.validate.as_poses): shape, finiteness and (see ``check_rotation``) rotations; a
+        single pose is refused rather than read as a batch of J*9 scalars.
+        """
+        j = self.net.input_mean.numel() // 9 if hasattr(self.net, "input_mean") else pose.shape[-1] // 9
+        check = self.hparams.get("check_rotation")
+        rot, batched = as_poses(pose, j, what="ClothModule pose",
+                                check_rotation=(not self.training) if check is None else bool(check))
+        if not batched:
+            raise ValueError(f"ClothModule pose: got one pose of shape {tuple(pose.shape)}; the module takes a "
+                             f"batch, (B, {j * 9}) or (B, {j}, 3, 3): pass pose[None] for one pose")
+        return self.net(rot.to(self.device).reshape(rot.shape[0], -1))
 
     # ------------------------------------------------------------------------------ targets
     def targets(self, batch: dict) -> dict:

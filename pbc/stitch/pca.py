@@ -1,8 +1,9 @@
 """A PCA basis of whole-garment per-vertex offsets, for filtering stitched patch predictions.
 
 One job: fit (on the training split), project onto, save and load a linear basis of flattened
-`(V, 3)` offsets. The basis is stored with a hash of the dataset it was fitted on, so a basis from
-another dataset or garment is refused instead of silently filtering with the wrong shapes.
+`(V, 3)` offsets. The basis is stored with a hash and the fingerprint (pbc.data.dataset.dataset_fingerprint)
+of the dataset it was fitted on, so a basis from another dataset or garment is refused
+(`check_pca_matches`) instead of silently filtering with the wrong shapes.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ class PCABasis:
     components: Tensor
     singular_values: Tensor
     dataset_hash: str
+    fingerprint: dict | None = None  # dataset_fingerprint of the data it was fitted on (None: older basis)
 
     @property
     def num_components(self) -> int:
@@ -33,10 +35,11 @@ class PCABasis:
 
     def to(self, device) -> PCABasis:
         return PCABasis(self.mean.to(device), self.components.to(device),
-                        self.singular_values.to(device), self.dataset_hash)
+                        self.singular_values.to(device), self.dataset_hash, self.fingerprint)
 
 
-def fit_pca(samples: Tensor, n_components: int, dataset_hash: str = "", exact_below: int = 4096) -> PCABasis:
+def fit_pca(samples: Tensor, n_components: int, dataset_hash: str = "", exact_below: int = 4096,
+            fingerprint: dict | None = None) -> PCABasis:
     """Fit the top principal components of the samples.
 
     samples: (N, V, 3) or (N, D) float; n_components: K, clamped to min(N, D) (the most a basis can
@@ -54,7 +57,7 @@ def fit_pca(samples: Tensor, n_components: int, dataset_hash: str = "", exact_be
     else:
         _, s, v = torch.svd_lowrank(Xc, q=min(k + 16, N, D), niter=4)
         comps, s = v[:, :k].T, s[:k]
-    return PCABasis(mean.float(), comps.float().contiguous(), s.float(), dataset_hash)
+    return PCABasis(mean.float(), comps.float().contiguous(), s.float(), dataset_hash, fingerprint)
 
 
 def project(basis: PCABasis, x: Tensor, k: int | None = None) -> Tensor:
@@ -80,14 +83,31 @@ def save_pca(basis: PCABasis, path: str | Path) -> None:
     """Atomic save (.pt): a killed job never leaves a half-written basis behind."""
     with atomic_path(path) as tmp:
         torch.save({"mean": basis.mean, "components": basis.components,
-                    "singular_values": basis.singular_values, "dataset_hash": basis.dataset_hash}, tmp)
+                    "singular_values": basis.singular_values, "dataset_hash": basis.dataset_hash,
+                    "fingerprint": json.dumps(basis.fingerprint, sort_keys=True)}, tmp)
 
 
 def load_pca(path: str | Path, expected_hash: str | None = None) -> PCABasis:
     """Load a basis; refuse it if it was fitted on another dataset than `expected_hash`."""
     d = torch.load(Path(path), map_location="cpu", weights_only=True)
-    basis = PCABasis(d["mean"], d["components"], d["singular_values"], d["dataset_hash"])
+    fp = json.loads(d["fingerprint"]) if isinstance(d.get("fingerprint"), str) else None
+    basis = PCABasis(d["mean"], d["components"], d["singular_values"], d["dataset_hash"], fp)
     if expected_hash is not None and basis.dataset_hash != expected_hash:
         raise ValueError(f"PCA basis {path} was fitted on dataset {basis.dataset_hash!r}, "
                          f"not on this one ({expected_hash!r}); delete it to refit")
     return basis
+
+
+def check_pca_matches(basis: PCABasis, data) -> None:
+    """Refuse a basis fitted on another dataset than `data` (a pbc.data.dataset.ClothDataset): the
+    fingerprints' differing keys, one line each; an older basis without a fingerprint by its hash."""
+    from pbc.data.dataset import dataset_fingerprint, fingerprint_diff
+
+    if basis.fingerprint is not None:
+        diff = fingerprint_diff(basis.fingerprint, dataset_fingerprint(data))
+        if diff:
+            raise ValueError("the PCA basis was fitted on another dataset than the predictor's:\n  - "
+                             + "\n  - ".join(diff) + "\nrefit it on this dataset (pbc.evaluate with pca_path=null)")
+    elif basis.dataset_hash and basis.dataset_hash != dataset_hash(data.dir):
+        raise ValueError(f"the PCA basis was fitted on dataset {basis.dataset_hash!r}, not on this one "
+                         f"({dataset_hash(data.dir)!r}); refit it on this dataset (pbc.evaluate with pca_path=null)")

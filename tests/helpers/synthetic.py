@@ -39,6 +39,8 @@ class FakeSkinner:
 def batch_for(g, b: int = 4, seed: int = 0) -> dict:
     """A batch of random rotations (B, 10, 3, 3) and vertices jittered around the rest shape."""
     gen = torch.Generator().manual_seed(seed)
-    pose = torch.randn(b, 10, 3, 3, generator=gen)
+    q, r = torch.linalg.qr(torch.randn(b, 10, 3, 3, generator=gen))
+    q = q * torch.sign(torch.diagonal(r, dim1=-2, dim2=-1))[..., None, :]  # unique QR: proper orthogonal factor
+    pose = q * torch.linalg.det(q)[..., None, None]  # det +1: a rotation, as the model's door demands
     verts = g.vertices[None] + 0.01 * torch.randn(b, len(g.vertices), 3, generator=gen)
     return {"pose": pose, "verts": verts, "index": torch.arange(b)}
