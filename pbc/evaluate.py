@@ -9,7 +9,7 @@ representation floor S(R(x)) at both resolutions; then write into the Hydra run 
     metrics.md      the same as a markdown table
     error_maps.png  per-vertex error rendered on the front/back cloth images, one row per entry
     preview_*.png   gt / whole / stitched meshes side by side for a few poses
-    meshes/*.obj    those meshes
+    meshes/*.obj    those meshes (garment OBJ with UVs and normals, pbc.geometry.meshio)
     pca.pt          the PCA basis fitted on the training split (with the dataset hash)
 
 Seam jump: mean over cage-seam edges of |(p_a - p_b) - (g_a - g_b)| (what the edge carries that the
@@ -29,8 +29,8 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import save_figure, write_text
-from pbc.models.module import write_obj
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
 from pbc.predict import ClothPredictor
@@ -213,7 +213,8 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
             a.set_aspect("equal")
             a.set_title(n, fontsize=8)
             a.axis("off")
-            write_obj(out / "meshes" / f"pose{i}_{n}.obj", keep[n][i], faces)
+            write_garment_mesh(out / "meshes" / f"pose{i}_{n}.obj", pred.dataset.garment, keep[n][i],
+                               header=[f"{n}, pose {i} of the evaluated split (pbc.evaluate)"])
         save_figure(fig, out / f"preview_{i}.png", dpi=80)
 
 

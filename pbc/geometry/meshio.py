@@ -19,8 +19,8 @@ The garment OBJ, what a viewer (Blender, MeshLab, ``trimesh.load(path, process=F
 In trimesh: ``trimesh.load(path, process=False, maintain_order=True)`` gives the garment's V vertices in
 order (vertex i is garment vertex i; one UV per vertex, so a seam vertex keeps one chart's UV);
 ``process=False`` alone splits the seams (one vertex per (v, vt) pair, as a renderer needs); without
-``process=False`` trimesh also merges and reorders vertices. A PLY holds positions, normals and faces (binary; no UVs: PLY has one UV per
-vertex and the charts are cut at the seams).
+``process=False`` trimesh also merges and reorders vertices. A PLY holds positions, normals and faces
+(binary; no UVs: PLY has one UV per vertex and the charts are cut at the seams).
 """
 
 from __future__ import annotations
