@@ -33,8 +33,8 @@ from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import save_figure, write_text
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
-from pbc.predict import ClothPredictor
-from pbc.stitch.pca import dataset_hash, fit_pca, load_pca, save_pca
+from pbc.predict import ClothPredictor, fit_training_pca
+from pbc.stitch.pca import dataset_hash, load_pca, save_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, edge_jump, patch_disagreement, seam_edges, uv_to_pixel
 
 log = logging.getLogger(__name__)
@@ -44,19 +44,6 @@ CM = 100.0
 def _offsets_of(predictor, poses: torch.Tensor, verts: torch.Tensor):
     anchors, frames = predictor.skinner(poses)
     return to_offsets(verts, anchors, frames, predictor.space), anchors, frames
-
-
-def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int = 64):
-    """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
-    ds = predictor.dataset
-    idx = ds.split("train")[:max_samples]
-    offs = []
-    with torch.inference_mode():
-        for i in range(0, len(idx), batch):
-            j = idx[i:i + batch]
-            offs.append(_offsets_of(predictor, torch.from_numpy(ds.poses[j]).float(),
-                                    torch.from_numpy(ds.verts[j]).float())[0])
-    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir))
 
 
 def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
