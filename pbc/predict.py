@@ -273,13 +273,17 @@ GARMENT_LIFT = 0.02  # m, contact sheet depth bias of the garment over the body
 
 
 def stitch_config(method: str):
-    """The seam method's node, conf/stitch/<method>.yaml with its defaults (as pbc.evaluate composes it)."""
-    from pbc.config import load_config
+    """The seam method's node: conf/stitch/<method>.yaml merged over the options its ``defaults`` list names,
+    as Hydra composes the group (without composing a whole root config: a second instead of several)."""
+    from pbc.config import CONF_DIR
     from pbc.stitch.seams import METHODS
 
     if method not in METHODS:
         raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
-    return load_config([f"stitch={method}"], config_name="evaluate").stitch
+    node = OmegaConf.load(CONF_DIR / "stitch" / f"{method}.yaml")
+    defaults = [str(d) for d in (node.pop("defaults", None) or [])] or ["_self_"]
+    defaults += [] if "_self_" in defaults else ["_self_"]
+    return OmegaConf.merge(*[node if d == "_self_" else stitch_config(d) for d in defaults])
 
 
 def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: int, batch: int = 64):

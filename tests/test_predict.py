@@ -141,3 +141,36 @@ def test_stitch_config_follows_defaults():
     assert cfg.method == "pca" and OmegaConf.select(cfg, "feather_ramp") is not None
     with pytest.raises(ValueError, match="unknown seam method"):
         stitch_config("glue")
+
+
+@pytest.fixture(scope="module")
+def patch_sweep(setup):
+    data, whole = setup
+    sweep = whole.parent / "patches"
+    for k in range(28):
+        fake_run(sweep / f"{k}_experiment=patch_{k:02d}", data, "patch", k, seed=k + 1)
+    return sweep
+
+
+def test_cli_with_patch_models_and_a_seam_method(setup, patch_sweep, tmp_path):
+    data, whole = setup
+    out = tmp_path / "pca"
+    assert main([str(whole), "--patches", str(patch_sweep), "--method", "pca", "--poses", "test",
+                 "--out", str(out), "--sheet", "2"]) == 0
+    res = json.loads((out / "predict.json").read_text())
+    assert res["model"] == "patches" and res["method"] == "pca"
+    # the files hold what the predictor answers for these poses: the stitched patches, not the whole model
+    from pbc.predict import fit_training_pca
+
+    pred = ClothPredictor.from_runs(whole, patch_sweep, stitch_config("pca"))
+    pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
+    poses = torch.from_numpy(np.load(out / "poses.npy"))
+    np.testing.assert_allclose(np.load(out / "vertices.npy"), pred(poses).numpy(), atol=1e-5)
+    assert not torch.allclose(pred(poses), pred(poses, model="whole"))
+
+
+@pytest.mark.parametrize("method", ["average", "pca", "cage"])
+def test_stitch_config_equals_hydras(method):
+    from pbc.config import load_config
+
+    assert stitch_config(method) == load_config([f"stitch={method}"], config_name="evaluate").stitch
