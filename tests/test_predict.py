@@ -174,3 +174,18 @@ def test_stitch_config_equals_hydras(method):
     from pbc.config import load_config
 
     assert stitch_config(method) == load_config([f"stitch={method}"], config_name="evaluate").stitch
+
+
+def test_dataset_preview_meshes_carry_uvs_and_normals(setup, tmp_path):
+    """The previews' draped-sample OBJs go through the same writer as predictions (pbc.geometry.meshio)."""
+    from pbc.data.dataset import load_dataset
+    from pbc.data.preview import export_objs
+
+    ds = load_dataset(setup[0])
+    garment_obj, body_obj = export_objs(ds, [2], tmp_path)
+    g = trimesh.load(garment_obj, process=False, maintain_order=True)
+    np.testing.assert_allclose(g.vertices, np.asarray(ds.verts[2]), atol=1e-6)
+    text = garment_obj.read_text()
+    assert text.count("\nvt ") == len(ds.garment.uv) and text.count("\nvn ") == ds.garment.num_vertices
+    assert "f " in text and all(len(c.split("/")) == 3 for c in text.split("\nf ", 1)[1].split()[:3])
+    assert trimesh.load(body_obj, process=False).vertices.shape == tuple(ds.body.vertices.shape)

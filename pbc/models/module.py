@@ -325,8 +325,7 @@ class ImagePanel(L.Callback):
         if self.mesh_dir is not None and garment is not None:
             for name, v in (("pred", pos), ("gt", gt)):
                 write_garment_mesh(self.mesh_dir / f"{name}_val0{tag}.obj", garment, v, ids,
-                                   header=[f"{name} of the first validation pose (pbc.train, epoch "
-                                           f"{trainer.current_epoch})"])
+                                   header=[f"{name} of the first validation pose (pbc.train, end of fit)"])
         tb = _tensorboard(trainer)
         if tb is not None:
             if ids is not None:
