@@ -12,6 +12,7 @@ COMMANDS = {
     "generate": "pbc.generate",      # make (or resume, or merge) a dataset          (Hydra)
     "train": "pbc.train",            # train one model, test it, write metrics.json  (Hydra)
     "evaluate": "pbc.evaluate",      # whole vs stitched patch models                (Hydra, conf/evaluate.yaml)
+    "predict": "pbc.predict",        # poses -> garment meshes from trained runs      (argparse)
     "sweeps": "pbc.sweeps",          # a named sweep end to end                      (argparse)
     "report": "pbc.report",          # the report of a sweep dir                      (argparse)
     "preview": "pbc.data.preview",   # cloth-image figures of a dataset               (argparse)

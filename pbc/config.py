@@ -5,9 +5,21 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydra import compose, initialize_config_dir
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+
+from pbc.runs import monitor
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def register_resolvers() -> None:
+    """pbc's OmegaConf resolvers: ``${pbc.monitor:${model.kind}}`` (the checkpoint monitor of a model kind,
+    pbc.runs.monitor). Importing pbc.config registers them; every entry point that instantiates
+    callbacks imports it."""
+    OmegaConf.register_new_resolver("pbc.monitor", monitor, replace=True)
+
+
+register_resolvers()
 
 
 def load_config(overrides: list[str] | None = None, config_name: str = "config") -> DictConfig:

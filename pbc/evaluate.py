@@ -9,7 +9,7 @@ representation floor S(R(x)) at both resolutions; then write into the Hydra run 
     metrics.md      the same as a markdown table
     error_maps.png  per-vertex error rendered on the front/back cloth images, one row per entry
     preview_*.png   gt / whole / stitched meshes side by side for a few poses
-    meshes/*.obj    those meshes
+    meshes/*.obj    those meshes (garment OBJ with UVs and normals, pbc.geometry.meshio)
     pca.pt          the PCA basis fitted on the training split (with the dataset hash)
 
 Seam jump: mean over cage-seam edges of |(p_a - p_b) - (g_a - g_b)| (what the edge carries that the
@@ -29,13 +29,13 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from pbc.data.dataset import dataset_fingerprint, run_data_record
+from pbc.data.dataset import run_data_record
+from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
-from pbc.models.module import write_obj
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
-from pbc.predict import ClothPredictor
-from pbc.stitch.pca import dataset_hash, fit_pca, load_pca, save_pca
+from pbc.predict import ClothPredictor, fit_training_pca
+from pbc.stitch.pca import dataset_hash, load_pca, save_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, edge_jump, patch_disagreement, seam_edges, uv_to_pixel
 from pbc.validate import check_config
 
@@ -46,19 +46,6 @@ CM = 100.0
 def _offsets_of(predictor, poses: torch.Tensor, verts: torch.Tensor):
     anchors, frames = predictor.skinner(poses)
     return to_offsets(verts, anchors, frames, predictor.space), anchors, frames
-
-
-def fit_training_pca(predictor, n_components: int, max_samples: int, batch: int = 64):
-    """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
-    ds = predictor.dataset
-    idx = ds.split("train")[:max_samples]
-    offs = []
-    with torch.inference_mode():
-        for i in range(0, len(idx), batch):
-            j = idx[i:i + batch]
-            offs.append(_offsets_of(predictor, torch.from_numpy(ds.poses[j]).float(),
-                                    torch.from_numpy(ds.verts[j]).float())[0])
-    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
 
 
 def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
@@ -217,7 +204,8 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
             a.set_aspect("equal")
             a.set_title(n, fontsize=8)
             a.axis("off")
-            write_obj(out / "meshes" / f"pose{i}_{n}.obj", keep[n][i], faces)
+            write_garment_mesh(out / "meshes" / f"pose{i}_{n}.obj", pred.dataset.garment, keep[n][i],
+                               header=[f"{n}, pose {i} of the evaluated split (pbc.evaluate)"])
         save_figure(fig, out / f"preview_{i}.png", dpi=80)
 
 

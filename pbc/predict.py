@@ -192,30 +192,43 @@ class ClothPredictor:
         # the operators exactly as training built them (pbc.pixels.target: one cache, one method)
         self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
+        if whole_net is None and not patch_nets:
+            raise ValueError("no model to predict with: give a whole-shirt run and/or the 28 patch runs")
+        # whole-only (no patch nets): no patch operators, stitcher or patch net; model="whole" throughout
+        patches = bool(patch_nets)
         self.ops_whole = image_operators(dataset, image_cfg, "whole", cache_dir)
-        self.ops_patch = image_operators(dataset, image_cfg, "patch", cache_dir)
-        self.crops = patch_crops(dataset, image_cfg, self.ops_patch)
+        self.ops_patch = image_operators(dataset, image_cfg, "patch", cache_dir) if patches else None
+        self.crops = patch_crops(dataset, image_cfg, self.ops_patch) if patches else []
         self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
-                                       pca=pca)
-        self.method = str(stitch_cfg.method)
+                                       pca=pca) if patches else None
+        self.method = str(stitch_cfg.method) if patches else "whole"
         self.whole_net = whole_net
         self.patch_nets = list(patch_nets)
         self.backend = backend
         self.precision = precision
         self.patch_net = (StackedPatchNet(self.patch_nets, layer_modes, dtype=PRECISIONS[precision])
-                          if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval()
+                          if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval() if patches else None
         if pca is not None:
             self.use_pca(pca)
 
     def use_pca(self, basis) -> None:
         """Filter with PCA basis `basis`; refused when it was fitted on another dataset than this one."""
+        if self.stitcher is None:
+            raise ValueError("a PCA basis filters the patches' seams: this predictor has no patch models")
         check_pca_matches(basis, self.dataset)
         self.stitcher.pca = basis
 
     @classmethod
-    def from_runs(cls, whole_run, patch_runs, stitch_cfg, pca=None, data_dir=None, **kw) -> ClothPredictor:
-        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches).
-        data_dir: where the runs' dataset is when it moved (default: where the runs recorded it)."""
+    def from_runs(cls, whole_run, patch_runs=None, stitch_cfg=None, pca=None, data_dir=None,
+                  **kw) -> ClothPredictor:
+        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches), or
+        None / [] for the whole-shirt model alone; stitch_cfg: the seam method's node (conf/stitch; None =
+        conf/stitch/average.yaml), used with patch runs only; data_dir: where the runs' dataset is when it
+        moved (default: where the runs recorded it)."""
+        has_patches = patch_runs is not None and not (isinstance(patch_runs, Sequence) and not isinstance(
+            patch_runs, str) and len(patch_runs) == 0)
+        if not whole_run and not has_patches:
+            raise ValueError("from_runs needs a whole-shirt run dir, or the 28 patch run dirs / their sweep dir")
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind != "whole":
             raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
@@ -225,15 +238,19 @@ class ClothPredictor:
         ghash = str(dataset.manifest.get("garment_hash", ""))
         if whole is not None and whole.garment_hash != ghash:
             raise ValueError(f"{whole.dir}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
-        runs = select_patch_runs(patch_runs, ghash, len(dataset.cage.patches))
-        whole_net = load_decoder(whole.checkpoint)[0] if whole is not None else None
+        runs = select_patch_runs(patch_runs, ghash, len(dataset.cage.patches)) if has_patches else []
+        if has_patches and stitch_cfg is None:
+            stitch_cfg = stitch_config("average")
+        whole_net, whole_hp = load_decoder(whole.checkpoint) if whole is not None else (None, None)
         nets, spaces = [], set()
         for r in runs:
             net, hp = load_decoder(r.checkpoint)
             nets.append(net)
             spaces.add(hp.get("space", "local"))
+        if whole_hp is not None:  # one space for every model: the predictor turns all offsets back alike
+            spaces.add(whole_hp.get("space", "local"))
         if len(spaces) > 1:
-            raise ValueError(f"patch runs use different offset spaces {sorted(spaces)}")
+            raise ValueError(f"the runs use different offset spaces {sorted(spaces)}")
         return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
 
     # -------------------------------------------------------------------- pieces
@@ -252,12 +269,17 @@ class ClothPredictor:
         return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1)))
 
     @torch.inference_mode()
-    def __call__(self, pose, model: str = "patches", method: str | None = None) -> Tensor:
+    def __call__(self, pose, model: str | None = None, method: str | None = None) -> Tensor:
         """pose: torch or numpy, (J, 3, 3) / (J*9,) for one pose -> (V, 3), or (B, J, 3, 3) / (B, J*9) ->
-        (B, V, 3); checked first (shape, finite, rotations: pbc.validate.as_poses)."""
+        (B, V, 3); checked first (shape, finite, rotations: pbc.validate.as_poses).
+        model: "patches" or "whole"; None = the patches when there are patch models, else the whole."""
         names = list(self.dataset.body.skeleton.names)
         pose, batched = as_poses(pose, len(names), joint_names=names)
         single = not batched
+        model = model or ("patches" if self.patch_net is not None else "whole")
+        if model == "patches" and self.patch_net is None:
+            raise ValueError("this predictor has no patch models (built from a whole-shirt run alone): use "
+                             "model='whole', or give from_runs the 28 patch runs")
         if model == "whole":
             off = self.whole_offsets(pose)
         else:
@@ -267,3 +289,256 @@ class ClothPredictor:
         anchors, frames = self.skinner(pose)
         x = from_offsets(off, anchors, frames, self.space)
         return x[0] if single else x
+
+
+# ----------------------------------------------------------------------------- command line
+# `python -m pbc.predict RUN --poses POSES` (also `pbc predict`, `pbc-predict`): poses in, garment meshes out.
+
+SHEET_COLUMNS = 4
+GARMENT_LIFT = 0.02  # m, contact sheet depth bias of the garment over the body
+
+
+def stitch_config(method: str):
+    """The seam method's node: conf/stitch/<method>.yaml merged over the options its ``defaults`` list names,
+    as Hydra composes the group (without composing a whole root config: a second instead of several)."""
+    from pbc.config import CONF_DIR
+    from pbc.stitch.seams import METHODS
+
+    if method not in METHODS:
+        raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
+    node = OmegaConf.load(CONF_DIR / "stitch" / f"{method}.yaml")
+    defaults = [str(d) for d in (node.pop("defaults", None) or [])] or ["_self_"]
+    defaults += [] if "_self_" in defaults else ["_self_"]
+    return OmegaConf.merge(*[node if d == "_self_" else stitch_config(d) for d in defaults])
+
+
+def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: int, batch: int = 64):
+    """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
+    from pbc.data.dataset import dataset_fingerprint
+    from pbc.pixels.frames import to_offsets
+    from pbc.stitch.pca import dataset_hash, fit_pca
+
+    ds = predictor.dataset
+    idx = ds.split("train")[:max_samples]
+    offs = []
+    with torch.inference_mode():
+        for i in range(0, len(idx), batch):
+            j = idx[i:i + batch]
+            anchors, frames = predictor.skinner(torch.from_numpy(ds.poses[j]).float())
+            offs.append(to_offsets(torch.from_numpy(ds.verts[j]).float(), anchors, frames, predictor.space))
+    return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
+
+
+def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor | None]:
+    """Poses to predict: an .npy of (N, J, 3, 3) / (N, J*9) / (J, 3, 3) rotations, or the name of a split of
+    `dataset` (train / val / test). Returns (poses (N, J, 3, 3), a name per pose, the split's simulated
+    vertices (N, V, 3) or None). Raises ValueError naming what is wrong (shape, non-rotations, no file)."""
+    import numpy as np
+
+    from pbc.validate import as_poses
+
+    J = int(dataset.poses.shape[1])
+    names = tuple(getattr(dataset.body.skeleton, "names", ())) or None
+    path = Path(source)
+    if path.suffix == ".npy" or path.exists():
+        if not path.is_file():
+            raise ValueError(f"pose file {path} does not exist")
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"pose file {path} is not a numpy .npy array ({e}); save one with np.save") from None
+        rot, _ = as_poses(arr, J, joint_names=names, what=f"pose file {path}")
+        return rot, [f"pose_{k:05d}" for k in range(rot.shape[0])], None
+    splits = sorted(dataset.manifest.get("splits") or {})
+    if str(source) not in splits:
+        raise ValueError(f"--poses {source!r} is neither an .npy file nor a split of the dataset {dataset.dir} "
+                         f"(its splits: {splits})")
+    idx = dataset.split(str(source))
+    if len(idx) == 0:
+        raise ValueError(f"split {source!r} of {dataset.dir} is empty")
+    poses = torch.from_numpy(np.asarray(dataset.poses[idx])).float()
+    return poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx])).float()
+
+
+def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16, model: str | None = None,
+                  progress: bool = True) -> Tensor:
+    """poses (N, J, 3, 3) -> garment vertices (N, V, 3), in batches, with a progress bar for long runs."""
+    from tqdm.auto import tqdm
+
+    out = []
+    starts = range(0, poses.shape[0], max(1, int(batch_size)))
+    for i in tqdm(starts, desc="predict", unit="batch", disable=not progress or len(starts) < 2, mininterval=2):
+        out.append(predictor(poses[i:i + batch_size], model=model))
+    return torch.cat(out)
+
+
+def contact_sheet(path: Path, garment_faces, verts, titles: Sequence[str], body_verts=None, body_faces=None) -> Path:
+    """Front views (x-y, depth-sorted, shaded faces) of garments verts (n, V, 3) (on their posed bodies
+    (n, Vb, 3) when given), SHEET_COLUMNS per row, one shared frame so sizes compare across panels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib.collections import PolyCollection
+
+    from pbc.io import save_figure
+
+    n = len(verts)
+    cols = min(n, SHEET_COLUMNS)
+    rows = -(-n // cols)
+    everything = [np.asarray(verts).reshape(-1, 3)] + ([] if body_verts is None else [np.asarray(body_verts)
+                                                                                      .reshape(-1, 3)])
+    lo, hi = np.min([e.min(0) for e in everything], 0), np.max([e.max(0) for e in everything], 0)
+    pad = 0.04 * float((hi - lo)[:2].max())
+    fig, axes = plt.subplots(rows, cols, figsize=(2.6 * cols, 2.6 * rows * (hi[1] - lo[1] + 2 * pad)
+                                                  / (hi[0] - lo[0] + 2 * pad)), squeeze=False)
+    light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+    meshes = [(np.asarray(garment_faces), (0.3, 0.5, 0.9))]
+    for k, ax in enumerate(axes.ravel()):
+        ax.axis("off")
+        if k >= n:
+            continue
+        layers = [(np.asarray(verts[k]), *meshes[0])]
+        if body_verts is not None:
+            layers.insert(0, (np.asarray(body_verts[k]), np.asarray(body_faces), (0.8, 0.7, 0.6)))
+        tris, colors, depth = [], [], []
+        for v, f, base in layers:  # one painter's sort over body and garment together
+            tri = v[f]
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            nrm /= np.linalg.norm(nrm, axis=1, keepdims=True) + 1e-12
+            # the garment's inside shows through its openings: both sides drawn, the inside darker
+            facing = nrm[:, 2] > 0
+            shade = np.where(facing, 0.35 + 0.65 * np.clip(nrm @ light, 0, 1), 0.3)
+            if f is not layers[-1][1]:  # the body: its back faces are hidden behind its front ones
+                tri, shade = tri[facing], shade[facing]
+            tris.append(tri)
+            colors.append(np.clip(np.asarray(base)[None] * shade[:, None], 0, 1))
+            # the cloth lies a few mm off the skin: sorted as if GARMENT_LIFT nearer, so coarse body
+            # triangles do not poke through it, while an arm in front of the shirt still covers it
+            depth.append(tri[:, :, 2].mean(1) + (GARMENT_LIFT if f is layers[-1][1] else 0.0))
+        tri, col = np.concatenate(tris), np.concatenate(colors)
+        order = np.argsort(np.concatenate(depth))
+        # edges drawn in the face colour close the hairline gaps between neighbouring polygons
+        ax.add_collection(PolyCollection(tri[order][:, :, :2], facecolors=col[order], edgecolors=col[order],
+                                         linewidths=0.3))
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect("equal")
+        ax.set_title(titles[k], fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str], out: Path, fmt: str = "obj",
+                   body: bool = False, sheet: int = 12, batch_size: int = 16, model: str | None = None,
+                   truth: Tensor | None = None, info: dict | None = None) -> dict:
+    """Predict every pose and write, under `out`: meshes/<name>.<fmt> (garment with UVs and normals;
+    <name>_body.<fmt> with `body`), vertices.npy (N, V, 3) float32 metres, poses.npy (N, J, 3, 3),
+    contact_sheet.png (the first `sheet` poses), predict.json (what was run, files, and with `truth`
+    the vertex error against it). Returns predict.json's content."""
+    import time
+
+    import numpy as np
+
+    from pbc.geometry.body import pose_body
+    from pbc.geometry.meshio import write_garment_mesh, write_mesh
+    from pbc.io import require_writable_dir, save_npy, write_json
+
+    t0 = time.time()
+    out = require_writable_dir(out, "prediction output directory")
+    model = model or ("patches" if predictor.patch_net is not None else "whole")
+    verts = predict_poses(predictor, poses, batch_size, model)
+    ds = predictor.dataset
+    bodies = pose_body(ds.body, poses) if body or sheet else None
+    for k, name in enumerate(names):
+        write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
+                           header=[f"{name}: predicted by pbc.predict ({model}"
+                                   + (f", {predictor.method} seams)" if model == "patches" else ")")])
+        if body:
+            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+    result = dict(info or {}, model=model, method=predictor.method if model == "patches" else None,
+                  num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
+                  files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
+                  names=list(names))
+    titles = list(names)
+    if truth is not None:
+        err = (verts - truth).norm(dim=-1).mean(1) * 100.0
+        result["vertex_error_cm"] = float(err.mean())
+        result["per_pose_vertex_error_cm"] = [round(float(e), 4) for e in err]
+        titles = [f"{t}: {float(e):.2f} cm" for t, e in zip(titles, err, strict=True)]
+    if sheet:
+        m = min(int(sheet), len(names))
+        contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[:m].numpy(), titles[:m],
+                      bodies[:m].numpy(), ds.body.faces.numpy())
+        result["files"]["contact_sheet"] = "contact_sheet.png"
+    result["seconds"] = round(time.time() - t0, 2)
+    write_json(out / "predict.json", result)
+    return result
+
+
+EXAMPLES = """examples:
+  python -m pbc.predict runs/main/whole --poses test                  # the dataset's test poses
+  python -m pbc.predict runs/main/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
+  python -m pbc.predict runs/main/whole --patches runs/patches --method pca --poses test --format ply
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The command line; returns the exit status (2 for bad input, with one line saying what is wrong)."""
+    import argparse
+    import sys
+    import time
+
+    from pbc.stitch.seams import METHODS
+
+    ap = argparse.ArgumentParser(
+        prog="pbc predict", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES,
+        description="Garment meshes for body poses, from trained pbc models: the whole-shirt model alone, or "
+                    "the 28 patch models stitched by a seam method. Writes meshes/ (OBJ with the garment's UVs "
+                    "and normals, or PLY), vertices.npy, poses.npy, contact_sheet.png and predict.json.")
+    ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/whole)")
+    ap.add_argument("--patches", nargs="+", metavar="RUN", help="the 28 patch run dirs, or a sweep dir holding them")
+    ap.add_argument("--method", default="pca", choices=METHODS, help="seam method for --patches (default pca)")
+    ap.add_argument("--pca", metavar="FILE", help="PCA basis for --method pca (pbc.evaluate's pca.pt); "
+                                                   "default: fitted on the training split")
+    ap.add_argument("--model", choices=("patches", "whole"), help="default: patches when given, else whole")
+    ap.add_argument("--poses", required=True, help="an .npy of rotations, (N, 10, 3, 3) or (N, 90), or a split "
+                                                   "of the run's dataset: train, val or test")
+    ap.add_argument("--max", type=int, metavar="N", help="the first N poses only")
+    ap.add_argument("--out", help="output dir (default runs/predict/<date>_<time>)")
+    ap.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh format (default obj)")
+    ap.add_argument("--body", action="store_true", help="also write each posed body mesh")
+    ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png (0: none)")
+    ap.add_argument("--batch-size", type=int, default=16)
+    args = ap.parse_args(argv)
+    if not args.whole_run and not args.patches:
+        ap.error("give a whole-shirt run dir, or --patches with the patch runs")
+    out = Path(args.out or Path("runs/predict") / time.strftime("%Y-%m-%d_%H-%M-%S"))
+    try:
+        stitch = stitch_config(args.method) if args.patches else None
+        predictor = ClothPredictor.from_runs(args.whole_run, args.patches, stitch)
+        if predictor.stitcher is not None and args.method == "pca":
+            from pbc.stitch.pca import dataset_hash, load_pca
+
+            predictor.stitcher.pca = (load_pca(args.pca, dataset_hash(predictor.dataset.dir)) if args.pca else
+                                      fit_training_pca(predictor, int(stitch.pca_components), 4096))
+        poses, names, truth = read_poses(args.poses, predictor.dataset)
+        if args.max:
+            poses, names, truth = poses[:args.max], names[:args.max], None if truth is None else truth[:args.max]
+        info = {"whole_run": args.whole_run, "patch_runs": args.patches, "poses": str(args.poses)}
+        res = predict_to_dir(predictor, poses, names, out, args.format, args.body, args.sheet, args.batch_size,
+                             args.model, truth, info)
+    except (ValueError, TypeError, FileNotFoundError, PermissionError) as e:
+        print(f"pbc predict: error: {e}", file=sys.stderr)
+        return 2
+    err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
+    print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format} ({res['model']} model{err}), "
+          f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

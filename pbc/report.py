@@ -22,12 +22,14 @@ from pathlib import Path
 import yaml
 
 from pbc.io import save_figure, write_text
-from pbc.runs import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs
+from pbc.runs import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs, scoped_name
 
 PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
 
 # Metric names as pbc.train logs them, per split.
 VERTEX, NORMAL = "vertex_error_cm", "normal_distance"
+# ...and a patch model's, over its patch's vertices only (pbc.runs.scoped_name; older runs read back so)
+PATCH_VERTEX, PATCH_NORMAL = scoped_name(VERTEX, "patch"), scoped_name(NORMAL, "patch")
 TABLE1_LOSSES = ("l1", "l2", "l2_normal", "l1_normal")
 LOSS_LABEL = {"l1": "L1", "l2": "L2", "l2_normal": "L2 + N", "l1_normal": "L1 + N"}
 FC_SPACES = (("local", "Off. Loc."), ("root", "Off. Root."), ("position", "Pos. Root."))
@@ -37,7 +39,7 @@ HIERARCHY_COLUMNS = {"vertex_error_cm": "vertex (cm)", "normal_error": "normal (
                      "seam_jump_cm": "seam jump (cm)", "interior_jump_cm": "interior jump (cm)"}
 # Scalar series plotted as learning curves, first found wins.
 TRAIN_CURVES = ("train/loss_step", "train/loss", "train/loss_epoch", "train/image_loss_step")
-VAL_CURVES = ("val/vertex_error_cm", "val/loss")
+VAL_CURVES = ("val/vertex_error_cm", "val/patch_vertex_error_cm", "val/loss")
 HELD, NOT_HELD, NOT_MEASURED = "held", "did not hold", "not measured"
 TIE = "tie (within 1%)"
 # Two numbers closer than this (relative) neither support nor refute an ordering: with one run per
@@ -106,6 +108,12 @@ def cell(row: Row, key: str, paper_key: str | None = None) -> str:
     return ours
 
 
+def _scoped_cell(run: Run, metric: str) -> str:
+    """A run's test metric, marked "(patch)" when it is a patch model's (its patch's vertices only)."""
+    whole, patch = run.metrics.get(f"test/{metric}"), run.metrics.get(f"test/{scoped_name(metric, 'patch')}")
+    return fmt(whole) if patch is None else f"{fmt(patch)} (patch)"
+
+
 # ----------------------------------------------------------------------------------------------- tables
 def table1(runs: list[Run], paper: dict) -> list[Row]:
     keys = [f"{s}/{m}" for s in ("train", "test") for m in (VERTEX, NORMAL)]
@@ -149,7 +157,7 @@ def patch_rows(runs: list[Run], expected: dict[str, list[str]] | None = None) ->
     ids = {p for r in runs if (p := _patch_id(r)) is not None}
     ids |= {int(e[6:]) for e in (expected or {}).get("experiment", []) if e[:6] == "patch_" and e[6:].isdigit()}
     ids = sorted(ids)
-    keys = [f"{s}/{m}" for s in ("train", "test") for m in (VERTEX, NORMAL)] + [f"test/{VERTEX}_std"]
+    keys = [f"{s}/{m}" for s in ("train", "test") for m in (PATCH_VERTEX, PATCH_NORMAL)] + [f"test/{PATCH_VERTEX}_std"]
     return [make_row(f"patch_{i:02d}", runs, {"experiment": f"patch_{i:02d}"}, keys) for i in ids]
 
 
@@ -353,8 +361,8 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         fig, ax = plt.subplots(figsize=(9, 3.2))
         ok = [r for r in patches if r.status == OK]
         ids = [int(r.label[6:]) for r in ok]
-        means = [r.value(f"test/{VERTEX}") or 0.0 for r in ok]
-        errs = [r.value(f"test/{VERTEX}_std") or 0.0 for r in ok]
+        means = [r.value(f"test/{PATCH_VERTEX}") or 0.0 for r in ok]
+        errs = [r.value(f"test/{PATCH_VERTEX}_std") or 0.0 for r in ok]
         if ok:
             ax.bar(ids, means, yerr=errs if any(errs) else None, capsize=2, label="patch model (own vertices)")
         for r, style in zip(hier, ("-", "--", ":", "-.", (0, (1, 3)), (0, (5, 1))), strict=False):
@@ -561,13 +569,13 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
         md += ["", "Per-patch models (each scored on the vertices inside its patch):", ""]
         md.append(
             _md_table(
-                ["patch", "train vertex", "test vertex", "test normal", "status"],
+                ["patch", "train patch vertex", "test patch vertex", "test patch normal", "status"],
                 [
                     [
                         r.label,
-                        cell(r, f"train/{VERTEX}"),
-                        cell(r, f"test/{VERTEX}"),
-                        cell(r, f"test/{NORMAL}"),
+                        cell(r, f"train/{PATCH_VERTEX}"),
+                        cell(r, f"test/{PATCH_VERTEX}"),
+                        cell(r, f"test/{PATCH_NORMAL}"),
                         r.status if r.status == OK else f"{r.status}: {r.error}",
                     ]
                     for r in patches
@@ -589,8 +597,8 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
                     f"`{r.name}`",
                     label_of(r, runs),
                     r.status,
-                    fmt(r.metrics.get(f"test/{VERTEX}")),
-                    fmt(r.metrics.get(f"test/{NORMAL}")),
+                    _scoped_cell(r, VERTEX),
+                    _scoped_cell(r, NORMAL),
                     r.error or "",
                 ]
                 for r in runs

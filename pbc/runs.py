@@ -30,6 +30,13 @@ NON_METRIC_KEYS = ("config", "identity", "summary", "status", "optimized_metric"
 # Other names for the same metric, mapped onto the name pbc.train logs.
 ALIASES = {"normal_error": "normal_distance"}
 EVENTS_PREFIX = "events.out.tfevents."
+VERTEX_ERROR = "vertex_error_cm"
+# Metrics averaged over the vertices a model predicts: a patch model's cover its patch only (110 of the
+# shirt's 3,153 vertices), so they carry the scope in their name ("patch_vertex_error_cm") wherever they
+# appear (TensorBoard, metrics.json, reports) and are never compared with a whole-garment number.
+SCOPED = (VERTEX_ERROR, "normal_distance")
+PATCH_PREFIX = "patch_"
+
 # Folders inside a run dir that never hold another run: skipping them keeps the walk cheap.
 _SKIP_DIRS = {".hydra", "checkpoints", "__pycache__", "meshes", "figures"}
 
@@ -39,6 +46,18 @@ IGNORED_JOBS = ("generate",)
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP_RECORD = "sweep.json"
+
+
+def scoped_name(name: str, kind: str) -> str:
+    """The logged name of metric ``name`` (or ``name_std``, ...) of a ``kind`` model: ``patch_`` + name for a
+    patch model's vertex-subset metrics, else ``name``."""
+    return PATCH_PREFIX + name if kind == "patch" and name.startswith(SCOPED) else name
+
+
+def monitor(kind: str) -> str:
+    """The checkpoint / scheduler monitor of a ``kind`` model: its validation vertex error (the one place
+    this is derived; conf/callbacks reads it through the ``pbc.monitor`` resolver, pbc.config)."""
+    return "val/" + scoped_name(VERTEX_ERROR, kind)
 
 
 @dataclass
@@ -185,8 +204,13 @@ def load_run(run_dir: Path, root: Path, events: bool = True) -> Run:
         run.status = INCOMPLETE
         run.error = f"no {METRICS_FILE}" + (f": {t}" if (t := _log_tail(run_dir)) else " (killed, or still running)")
 
+    patch = run_kind(run, data if mfile.exists() else {}) == "patch"
+    if patch:
+        scope_patch_metrics(run.metrics)
     if events:
         run.curves = read_events(run_dir)
+        if patch:
+            scope_patch_metrics(run.curves)
         # Fill what metrics.json lacks from the last logged value: the training split is only logged
         # as per-epoch running means ("train/x_epoch"), which is what a run without a "train" block has.
         if run.status == OK:
@@ -198,6 +222,27 @@ def load_run(run_dir: Path, root: Path, events: bool = True) -> Run:
                     run.metrics[key] = series[-1][1]
                     run.sources[key] = tag
     return run
+
+
+def run_kind(run: Run, metrics: dict) -> str | None:
+    """whole | patch | fc of a training run: its config's model.kind, else metrics.json's identity or
+    summary, else a `patch_NN` experiment choice; None for other jobs."""
+    for kind in (run.cfg("model.kind"), (metrics.get("identity") or {}).get("kind"),
+                 (metrics.get("summary") or {}).get("kind")):
+        if isinstance(kind, str):
+            return kind
+    exp = run.get("experiment") or ""
+    return "patch" if exp.startswith(PATCH_PREFIX) and exp[len(PATCH_PREFIX):].isdigit() else None
+
+
+def scope_patch_metrics(table: dict) -> None:
+    """A patch run's metrics or curves ({"split/name": ...}) under their scoped names, in place: runs made
+    before the names said their scope logged patch_vertex_error_cm as vertex_error_cm (scoped_name)."""
+    for key in list(table):
+        head, sep, leaf = key.rpartition("/")
+        new = head + sep + scoped_name(leaf, "patch")
+        if new != key:
+            table.setdefault(new, table.pop(key))
 
 
 def is_run_dir(path: Path) -> bool:

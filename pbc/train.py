@@ -5,9 +5,11 @@ One job: build the DataModule (``conf/datamodule``), the :class:`~pbc.models.mod
 lightning-hydra-template does), run fit + test, and leave everything in the Hydra run dir:
 
     <run dir>/.hydra/               the composed config
-    <run dir>/checkpoints/          epoch_NNN.ckpt (best by val/vertex_error_cm) and last.ckpt
+    <run dir>/checkpoints/          epoch_NNN.ckpt (best by val/vertex_error_cm; a patch model's metrics
+                                    say their scope: val/patch_vertex_error_cm) and last.ckpt
     <run dir>/tensorboard/          events: scalars, image panels, mesh, hparams tab with final metrics
-    <run dir>/meshes/               predicted (and ground-truth) OBJ of one fixed validation pose
+    <run dir>/meshes/               predicted and ground-truth OBJ of one fixed validation pose
+                                    (pred_val0.obj; a patch model's patch: pred_val0_patchNN.obj)
     <run dir>/metrics.json          {"status", "test", "val_best", "optimized_metric", "config", ...}
 
 Return value: the best ``val/vertex_error_cm`` (the checkpoint monitor), so Hydra sweepers can minimise
@@ -43,14 +45,17 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from pbc.config import register_resolvers
 from pbc.data.datamodule import ClothDataModule
 from pbc.data.dataset import dataset_fingerprint, run_data_record
 from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write_json
-from pbc.models.module import MONITOR, TEST_SPLITS, ClothModule, flat_summary
+from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.pixels.target import VertexTarget
+from pbc.runs import monitor
 from pbc.validate import check_config, check_resume, identity_diff, training_identity
 
 log = logging.getLogger(__name__)
+register_resolvers()  # ${pbc.monitor:...} in conf/callbacks
 
 
 def output_dir(cfg: DictConfig) -> Path:
@@ -169,8 +174,9 @@ def train(cfg: DictConfig) -> dict:
     best_val = float(ck.best_model_score) if ck is not None and ck.best_model_score is not None else float("inf")
     # the test split, then the training split (Table 1's training error), each under its own prefix
     scores = score(trainer, module, dm, best_path) if cfg.get("test", True) else {}
+    mon = monitor(cfg.model.kind)  # val/patch_vertex_error_cm for a patch model: its patch's vertices only
     metrics = {
-        "status": "ok", "optimized_metric": MONITOR, "val_best": {"vertex_error_cm": best_val},
+        "status": "ok", "optimized_metric": mon, "val_best": {mon.split("/", 1)[1]: best_val},
         "test": scores.get("test", {}), "train": scores.get("train_final", {}), "best_checkpoint": best_path,
         "epochs": trainer.current_epoch, "seconds": round(time.time() - t0, 2), "summary": summary,
         "identity": identity, "training_identity": training, "data": run_data_record(dm.data),
@@ -240,7 +246,7 @@ def main(cfg: DictConfig) -> float:
                                             "config": OmegaConf.to_container(cfg, resolve=False)})
         raise
     log.info("test metrics: %s", json.dumps(metrics["test"]))
-    return metrics["val_best"]["vertex_error_cm"]
+    return metrics["val_best"][metrics["optimized_metric"].split("/", 1)[1]]
 
 
 if __name__ == "__main__":

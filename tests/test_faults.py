@@ -177,7 +177,7 @@ def shipped_checkpoints(dirpath: Path) -> list:
     out = []
     for name in ("model_checkpoint", "last_checkpoint"):
         node = OmegaConf.to_container(cfg[name], resolve=False)
-        node["dirpath"] = str(dirpath)
+        node["dirpath"], node["monitor"] = str(dirpath), cfg[name].monitor  # the monitor follows model.kind
         out.append(instantiate(node))
     return out
 

@@ -224,9 +224,46 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
     assert header == "| model | vertex (cm) | normal (1 - cos) | seam jump (cm) | status |"
     assert "| stitched (pca) | 0.38 | 0.027 | 0.05 | ok |" in md
     patches = {r["label"]: r for r in json.loads((built / "report.json").read_text())["patches"]}
-    assert patches["patch_07"]["values"]["test/vertex_error_cm"] == pytest.approx(0.35)
+    # these patch runs predate scoped names (they logged vertex_error_cm): read back under the patch's name
+    assert patches["patch_07"]["values"]["test/patch_vertex_error_cm"] == pytest.approx(0.35)
+    assert patches["patch_07"]["values"]["test/patch_vertex_error_cm_std"] == pytest.approx(0.05)
     # The runner's evaluation step: the newest whole run and every successful patch run, quoted.
     argv, why = sweeps.evaluate_command(sweep, python="py")
     assert why is None and argv[:3] == ["py", "-m", "pbc.evaluate"]
     assert argv[3] == f"whole_run='{sweep / '1_loss=l2'}'"
     assert argv[4].startswith("patch_runs=[") and argv[4].count("patch_0") == 2
+
+
+def test_patch_metrics_say_their_scope(tmp_path):
+    """A patch run's vertex metrics cover its patch only: read back (old or new names) as patch_*, shown
+    so in the report, never as a whole-garment number; a whole run's keep their names."""
+    from pbc.runs import monitor, scoped_name
+
+    assert monitor("whole") == "val/vertex_error_cm" and monitor("patch") == "val/patch_vertex_error_cm"
+    assert scoped_name("vertex_error_cm_std", "patch") == "patch_vertex_error_cm_std"
+    assert scoped_name("image_loss", "patch") == "image_loss"
+    assert scoped_name("normal_distance", "fc") == "normal_distance"
+    new = ok_metrics(0.2, 0.02, 0.3, 0.03)
+    new["test"] = {"patch_vertex_error_cm": 0.3, "patch_normal_distance": 0.03, "image_loss": 0.01}
+    new["train"] = {"patch_vertex_error_cm": 0.2, "patch_normal_distance": 0.02}
+    new |= {"optimized_metric": "val/patch_vertex_error_cm", "val_best": {"patch_vertex_error_cm": 0.3},
+            "identity": {"kind": "patch", "patch_id": 3}}
+    make_run(tmp_path, "new", {"experiment": "patch_03"}, new,
+             {"val/patch_vertex_error_cm": [0.5, 0.3], "train/vertex_error_cm_epoch": [0.9, 0.4]})
+    make_run(tmp_path, "old", {"experiment": "patch_05"}, ok_metrics(0.2, 0.02, 0.4, 0.03),
+             {"val/vertex_error_cm": [0.6, 0.4]})
+    make_run(tmp_path, "whole", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.2, 0.02, 0.5, 0.03))
+    runs = {r.name: r for r in load_runs(tmp_path)}
+    for name, test_v in (("new", 0.3), ("old", 0.4)):
+        r = runs[name]
+        assert r.metrics["test/patch_vertex_error_cm"] == test_v and "test/vertex_error_cm" not in r.metrics
+        assert r.metrics["val_best/patch_vertex_error_cm"] == test_v and "train/vertex_error_cm" not in r.metrics
+        assert "val/patch_vertex_error_cm" in r.curves and "val/vertex_error_cm" not in r.curves
+    assert "train/patch_vertex_error_cm_epoch" in runs["new"].curves
+    assert runs["whole"].metrics["test/vertex_error_cm"] == 0.5
+    assert "test/patch_vertex_error_cm" not in runs["whole"].metrics
+    report.build_report(tmp_path, tmp_path / "out")
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "| patch_03 | 0.2 | 0.3 | 0.03 | ok |" in md and "| patch_05 | 0.2 | 0.4 | 0.03 | ok |" in md
+    assert "| `new` | experiment=patch_03 | ok | 0.3 (patch) | 0.03 (patch) |" in md
+    assert "| `whole` | experiment=whole,loss=l1 | ok | 0.5 | 0.03 |" in md

@@ -1,7 +1,8 @@
 """Preview figures of a dataset: the UV layout with the cage and patch ids, draped samples, OBJ exports,
 and (with an image config) the pixels stage's cloth images, crop windows and round-trip error map.
 
-Everything is written under `<dataset>/preview/` (PNG via matplotlib, meshes via trimesh), atomically.
+Everything is written under `<dataset>/preview/` (PNG via matplotlib, meshes via pbc.geometry.meshio),
+atomically.
 
     python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3]    # the cloth-image figures only
 """
@@ -17,13 +18,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-import trimesh  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
 from pbc.geometry.body import pose_body  # noqa: E402
-from pbc.io import atomic_path, save_figure  # noqa: E402
+from pbc.geometry.meshio import write_garment_mesh, write_mesh  # noqa: E402
+from pbc.io import save_figure  # noqa: E402
 from pbc.pixels.preview import preview as cloth_image_preview  # noqa: E402
 from pbc.sim.poses import plot_angle_histograms  # noqa: E402
 
@@ -89,19 +90,14 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
 
 
 def export_objs(ds: ClothDataset, indices: list[int], out: Path) -> list[Path]:
-    """The draped garment and the posed body of each sample as OBJ files."""
+    """The draped garment (with its UVs and normals) and the posed body of each sample as OBJ files."""
     rot = torch.from_numpy(np.asarray(ds.poses[indices])).float()
     body_v = pose_body(ds.body, rot).numpy()
     paths = []
     for col, i in enumerate(indices):
-        for name, verts, faces in (
-            ("garment", np.asarray(ds.verts[i]), ds.garment.faces.numpy()),
-            ("body", body_v[col], ds.body.faces.numpy()),
-        ):
-            path = out / f"sample_{i:05d}_{name}.obj"
-            with atomic_path(path) as tmp:
-                trimesh.Trimesh(verts, faces, process=False).export(tmp, file_type="obj")
-            paths.append(path)
+        paths.append(write_garment_mesh(out / f"sample_{i:05d}_garment.obj", ds.garment, np.asarray(ds.verts[i]),
+                                        header=[f"draped sample {i} of dataset {Path(ds.dir).name}"]))
+        paths.append(write_mesh(out / f"sample_{i:05d}_body.obj", body_v[col], ds.body.faces.numpy()))
     return paths
 
 

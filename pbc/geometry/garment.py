@@ -24,6 +24,7 @@ from scipy.sparse.csgraph import connected_components
 from torch import Tensor
 
 from pbc.geometry.cage import Cage, load_cage, save_cage, tshirt_cage, validate_cage
+from pbc.geometry.meshio import obj_text
 from pbc.io import write_text
 
 # The repository root: relative cage paths in the garment config are resolved against it when they do
@@ -425,23 +426,19 @@ def sample_corners(faces: np.ndarray, face_uv: np.ndarray, face_side: np.ndarray
 
 def save_garment_obj(garment: Garment, path) -> None:
     """Write the garment as OBJ: v, vt, `g front`/`g back` groups of `f v/vt`; uv_scale in a header
-    comment, vertex_side in `# vs` comments. Floats are written with repr so a round trip is exact."""
+    comment, vertex_side in `# vs` comments. Floats are written with repr so a round trip is exact.
+    The dataset's format (byte-stable across versions); meshes for viewers: pbc.geometry.meshio."""
     path = Path(path)
     v = garment.vertices.detach().cpu().double().numpy()
     uv = garment.uv.detach().cpu().double().numpy()
-    f = garment.faces.cpu().numpy() + 1
-    fuv = garment.face_uv.cpu().numpy() + 1
+    f = garment.faces.cpu().numpy()
+    fuv = garment.face_uv.cpu().numpy()
     side = garment.face_side.cpu().numpy()
-    lines = ["# pbc garment", f"# uv_scale {float(garment.uv_scale)!r}",
-             "# vertex_side " + " ".join(str(int(s)) for s in garment.vertex_side.cpu().numpy())]
+    header = ["pbc garment", f"uv_scale {float(garment.uv_scale)!r}",
+              "vertex_side " + " ".join(str(int(s)) for s in garment.vertex_side.cpu().numpy())]
     # float32 values are exactly representable as float64 reprs: the round trip is bit exact
-    lines += [f"v {a!r} {b!r} {c!r}" for a, b, c in v.tolist()]
-    lines += [f"vt {a!r} {b!r}" for a, b in uv.tolist()]
-    for s, name in enumerate(_SIDES):
-        lines.append(f"g {name}")
-        for (a, b, c), (ta, tb, tc) in zip(f[side == s].tolist(), fuv[side == s].tolist(), strict=True):
-            lines.append(f"f {a}/{ta} {b}/{tb} {c}/{tc}")
-    write_text(path, "\n".join(lines) + "\n")
+    groups = [(name, side == s) for s, name in enumerate(_SIDES)]
+    write_text(path, obj_text(v, f, uv, fuv, groups=groups, header=header, number=repr))
 
 
 def _is_pbc_obj(path: Path) -> bool:

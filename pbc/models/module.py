@@ -8,7 +8,8 @@ it is attached with :meth:`ClothModule.attach` before fit/test (``pbc.train`` at
 Built from ``conf/model/*.yaml`` (``_target_`` this class; optimiser and LR scheduler as ``_partial_``).
 
 Also here: :class:`ImagePanel`, the TensorBoard callback drawing pred | gt | error images for fixed
-validation poses and writing one predicted mesh (``add_mesh`` + OBJ) at the end of fit.
+validation poses and writing one predicted mesh (``add_mesh`` + OBJ via pbc.geometry.meshio; a patch
+model's is its patch's submesh, ``pred_val0_patchNN.obj``) at the end of fit.
 """
 
 from __future__ import annotations
@@ -23,17 +24,18 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
-from pbc.io import write_text
+from pbc.geometry.meshio import submesh, write_garment_mesh
 from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm
 from pbc.models.fc import fit_pca as fit_pca_values
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.pixels.target import KINDS, VertexTarget
+from pbc.runs import monitor, scoped_name
 from pbc.validate import as_poses
 
 log = logging.getLogger(__name__)
 # the identity keys a checkpoint must share with the run that loads it
-MONITOR = "val/vertex_error_cm"
+MONITOR = monitor("whole")  # a patch model's is monitor("patch"): val/patch_vertex_error_cm
 # log prefixes of the test dataloaders, in order (see pbc.data.datamodule.ClothDataModule.scoring_dataloaders)
 TEST_SPLITS = ("test", "train_final")
 IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space")
@@ -101,7 +103,8 @@ class ClothModule(L.LightningModule):
         if not sched:
             return opt
         return {"optimizer": opt, "lr_scheduler": {"scheduler": instantiate(sched)(optimizer=opt),
-                                                   "monitor": MONITOR, "interval": "epoch"}}
+                                                   "monitor": monitor(self.hparams.kind),
+                                                   "interval": "epoch"}}
 
     def forward(self, pose: Tensor) -> Tensor:
         """pose (B, J*9) or (B, J, 3, 3) (torch or numpy) -> the net's output for the batch.
@@ -169,7 +172,9 @@ class ClothModule(L.LightningModule):
                 + (f" (sample ids {which.tolist()})" if which is not None else "")
                 + "; stopping instead of training a NaN model")
         bs = batch["pose"].shape[0]
-        self.log_dict({f"{split}/{k}": v.detach() if k != "loss" else v for k, v in logs.items()},
+        # a patch model's vertex metrics cover its patch only: their names say so (patch_vertex_error_cm)
+        kind = self.hparams.kind
+        self.log_dict({f"{split}/{scoped_name(k, kind)}": v.detach() if k != "loss" else v for k, v in logs.items()},
                       on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=False,
                       add_dataloader_idx=False)
         return total, {"pred": pred.detach(), **{k: v for k, v in t.items() if k in ("image", "mask")},
@@ -263,15 +268,6 @@ def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     return torch.cat(rows, dim=1)
 
 
-def write_obj(path: Path, vertices: Tensor, faces: Tensor) -> Path:
-    """Plain OBJ (v / f, 1-based), written atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices.tolist()]
-    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
-    write_text(path, "\n".join(lines) + "\n")
-    return path
-
-
 def _tensorboard(trainer):
     for lg in trainer.loggers:
         if isinstance(lg, L.pytorch.loggers.TensorBoardLogger):
@@ -337,14 +333,24 @@ class ImagePanel(L.Callback):
         out = self._predict(trainer, pl_module)
         if out is None:
             return
-        pos = out[3][0].float().cpu()
-        faces = pl_module.target.faces.cpu()
-        if self.mesh_dir is not None:
-            write_obj(self.mesh_dir / "pred_val0.obj", pos, faces)
-            write_obj(self.mesh_dir / "gt_val0.obj", out[1]["verts"][0].float().cpu(), faces)
+        pos, gt = out[3][0].float().cpu(), out[1]["verts"][0].float().cpu()
+        target = pl_module.target
+        faces, ids = target.faces.cpu(), target.vertices
+        # a patch model predicts its patch only (the rest is ground truth): its meshes are the patch's
+        # submesh, and their names say so
+        tag = "" if target.patch_id is None else f"_patch{int(target.patch_id):02d}"
+        garment = getattr(trainer.datamodule, "data", None)
+        garment = getattr(garment, "garment", None)
+        if self.mesh_dir is not None and garment is not None:
+            for name, v in (("pred", pos), ("gt", gt)):
+                write_garment_mesh(self.mesh_dir / f"{name}_val0{tag}.obj", garment, v, ids,
+                                   header=[f"{name} of the first validation pose (pbc.train, end of fit)"])
         tb = _tensorboard(trainer)
         if tb is not None:
-            tb.add_mesh("val/pred_mesh", vertices=pos[None], faces=faces[None].int(),
+            if ids is not None:
+                _, faces, ids = submesh(faces.numpy(), ids.cpu().numpy())
+                pos, faces = pos[torch.as_tensor(ids)], torch.as_tensor(faces)
+            tb.add_mesh(f"val/pred_mesh{tag}", vertices=pos[None], faces=faces[None].int(),
                         global_step=trainer.global_step)
 
 

@@ -1,0 +1,174 @@
+"""The one mesh writer: garment meshes (OBJ with UVs and normals, or PLY) and plain meshes (the body).
+
+Every mesh pbc writes for people to open (dataset previews, the training run's ``meshes/``, pbc.evaluate,
+pbc.predict) goes through :func:`write_garment_mesh` or :func:`write_mesh`, atomically. The dataset's own
+``garment.obj`` (``pbc.geometry.garment.save_garment_obj``) is another format built from the same
+:func:`obj_text`: exact floats, the pattern's raw UVs, no normals, read back bit-exact.
+
+The garment OBJ, what a viewer (Blender, MeshLab, ``trimesh.load(path, process=False)``) needs:
+
+    v x y z          metres, one per garment vertex, in the garment's vertex order
+    vt u v           one per UV corner of the garment (seams are cut: more vt than v), an atlas
+                     of both charts: the front chart in u [0, 0.5], the back chart in u [0.5, 1], v up
+                     (the OBJ convention); pbc's cloth image row r, column c of chart s sits at
+                     ((c / W + s) / 2, 1 - r / H)
+    vn x y z         unit area-weighted vertex normals, pointing out of the garment
+    g front / back   the two charts
+    f v/vt/vn        triangles, counter-clockwise seen from outside
+
+In trimesh: ``trimesh.load(path, process=False, maintain_order=True)`` gives the garment's V vertices in
+order (vertex i is garment vertex i; one UV per vertex, so a seam vertex keeps one chart's UV);
+``process=False`` alone splits the seams (one vertex per (v, vt) pair, as a renderer needs); without
+``process=False`` trimesh also merges and reorders vertices. A PLY holds positions, normals and faces
+(binary; no UVs: PLY has one UV per vertex and the charts are cut at the seams).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from pbc.io import atomic_path, write_text
+
+FORMATS = (".obj", ".ply")
+SIDES = ("front", "back")
+
+
+def _np(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+
+def _fixed(x: float) -> str:
+    return f"{x:.6f}"
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit vertex normals (V, 3), the area-weighted mean of the incident faces' normals.
+
+    vertices (V, 3), faces (F, 3) counter-clockwise seen from the side the normals point to. A vertex in
+    no face (or only in degenerate ones) gets (0, 0, 0)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def obj_text(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray | None = None,
+             face_uv: np.ndarray | None = None, normals: np.ndarray | None = None,
+             groups: Sequence[tuple[str, np.ndarray]] | None = None, header: Sequence[str] = (),
+             number: Callable[[float], str] = _fixed) -> str:
+    """Wavefront OBJ text. vertices (V, 3), faces (F, 3) 0-based, uv (T, 2) with face_uv (F, 3) into it,
+    normals (V, 3) (vn i belongs to v i), groups [(name, face mask (F,) bool)] written in that order
+    (faces in no group are not written), header lines written as ``# line``; ``number`` formats floats."""
+    lines = [f"# {h}" for h in header]
+    lines += ["v " + " ".join(map(number, p)) for p in np.asarray(vertices).tolist()]
+    if uv is not None:
+        lines += ["vt " + " ".join(map(number, t)) for t in np.asarray(uv).tolist()]
+    if normals is not None:
+        lines += ["vn " + " ".join(map(number, n)) for n in np.asarray(normals).tolist()]
+    f = np.asarray(faces, dtype=np.int64) + 1
+    ft = None if face_uv is None else np.asarray(face_uv, dtype=np.int64) + 1
+    if normals is None:
+        corner = (lambda a, t: f"{a}/{t}") if ft is not None else (lambda a, t: f"{a}")
+    else:
+        corner = (lambda a, t: f"{a}/{t}/{a}") if ft is not None else (lambda a, t: f"{a}//{a}")
+    fts = ft.tolist() if ft is not None else [(None,) * 3] * len(f)
+    for name, mask in groups or [(None, np.ones(len(f), dtype=bool))]:
+        if name is not None:
+            lines.append(f"g {name}")
+        sel = np.flatnonzero(np.asarray(mask))
+        fl = f[sel].tolist()
+        for i, (a, b, c) in zip(sel.tolist(), fl, strict=True):
+            ta, tb, tc = fts[i]
+            lines.append(f"f {corner(a, ta)} {corner(b, tb)} {corner(c, tc)}")
+    return "\n".join(lines) + "\n"
+
+
+def _check_path(path: Path) -> Path:
+    path = Path(path)
+    if path.suffix.lower() not in FORMATS:
+        raise ValueError(f"{path}: unknown mesh format {path.suffix!r}; write one of {FORMATS}")
+    return path
+
+
+def _check_vertices(vertices: np.ndarray, num: int, what: str) -> np.ndarray:
+    v = np.asarray(vertices, dtype=np.float64)
+    if v.shape != (num, 3):
+        raise ValueError(f"{what}: vertices of shape {tuple(v.shape)}, expected ({num}, 3)")
+    if not np.isfinite(v).all():
+        raise ValueError(f"{what}: {int((~np.isfinite(v)).any(1).sum())} vertices are not finite (NaN/inf)")
+    return v
+
+
+def _write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> None:
+    import trimesh  # the PLY encoder; only where one is asked for
+
+    mesh = trimesh.Trimesh(vertices, faces, vertex_normals=normals, process=False)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(mesh.export(file_type="ply", encoding="binary", vertex_normal=True))
+
+
+def submesh(faces: np.ndarray, vertex_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The faces with all three corners in ``vertex_ids``: (face indices (F',), faces renumbered into
+    ``vertex_ids`` order (F', 3), vertex_ids as given (V',))."""
+    ids = np.asarray(vertex_ids, dtype=np.int64)
+    f = np.asarray(faces, dtype=np.int64)
+    where = np.full(int(max(f.max(), ids.max())) + 1, -1, dtype=np.int64)
+    where[ids] = np.arange(len(ids))
+    keep = np.flatnonzero((where[f] >= 0).all(1))
+    return keep, where[f[keep]], ids
+
+
+def write_garment_mesh(path: str | Path, garment, vertices=None, vertex_ids=None,
+                       header: Sequence[str] = ()) -> Path:
+    """Write a garment shape as OBJ (v, vt, vn, ``f v/vt/vn``, see the module doc) or PLY, by suffix.
+
+    garment: a ``pbc.geometry.garment.Garment`` (faces, uv, face_uv, face_side); vertices (V, 3) its
+    shape (default: the rest shape), a tensor or array; vertex_ids: write only the submesh of these
+    vertices (a patch: its faces with all three corners inside; v in vertex_ids order, and the file's
+    header lists the ids). Raises ValueError for a shape that does not fit the garment or NaNs."""
+    path = _check_path(path)
+    faces, uv, face_uv = _np(garment.faces), _np(garment.uv), _np(garment.face_uv)
+    side = _np(garment.face_side)
+    v = _check_vertices(_np(garment.vertices if vertices is None else vertices), len(_np(garment.vertices)),
+                        str(path))
+    normals = vertex_normals(v, faces)  # on the whole shirt: a patch's border normals stay the shirt's
+    head = ["pbc garment mesh (pbc.geometry.meshio): metres; vt atlas: front u in [0, 0.5], back in [0.5, 1]",
+            *header]
+    if vertex_ids is not None:
+        keep, faces, ids = submesh(faces, _np(vertex_ids))
+        v, normals, face_uv, side = v[ids], normals[ids], face_uv[keep], side[keep]
+        head.append(f"patch submesh: {len(ids)} of the garment's {len(_np(garment.vertices))} vertices, "
+                    f"garment vertex ids " + " ".join(map(str, ids.tolist())))
+    if path.suffix.lower() == ".ply":
+        _write_ply(path, v, faces, normals)
+        return path
+    # one atlas: charts side by side, v flipped from pbc's image rows (v = 0 top) to OBJ's (v = 0 bottom)
+    uv_side = np.zeros(len(uv), dtype=np.int64)
+    uv_side[np.asarray(face_uv).reshape(-1)] = np.repeat(side, 3)
+    atlas = np.stack([(uv[:, 0] + uv_side) / 2, 1 - uv[:, 1]], 1)
+    groups = [(name, side == s) for s, name in enumerate(SIDES)]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, obj_text(v, faces, atlas, face_uv, normals, groups, head))
+    return path
+
+
+def write_mesh(path: str | Path, vertices, faces, header: Sequence[str] = ()) -> Path:
+    """Write any triangle mesh (the posed body): OBJ (v, vn, ``f v//vn``) or PLY, by suffix.
+    vertices (V, 3), faces (F, 3) 0-based; tensors or arrays."""
+    path = _check_path(path)
+    f = _np(faces).astype(np.int64)
+    v = _check_vertices(_np(vertices), len(_np(vertices)), str(path))
+    normals = vertex_normals(v, f)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() == ".ply":
+        _write_ply(path, v, f, normals)
+    else:
+        write_text(path, obj_text(v, f, normals=normals, header=header))
+    return path
