@@ -80,6 +80,14 @@ def _filled(polys: np.ndarray, colors: np.ndarray) -> PolyCollection:
     return PolyCollection(polys, facecolors=colors, edgecolors=colors, linewidths=0.4)
 
 
+def view_limits(points: np.ndarray, pad: float = 0.03) -> tuple[tuple[float, float], tuple[float, float]]:
+    """x and y limits (metres) of the front/back views that hold every point (N, 3): x symmetric about 0,
+    since the back view mirrors x."""
+    (x0, y0), (x1, y1) = points[:, :2].min(0), points[:, :2].max(0)
+    half_w = max(abs(float(x0)), abs(float(x1))) + pad
+    return (-half_w, half_w), (float(y0) - pad, float(y1) + pad)
+
+
 def plot_samples(ds: ClothDataset, indices: list[int], path: Path, gap_max_cm: float | None = None) -> Path:
     """Front and back views (x-y projections, depth-sorted faces) of draped samples on their bodies.
 
@@ -96,9 +104,7 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path, gap_max_cm: f
     gaps = [cKDTree(b).query(g)[0] * 100.0 for b, g in zip(body_v, garments, strict=True)]
     vmax = float(gap_max_cm) if gap_max_cm else max(float(np.percentile(np.concatenate(gaps), 98)), 1e-3)
     cmap, norm = plt.get_cmap("viridis"), Normalize(0.0, vmax)
-    pts = np.concatenate([*body_v, *garments])[:, :2]
-    (x0, y0), (x1, y1) = pts.min(0), pts.max(0)
-    half_w, pad = max(abs(x0), abs(x1)), 0.03  # mirrored back view: one symmetric x range for both
+    (xlim, ylim) = view_limits(np.concatenate([*body_v, *garments]))
     fig, axes = plt.subplots(2, len(indices), figsize=(3.2 * len(indices), 7.4), squeeze=False,
                              layout="constrained")
     for col, i in enumerate(indices):
@@ -110,8 +116,8 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path, gap_max_cm: f
             face_gap = gaps[col][gf[ids]].mean(1)
             colors = np.asarray(cmap(norm(face_gap)))[:, :3] * (0.45 + 0.55 * shade[:, None])
             ax.add_collection(_filled(polys, np.clip(colors, 0, 1)))
-            ax.set_xlim(-half_w - pad, half_w + pad)
-            ax.set_ylim(y0 - pad, y1 + pad)
+            ax.set_xlim(*xlim)
+            ax.set_ylim(*ylim)
             ax.set_aspect("equal")
             ax.axis("off")
             ax.set_title(f"sample {i} {'front' if row == 0 else 'back'}", fontsize=9)
