@@ -5,7 +5,8 @@ patch model on it (CPU schedule), and print their test metrics.
 
 Each step is the command a user would type, run as its own process with its own Hydra run dir under a
 fresh `runs/main/<date>_<time>/` per invocation (`runs/main/latest` points at the newest; under $PBC_ROOT
-when set, as `paths.log_dir`), so a quick look never overwrites a real run. The overrides go to every step (`pbc.generate`, then `pbc.train` twice).
+when set, as `paths.log_dir`), so a quick look never overwrites a real run. The overrides go to every
+step (`pbc.generate`, then `pbc.train` twice).
 """
 
 from __future__ import annotations

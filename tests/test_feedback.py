@@ -207,3 +207,28 @@ def test_relative_paths_leave_other_names_alone(tmp_path, inside):
     rel = "." if inside else "../s"
     # the sweep dir's sibling "sx" is another directory: left as it was
     assert relative_paths(text, out, sweep) == f"{rel}/a.ckpt {sweep}x/b {rel}"
+
+
+LOGGING_SCRIPT = """
+import logging, logging.config, sys
+import lightning  # noqa: F401  (gives its loggers handlers of their own, as in pbc.train)
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+with initialize_config_dir(config_dir=sys.argv[1], version_base="1.3"):
+    cfg = compose("config", return_hydra_config=True, overrides=["hydra.runtime.output_dir=" + sys.argv[2]])
+conf = OmegaConf.to_container(cfg.hydra.job_logging, resolve=False)
+conf["handlers"]["file"]["filename"] = sys.argv[2] + "/job.log"
+logging.config.dictConfig(conf)
+logging.getLogger("lightning.pytorch.utilities.rank_zero").info("trainer line")
+logging.getLogger("lightning.fabric.utilities.seed").info("seed line")
+"""
+
+
+def test_lightning_lines_print_once_and_reach_the_log_file(tmp_path):
+    r = subprocess.run([sys.executable, "-c", LOGGING_SCRIPT, str(ROOT / "conf"), str(tmp_path)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    console = r.stdout + r.stderr
+    assert console.count("trainer line") == 1 and console.count("seed line") == 1, console
+    log_file = (tmp_path / "job.log").read_text()
+    assert "trainer line" in log_file and "seed line" in log_file

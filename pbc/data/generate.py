@@ -373,7 +373,8 @@ def progress_bar(total: int, desc: str, unit: str, stream=None, log_every_s: flo
         return tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, file=stream)
     return tqdm(total=total, desc=desc, unit=unit, file=_LogLines(), mininterval=log_every_s,
                 maxinterval=max(log_every_s, 1.0), miniters=1,
-                bar_format="{desc}: {n_fmt}/{total_fmt} ({percentage:.0f}%) [{elapsed}<{remaining}, {rate_fmt}{postfix}]")
+                bar_format="{desc}: {n_fmt}/{total_fmt} ({percentage:.0f}%) "
+                           "[{elapsed}<{remaining}, {rate_fmt}{postfix}]")
 
 
 def _warp_cache_filled(sim: DictConfig) -> bool:

@@ -337,10 +337,11 @@ def _tensorboard(trainer):
 
 class ImagePanel(L.Callback):
     """Every ``every_n_epochs`` validation epochs, log pred | truth | |error| for ``num_poses`` fixed val
-    poses (:func:`panel_figure`, fixed scales; tag :func:`panel_tag`); at the end of fit, log one predicted mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
+    poses (:func:`panel_figure`, fixed scales; tag :func:`panel_tag`); at the end of fit, log one predicted
+    mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
 
     def __init__(self, every_n_epochs: int = 5, num_poses: int = 4, mesh_dir: str | None = None,
-                 error_scale_cm: float = 2.0, offset_scale_cm: float = 10.0) -> None:
+                 error_scale_cm: float = 5.0, offset_scale_cm: float = 10.0) -> None:
         self.every = max(1, int(every_n_epochs))
         self.num = int(num_poses)
         self.error_scale_cm = float(error_scale_cm)
