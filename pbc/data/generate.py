@@ -327,7 +327,7 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
     work_fn = _work_batch if batched else _work
     n_samples = sum(map(len, todo))
     bar = progress_bar(n_samples, f"drape ({workers} workers)", "sample")
-    if not _warp_cache_filled(cfg.sim):
+    if cfg.sim.get("kernel_cache_dir") and not _warp_cache_filled(cfg.sim):
         log.info("the first drape of each worker compiles warp's kernels into %s (about a minute on a CPU; "
                  "later runs reuse them)", cfg.sim.get("kernel_cache_dir"))
     discarded = 0
