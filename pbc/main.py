@@ -62,7 +62,9 @@ def main(argv: list[str] | None = None) -> None:
     for title, name, step in STEPS:
         print(f"== {title}", flush=True)
         t0 = time.time()
-        subprocess.run([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra], check=True)
+        rc = subprocess.run([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra]).returncode
+        if rc:  # the step printed its own error above; say which step and where its log is, no traceback here
+            sys.exit(f"pbc.main: step '{title}' failed (exit {rc}); its run dir: {runs / name}")
         print(f"   ({time.time() - t0:.0f} s)", flush=True)
     print(f"== test metrics (done in {(time.time() - t_start) / 60:.1f} min)")
     print(f"{'run':<10}" + "".join(f"{k:>18}" for k in SHOWN))

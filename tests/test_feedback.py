@@ -77,6 +77,16 @@ def test_main_help_exits_zero_and_writes_nothing(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "runs").exists()
 
 
+def test_main_names_the_failed_step_without_a_traceback(tmp_path):
+    env = dict(os.environ, PBC_ROOT=str(tmp_path))
+    r = subprocess.run([sys.executable, "-m", "pbc.main", "data=no_such_data"], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0
+    assert "pbc.main: step 'make the dataset and its preview figures' failed" in r.stderr
+    assert "CalledProcessError" not in r.stderr and "no_such_data" in r.stderr  # the step's own message
+    assert len(list((tmp_path / "runs" / "main").glob("20*"))) == 1
+
+
 def test_main_makes_a_fresh_run_dir_per_invocation(tmp_path):
     from pbc.main import fresh_run_dir
 
