@@ -19,6 +19,7 @@ def main(cfg: DictConfig) -> None:
     if cfg.preview and cfg.data.shard is None:
         from pbc.data.preview import write_preview
 
+        log.info("writing the preview figures and meshes to %s/preview", out)
         for path in write_preview(out, cfg):
             log.info("wrote %s", path)
 

@@ -1,13 +1,18 @@
 """The README's main job: make the default dataset with its previews, train the whole-shirt model and one
 patch model on it (CPU schedule), and print their test metrics.
 
-Each step is the command a user would type, run as its own process with its own Hydra run dir under
-`runs/main/`. Extra arguments go to every step, e.g. `python -m pbc.main data=tshirt_tiny trainer=smoke`.
+    python -m pbc.main data=tshirt_tiny trainer=smoke      # a quick look (minutes)
+
+Each step is the command a user would type, run as its own process with its own Hydra run dir under a
+fresh `runs/main/<date>_<time>/` per invocation (`runs/main/latest` points at the newest; under $PBC_ROOT
+when set, as `paths.log_dir`), so a quick look never overwrites a real run. The overrides go to every
+step (`pbc.generate`, then `pbc.train` twice).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -15,33 +20,68 @@ from pathlib import Path
 
 from pbc.runs import scoped_name
 
-RUNS = Path("runs/main")
+RUNS = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "main"  # conf/paths: ${paths.log_dir}/main
 STEPS = [
-    ("make the dataset and its preview figures", ["pbc.generate", "preview=true", f"hydra.run.dir={RUNS}/generate"]),
-    ("train the whole-shirt model", ["pbc.train", "+experiment=whole", f"hydra.run.dir={RUNS}/whole"]),
-    ("train patch model 7", ["pbc.train", "+experiment=patch_07", f"hydra.run.dir={RUNS}/patch_07"]),
+    ("make the dataset and its preview figures", "generate", ["pbc.generate", "preview=true"]),
+    ("train the whole-shirt model", "whole", ["pbc.train", "+experiment=whole"]),
+    ("train patch model 7", "patch_07", ["pbc.train", "+experiment=patch_07"]),
 ]
 SHOWN = ("vertex_error_cm", "normal_distance", "image_loss")
 
 
+def usage() -> str:
+    steps = "\n".join(f"  {i + 1}. {title}: python -m {' '.join(cmd)} hydra.run.dir=<run dir>/{name}"
+                      for i, (title, name, cmd) in enumerate(STEPS))
+    return (f"usage: python -m pbc.main [HYDRA OVERRIDES...]\n\n{__doc__.strip()}\n\nsteps:\n{steps}\n\n"
+            "Each step's own options: python -m pbc.train --help, python -m pbc.generate --help.")
+
+
+def fresh_run_dir(root: Path = RUNS) -> Path:
+    """A new `<root>/<date>_<time>[_N]` for this invocation, and `<root>/latest` pointing at it."""
+    stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+    out, n = root / stamp, 1
+    while out.exists():
+        out, n = root / f"{stamp}_{n}", n + 1
+    out.mkdir(parents=True)
+    latest = root / "latest"
+    try:  # a convenience only: a file system without symlinks still gets the run
+        if latest.is_symlink() or latest.exists():
+            latest.unlink()
+        latest.symlink_to(out.name, target_is_directory=True)
+    except OSError:
+        pass
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     extra = list(sys.argv[1:] if argv is None else argv)
+    if any(a in ("-h", "--help") for a in extra):
+        print(usage())
+        return
+    runs = fresh_run_dir()
+    print(f"== run dir {runs}", flush=True)
     t_start = time.time()
-    for title, step in STEPS:
+    for title, name, step in STEPS:
         print(f"== {title}", flush=True)
         t0 = time.time()
-        subprocess.run([sys.executable, "-m", *step, *extra], check=True)
+        rc = subprocess.run([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra]).returncode
+        if rc:  # the step printed its own error above; say which step and where its log is, no traceback here
+            sys.exit(f"pbc.main: step '{title}' failed (exit {rc}); its run dir: {runs / name}")
         print(f"   ({time.time() - t0:.0f} s)", flush=True)
     print(f"== test metrics (done in {(time.time() - t_start) / 60:.1f} min)")
     print(f"{'run':<10}{'scope':>16}" + "".join(f"{k:>18}" for k in SHOWN))
     for run in ("whole", "patch_07"):
-        test = json.loads((RUNS / run / "metrics.json").read_text())["test"]
+        path = runs / run / "metrics.json"
+        if not path.is_file():
+            sys.exit(f"pbc.main: {path} is missing: the {run} step ran but did not train "
+                     "(an override such as --cfg or --help stops pbc.train before training)")
+        test = json.loads(path.read_text())["test"]
         # a patch model is scored over its patch's vertices only (patch_vertex_error_cm): say so
         patch = scoped_name(SHOWN[0], "patch") in test
         values = [test.get(scoped_name(k, "patch") if patch else k, float("nan")) for k in SHOWN]
         scope = "its patch only" if patch else "whole garment"
         print(f"{run:<10}{scope:>16}" + "".join(f"{v:>18.4f}" for v in values))
-    print(f"TensorBoard: tensorboard --logdir {RUNS}")
+    print(f"TensorBoard: tensorboard --logdir {runs}")
 
 
 if __name__ == "__main__":

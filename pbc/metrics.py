@@ -23,6 +23,12 @@ def vertex_error_cm(pred: Tensor, gt: Tensor, vertex_ids: Tensor | None = None) 
     return d.norm(dim=-1).mean() * CM_PER_M
 
 
+def vertex_error_cm_per_pose(pred: Tensor, gt: Tensor, vertex_ids: Tensor | None = None) -> Tensor:
+    """Each pose's mean per-vertex Euclidean error in centimetres. pred, gt (B, V, 3) metres -> (B,)."""
+    d = _subset(pred, vertex_ids) - _subset(gt, vertex_ids)
+    return d.norm(dim=-1).mean(-1) * CM_PER_M
+
+
 def normal_cosine_distance(n_pred: Tensor, n_gt: Tensor, vertex_ids: Tensor | None = None) -> Tensor:
     """Mean unit-normal cosine distance 1 - cos (as Table 1). n_pred, n_gt (B, V, 3) -> scalar."""
     return normal_loss(_subset(n_pred, vertex_ids), _subset(n_gt, vertex_ids))

@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import re
 import statistics
 import sys
 from dataclasses import dataclass, field
@@ -24,7 +26,8 @@ import yaml
 from pbc.io import save_figure, write_text
 from pbc.runs import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs, scoped_name
 
-PAPER_FILE = Path(__file__).resolve().parents[1] / "sweeps" / "paper.yaml"
+REPO = Path(__file__).resolve().parents[1]
+PAPER_FILE = REPO / "sweeps" / "paper.yaml"
 
 # Metric names as pbc.train logs them, per split.
 VERTEX, NORMAL = "vertex_error_cm", "normal_distance"
@@ -320,6 +323,22 @@ def _bars(ax, labels, ours, theirs, ylabel, title):
     ax.legend(fontsize=7)
 
 
+def _legend_below(fig, ax) -> None:
+    """One legend under the plots (a figure legend, so it is never wider than the figure): as many columns
+    as fit the figure's width, the figure growing downwards by the rows it needs."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return
+    width_in = fig.get_size_inches()[0]
+    longest = max(len(x) for x in labels)
+    # ~0.06 in per character at 7 pt, plus the line sample
+    ncol = max(1, min(len(labels), int(width_in / (0.06 * longest + 0.5))))
+    rows = -(-len(labels) // ncol)
+    w, h = fig.get_size_inches()
+    fig.set_size_inches(w, h + 0.18 * rows + 0.1)
+    fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=7, frameon=False)
+
+
 def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
     """Write the PNGs that have data; returns {name: file name} for the markdown."""
     import matplotlib
@@ -358,7 +377,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         plt.close(fig)
         made["table2"] = "table2.png"
     if any(r.status == OK for r in patches) or any(r.status == OK for r in hier):
-        fig, ax = plt.subplots(figsize=(9, 3.2))
+        fig, ax = plt.subplots(figsize=(9, 3.2), layout="constrained")
         ok = [r for r in patches if r.status == OK]
         ids = [int(r.label[6:]) for r in ok]
         means = [r.value(f"test/{PATCH_VERTEX}") or 0.0 for r in ok]
@@ -378,15 +397,16 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
                 ax.text(int(r.label[6:]), 0, "x", ha="center", color="red")
         ax.set_xlabel("patch id")
         ax.set_ylabel("test vertex error (cm)")
-        ax.set_title("Hierarchy: per-patch error (bars, ±std over test poses) vs whole / stitched", fontsize=9)
-        ax.legend(fontsize=7)
-        fig.tight_layout()
+        drawn_std = any(errs)
+        ax.set_title("Hierarchy: per-patch error (bars" + (", ±std over test poses" if drawn_std else "")
+                     + ") vs whole / stitched", fontsize=9)
+        _legend_below(fig, ax)
         save_figure(fig, out / "hierarchy.png")
         plt.close(fig)
         made["hierarchy"] = "hierarchy.png"
     curved = [r for r in runs if r.curves]
     if curved:
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), layout="constrained")
         for ax, tags, title in (
             (axes[0], TRAIN_CURVES, "training loss"),
             (axes[1], VAL_CURVES, "validation"),
@@ -402,12 +422,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
             ax.set_xlabel("step")
             if drawn and all(v > 0 for r in curved for t in [drawn] if t in r.curves for _, v in r.curves[t]):
                 ax.set_yscale("log")
-        handles, labels = axes[1].get_legend_handles_labels() or axes[0].get_legend_handles_labels()
-        if not handles:
-            handles, labels = axes[0].get_legend_handles_labels()
-        if handles:
-            fig.legend(handles, labels, fontsize=6, loc="center left", bbox_to_anchor=(1.0, 0.5))
-        fig.tight_layout()
+        _legend_below(fig, axes[1] if axes[1].get_legend_handles_labels()[0] else axes[0])
         save_figure(fig, out / "learning_curves.png")
         plt.close(fig)
         made["curves"] = "learning_curves.png"
@@ -457,9 +472,25 @@ def _command(sweep_dir: Path) -> str | None:
     return f"{h.get('job', {}).get('name', '?')} -m {task}" + (f"  (swept: {swept})" if swept else "")
 
 
+def relative_paths(text: str, out: Path, sweep_dir: Path) -> str:
+    """`text` with the absolute paths of this machine made relative, so a report reads the same anywhere:
+    paths inside the report dir relative to it ("."), the sweep dir relative to the report dir, and paths
+    inside the repository relative to its root."""
+    out, sweep = Path(out).resolve(), Path(sweep_dir).resolve()
+    bases = {REPO: "", sweep: os.path.relpath(sweep, out), out: "."}
+    for base in sorted(bases, key=lambda b: len(str(b)), reverse=True):
+        if str(base) == base.anchor:
+            continue
+        rel = bases[base]
+        # a path below the base, then the base itself (not a longer name that merely starts with it)
+        text = re.sub(re.escape(str(base)) + "/", lambda _, r=rel: r + "/" if r else "", text)
+        text = re.sub(re.escape(str(base)) + r"(?![\w.-])", lambda _, r=rel: r or ".", text)
+    return text
+
+
 def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     n = {s: sum(r.status == s for r in runs) for s in (OK, FAILED, INCOMPLETE)}
-    md = [f"# Sweep report: `{sweep_dir}`", ""]
+    md = [f"# Sweep report: `{sweep_dir.name}`", ""]
     md.append(
         f"Generated {datetime.now():%Y-%m-%d %H:%M} by `python -m pbc.report`. {len(runs)} runs: "
         f"{n[OK]} ok, {n[FAILED]} failed, {n[INCOMPLETE]} incomplete."
@@ -638,9 +669,12 @@ def build_report(
     hier = hierarchy_rows(runs)
     cl = claims(t1, t2, hier, paper)
     figs = figures(out, runs, t1, t2, patches, hier) if plots else {}
-    write_text(out / "report.md", render(sweep_dir, runs, t1, t2, patches, hier, cl, figs))
+    md = render(sweep_dir.resolve(), runs, t1, t2, patches, hier, cl, figs)
+    md += ("\nPaths are relative to this report's folder; paths without a leading `.` are relative to the "
+           "repository root.\n")
+    write_text(out / "report.md", relative_paths(md, out, sweep_dir))
     data = {
-        "sweep_dir": str(sweep_dir),
+        "sweep_dir": str(sweep_dir.resolve()),
         "runs": [
             {"name": r.name, "status": r.status, "error": r.error, "choices": r.choices, "metrics": r.metrics}
             for r in runs
@@ -652,7 +686,8 @@ def build_report(
         "claims": [c.__dict__ for c in cl],
         "figures": figs,
     }
-    write_text(out / "report.json", json.dumps(data, indent=1, default=str, allow_nan=True))
+    text = json.dumps(data, indent=1, default=str, allow_nan=True)
+    write_text(out / "report.json", relative_paths(text, out, sweep_dir))
     return out / "report.md"
 
 

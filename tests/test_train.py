@@ -161,6 +161,17 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     keys = [ln.split(" ", 1)[0] for ln in mesh.read_text().splitlines()]
     assert keys.count("vt") > 0 and keys.count("vn") == keys.count("v") > 0
     assert (run / "meshes" / mesh.name.replace("pred", "gt")).is_file()
+    # the spread over test poses (the report's error bars), named after the error it spreads
+    assert any(k.endswith("vertex_error_cm_std") and v >= 0 for k, v in metrics["test"].items()), metrics["test"]
+    # the image panel at its fixed error scale, the scale in its tag
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run / "tensorboard"))
+    acc.Reload()
+    assert "val/panel_err_0-5cm" in acc.Tags()["images"]
+    # Lightning's INFO lines once each (Hydra's handlers only), and in the run's log file too
+    assert (r.stdout + r.stderr).count("Seed set to 0") == 1
+    assert "Seed set to 0" in (run / "train.log").read_text()
     print(f"{exp}: {time.time() - t0:.1f} s")
 
 

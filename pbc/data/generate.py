@@ -17,9 +17,11 @@ manifest is byte-identical too.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import multiprocessing as mp
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +41,8 @@ from pbc.io import atomic_path, dir_lock, hash_arrays, load_npz, read_json, save
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 from pbc.validate import check_config, identity_diff
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -282,8 +286,11 @@ def _generate(cfg: DictConfig) -> Path:
         return out
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    log.info("building the scene: body, garment, cage and the rest-pose shrink-wrap")
     scene, wrap_stats = build_scene(cfg)
     timings["scene"] = time.perf_counter() - t0
+    log.info("scene built in %.1f s (%d body, %d garment vertices)", timings["scene"],
+             scene.body.vertices.shape[0], scene.garment.vertices.shape[0])
     work = out / "work"
     (work / "samples").mkdir(parents=True, exist_ok=True)
     fp = fingerprint(cfg, scene)
@@ -327,7 +334,10 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
         jobs = [job for batch in jobs for job in batch]
     work_fn = _work_batch if batched else _work
     n_samples = sum(map(len, todo))
-    bar = tqdm(total=n_samples, desc=f"drape ({workers} workers)", unit="sample", dynamic_ncols=True)
+    bar = progress_bar(n_samples, f"drape ({workers} workers)", "sample")
+    if cfg.sim.get("kernel_cache_dir") and not _warp_cache_filled(cfg.sim):
+        log.info("the first drape of each worker compiles warp's kernels into %s (about a minute on a CPU; "
+                 "later runs reuse them)", cfg.sim.get("kernel_cache_dir"))
     discarded = 0
     if workers == 1:
         global _SCENE
@@ -344,11 +354,41 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
             for _, ok, _reason in result if batched else [result]:
                 discarded += not ok
                 bar.update(1)
-            bar.set_postfix(discarded=discarded)
+            bar.set_postfix(discarded=discarded, refresh=False)  # shown at the bar's next (timed) refresh
     finally:
         bar.close()
         if workers > 1:
             pool.terminate()
+
+
+class _LogLines:
+    """A file-like sink for tqdm that turns each refresh into one log line (no carriage returns)."""
+
+    def write(self, text: str) -> None:
+        text = text.strip("\r\n\x1b[A ")
+        if text:
+            log.info(text)
+
+    def flush(self) -> None:
+        pass
+
+
+def progress_bar(total: int, desc: str, unit: str, stream=None, log_every_s: float = 30.0) -> tqdm:
+    """A tqdm bar on a terminal; elsewhere (a log file, a pipe, a batch job) a plain log line at most every
+    `log_every_s` seconds instead of a redraw per item, which a file stores as one endless line."""
+    stream = sys.stderr if stream is None else stream
+    if getattr(stream, "isatty", lambda: False)():
+        return tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, file=stream)
+    return tqdm(total=total, desc=desc, unit=unit, file=_LogLines(), mininterval=log_every_s,
+                maxinterval=max(log_every_s, 1.0), miniters=1,
+                bar_format="{desc}: {n_fmt}/{total_fmt} ({percentage:.0f}%) "
+                           "[{elapsed}<{remaining}, {rate_fmt}{postfix}]")
+
+
+def _warp_cache_filled(sim: DictConfig) -> bool:
+    """Whether warp's kernel cache (`sim.kernel_cache_dir`) already holds compiled kernels."""
+    d = sim.get("kernel_cache_dir")
+    return bool(d) and Path(d).is_dir() and any(Path(d).iterdir())
 
 
 def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings) -> None:

@@ -18,7 +18,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
+from matplotlib.colors import Normalize  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
@@ -61,31 +63,67 @@ def plot_uv_layout(ds: ClothDataset, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def plot_samples(ds: ClothDataset, indices: list[int], path: Path) -> Path:
-    """Front and back views (x-y projections, depth-sorted faces) of draped samples on their bodies."""
+def _project(verts: np.ndarray, faces: np.ndarray, sign: float):
+    """Visible, back-to-front sorted triangles of a mesh seen along -z (sign 1) or +z (sign -1).
+    verts (V, 3), faces (F, 3) -> (triangles (K, 3, 2), Lambert shade (K,), face ids (K,))."""
+    tri = verts[faces] * np.array([sign, 1.0, sign])
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
+    light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+    shade = 0.35 + 0.65 * np.clip(n @ light, 0, 1)
+    ids = np.flatnonzero(n[:, 2] > 0)
+    ids = ids[np.argsort(tri[ids, :, 2].mean(1))]
+    return tri[ids][:, :, :2], shade[ids], ids
+
+
+def _filled(polys: np.ndarray, colors: np.ndarray) -> PolyCollection:
+    # the edge drawn in the face's own colour closes the anti-aliased hairline gaps between neighbours
+    return PolyCollection(polys, facecolors=colors, edgecolors=colors, linewidths=0.4)
+
+
+def view_limits(points: np.ndarray, pad: float = 0.03) -> tuple[tuple[float, float], tuple[float, float]]:
+    """x and y limits (metres) of the front/back views that hold every point (N, 3): x symmetric about 0,
+    since the back view mirrors x."""
+    (x0, y0), (x1, y1) = points[:, :2].min(0), points[:, :2].max(0)
+    half_w = max(abs(float(x0)), abs(float(x1))) + pad
+    return (-half_w, half_w), (float(y0) - pad, float(y1) + pad)
+
+
+def plot_samples(ds: ClothDataset, indices: list[int], path: Path, gap_max_cm: float | None = None) -> Path:
+    """Front and back views (x-y projections, depth-sorted faces) of draped samples on their bodies.
+
+    The garment is coloured by each vertex's distance to the nearest body vertex (cm) on one colour scale
+    shared by every panel (0..`gap_max_cm`, default the 98th percentile over the shown samples); all panels
+    share one frame that holds every point of every sample, raised arms included.
+    """
+    from scipy.spatial import cKDTree
+
     rot = torch.from_numpy(np.asarray(ds.poses[indices])).float()
     body_v = pose_body(ds.body, rot).numpy()
     bf, gf = ds.body.faces.numpy(), ds.garment.faces.numpy()
-    fig, axes = plt.subplots(2, len(indices), figsize=(3.2 * len(indices), 7), squeeze=False)
-    light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+    garments = [np.asarray(ds.verts[i]) for i in indices]
+    gaps = [cKDTree(b).query(g)[0] * 100.0 for b, g in zip(body_v, garments, strict=True)]
+    vmax = float(gap_max_cm) if gap_max_cm else max(float(np.percentile(np.concatenate(gaps), 98)), 1e-3)
+    cmap, norm = plt.get_cmap("viridis"), Normalize(0.0, vmax)
+    (xlim, ylim) = view_limits(np.concatenate([*body_v, *garments]))
+    fig, axes = plt.subplots(2, len(indices), figsize=(3.2 * len(indices), 7.4), squeeze=False,
+                             layout="constrained")
     for col, i in enumerate(indices):
         for row, sign in enumerate((1.0, -1.0)):  # front view looks along -z, back view along +z
             ax = axes[row, col]
-            garment = (np.asarray(ds.verts[i]), gf, (0.3, 0.5, 0.9))
-            for verts, faces, base in ((body_v[col], bf, (0.8, 0.7, 0.6)), garment):
-                tri = verts[faces] * np.array([sign, 1.0, sign])
-                n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-                n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
-                shade = 0.35 + 0.65 * np.clip(n @ light, 0, 1)
-                visible = n[:, 2] > 0
-                order = np.argsort(tri[visible, :, 2].mean(1))
-                colors = np.clip(np.asarray(base)[None] * shade[visible][order, None], 0, 1)
-                ax.add_collection(PolyCollection(tri[visible][order][:, :, :2], facecolors=colors, edgecolors="none"))
-            ax.set_xlim(-0.9, 0.9)
-            ax.set_ylim(-0.4, 0.9)
+            polys, shade, _ = _project(body_v[col], bf, sign)
+            ax.add_collection(_filled(polys, np.clip(np.array([0.8, 0.7, 0.6])[None] * shade[:, None], 0, 1)))
+            polys, shade, ids = _project(garments[col], gf, sign)
+            face_gap = gaps[col][gf[ids]].mean(1)
+            colors = np.asarray(cmap(norm(face_gap)))[:, :3] * (0.45 + 0.55 * shade[:, None])
+            ax.add_collection(_filled(polys, np.clip(colors, 0, 1)))
+            ax.set_xlim(*xlim)
+            ax.set_ylim(*ylim)
             ax.set_aspect("equal")
             ax.axis("off")
             ax.set_title(f"sample {i} {'front' if row == 0 else 'back'}", fontsize=9)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=axes.ravel().tolist(), location="bottom",
+                 shrink=0.5, aspect=40, extend="max", label="garment to nearest body vertex (cm)")
     return save_figure(fig, path)
 
 

@@ -7,7 +7,7 @@ and the cm metrics see the real garment. The target (operators, skinning, faces,
 it is attached with :meth:`ClothModule.attach` before fit/test (``pbc.train`` attaches the DataModule's).
 Built from ``conf/model/*.yaml`` (``_target_`` this class; optimiser and LR scheduler as ``_partial_``).
 
-Also here: :class:`ImagePanel`, the TensorBoard callback drawing pred | gt | error images for fixed
+Also here: :class:`ImagePanel`, the TensorBoard callback drawing pred | truth | |error| images for fixed
 validation poses and writing one predicted mesh (``add_mesh`` + OBJ via pbc.geometry.meshio; a patch
 model's is its patch's submesh, ``pred_val0_patchNN.obj``) at the end of fit.
 """
@@ -26,7 +26,7 @@ from torch import Tensor
 
 from pbc.geometry.meshio import submesh, write_garment_mesh
 from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
-from pbc.metrics import normal_cosine_distance, vertex_error_cm
+from pbc.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose
 from pbc.models.fc import fit_pca as fit_pca_values
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.pixels.target import KINDS, VertexTarget
@@ -39,6 +39,11 @@ MONITOR = monitor("whole")  # a patch model's is monitor("patch"): val/patch_ver
 # log prefixes of the test dataloaders, in order (see pbc.data.datamodule.ClothDataModule.scoring_dataloaders)
 TEST_SPLITS = ("test", "train_final")
 IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space")
+
+
+def on_progress_bar(split: str, name: str) -> bool:
+    """The metrics the training progress bar shows: the training loss and the validation vertex error."""
+    return (split == "train" and name == "loss") or (split == "val" and name.endswith("vertex_error_cm"))
 
 
 class ClothModule(L.LightningModule):
@@ -173,10 +178,14 @@ class ClothModule(L.LightningModule):
                 + "; stopping instead of training a NaN model")
         bs = batch["pose"].shape[0]
         # a patch model's vertex metrics cover its patch only: their names say so (patch_vertex_error_cm)
-        kind = self.hparams.kind
-        self.log_dict({f"{split}/{scoped_name(k, kind)}": v.detach() if k != "loss" else v for k, v in logs.items()},
-                      on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=False,
-                      add_dataloader_idx=False)
+        logs = {scoped_name(k, self.hparams.kind): v for k, v in logs.items()}
+        shown = {k for k in logs if on_progress_bar(split, k)}
+        for keys, bar in ((shown, True), (set(logs) - shown, False)):
+            self.log_dict({f"{split}/{k}": v.detach() if k != "loss" else v for k, v in logs.items() if k in keys},
+                          on_step=split == "train", on_epoch=True, batch_size=bs, prog_bar=bar,
+                          add_dataloader_idx=False)
+        if split in TEST_SPLITS:
+            self._record_spread(split, logs, pos, t["verts"], idv)
         return total, {"pred": pred.detach(), **{k: v for k, v in t.items() if k in ("image", "mask")},
                        "positions": pos.detach()}
 
@@ -190,6 +199,30 @@ class ClothModule(L.LightningModule):
         # test loaders in TEST_SPLITS order: the test split, then (pbc.train) the training split scored by
         # the best model (Table 1's training error) under its own prefix, never mixed with the test curves
         self.step(batch, TEST_SPLITS[dataloader_idx], batch_idx)
+
+    # ------------------------------------------------------------------------------ per-pose spread
+    @torch.no_grad()
+    def _record_spread(self, split: str, logs: dict, pos: Tensor, verts: Tensor, ids: Tensor | None) -> None:
+        """Keep each test pose's vertex error (cm), so the epoch end can log their spread as
+        ``<split>/<vertex error name>_std`` (the error bars of pbc.report's figures)."""
+        name = next((k for k in logs if k.endswith("vertex_error_cm")), None)
+        if name is None:
+            return
+        if getattr(self, "_per_pose", None) is None:
+            self._per_pose: dict[str, list[Tensor]] = {}
+        self._per_pose.setdefault(f"{split}/{name}_std", []).append(vertex_error_cm_per_pose(pos, verts, ids).cpu())
+
+    def on_test_epoch_start(self) -> None:
+        self._per_pose = {}
+
+    def on_test_epoch_end(self) -> None:
+        spread, self._per_pose = getattr(self, "_per_pose", None) or {}, {}
+        for key, parts in spread.items():
+            # every rank's poses (single device: the tensor itself)
+            errors = self.all_gather(torch.cat(parts).to(self.device)).flatten().double()
+            # the spread over poses (population std: one pose -> 0, not NaN)
+            self.log(key, errors.std(unbiased=False).float() if errors.numel() else errors.new_zeros(()).float(),
+                     add_dataloader_idx=False)
 
     # ------------------------------------------------------------------------------ PCA (fc)
     def on_fit_start(self) -> None:
@@ -251,21 +284,63 @@ class ClothModule(L.LightningModule):
 
 
 # ---------------------------------------------------------------------------------- visuals
-def _to_rgb(x: Tensor, scale: float) -> Tensor:
-    """(3, H, W) signed offsets -> [0, 1] RGB, 0.5 = no offset."""
-    return (0.5 + x / (2 * scale)).clamp(0, 1)
+PANEL_COLUMNS = ("pred", "truth", "|error|")
 
 
-def image_panel(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
-    """One pose: pred (C, H, W), gt, mask (C, H, W) -> (3, C/3*H, 3*W) rows = pieces, cols = pred|gt|error."""
-    scale = float(gt.abs().max().clamp_min(1e-6))
-    rows = []
-    for k in range(pred.shape[0] // 3):
-        s = slice(3 * k, 3 * k + 3)
-        err = ((pred[s] - gt[s]).abs().sum(0) * mask[s][0]) / scale
-        rows.append(torch.cat([_to_rgb(pred[s] * mask[s], scale), _to_rgb(gt[s], scale),
-                               err.clamp(0, 1).expand(3, -1, -1)], dim=2))
-    return torch.cat(rows, dim=1)
+def panel_error_cm(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """Per-pixel error of cloth images in cm: pred, gt (B, 3P, H, W) metres (P pieces of (du, dv, dn)),
+    mask (B, 3P or 1, H, W) -> (B, P, H, W), the norm of each piece's offset difference, 0 off the charts."""
+    b, c, h, w = pred.shape
+    diff = (pred - gt).reshape(b, c // 3, 3, h, w).norm(dim=2)
+    inside = mask.expand(b, c, h, w).reshape(b, c // 3, 3, h, w)[:, :, 0] > 0
+    return diff * inside * 100.0
+
+
+def _offset_rgb(x: Tensor, scale_cm: float) -> Tensor:
+    """(3, H, W) signed offsets in metres -> (H, W, 3) [0, 1] RGB at a fixed scale, grey = no offset."""
+    return (0.5 + x * 100.0 / (2 * scale_cm)).clamp(0, 1).permute(1, 2, 0)
+
+
+def panel_tag(error_scale_cm: float) -> str:
+    """The TensorBoard tag of the image panel; it names the fixed error colour scale."""
+    return f"val/panel_err_0-{error_scale_cm:g}cm"
+
+
+def panel_figure(pred: Tensor, gt: Tensor, mask: Tensor, error_scale_cm: float, offset_scale_cm: float,
+                 names: list[str] | None = None):
+    """A matplotlib figure: one row per (pose, piece), columns pred | truth | |error|, all at fixed scales.
+
+    pred, gt (B, 3P, H, W) metres, mask (B, 3P or 1, H, W). Offsets map to RGB at +-``offset_scale_cm``
+    (grey = 0); the error column is the per-pixel offset error on 0..``error_scale_cm`` (colour bar), so
+    brightness means the same across poses and epochs.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pred, gt, mask = pred.detach().float().cpu(), gt.detach().float().cpu(), mask.detach().float().cpu()
+    err = panel_error_cm(pred, gt, mask)
+    b, p = err.shape[:2]
+    pieces = names or (["front", "back"] if p == 2 else [f"piece {k}" for k in range(p)])
+    fig, axes = plt.subplots(b * p, 3, figsize=(6.4, 1.9 * b * p + 0.8), squeeze=False, layout="constrained")
+    for i in range(b):
+        for k in range(p):
+            row, s = i * p + k, slice(3 * k, 3 * k + 3)
+            m = mask[i].expand_as(pred[i])[s]
+            axes[row, 0].imshow(_offset_rgb(pred[i][s] * m, offset_scale_cm).numpy())
+            axes[row, 1].imshow(_offset_rgb(gt[i][s], offset_scale_cm).numpy())
+            h = axes[row, 2].imshow(err[i, k].numpy(), cmap="magma", vmin=0.0, vmax=error_scale_cm)
+            axes[row, 0].set_ylabel(f"pose {i} {pieces[k]}", fontsize=8)
+    for col, title in enumerate(PANEL_COLUMNS):
+        axes[0, col].set_title(title if col < 2 else f"{title} (0-{error_scale_cm:g} cm)", fontsize=9)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(h, ax=axes.ravel().tolist(), location="bottom", shrink=0.5, aspect=30,
+                 label=f"|error| (cm), clipped at {error_scale_cm:g}")
+    fig.suptitle(f"offsets (du, dv, dn) as RGB at ±{offset_scale_cm:g} cm, grey = 0", fontsize=8)
+    return fig
 
 
 def _tensorboard(trainer):
@@ -276,12 +351,16 @@ def _tensorboard(trainer):
 
 
 class ImagePanel(L.Callback):
-    """Every ``every_n_epochs`` validation epochs, log pred | gt | error for ``num_poses`` fixed val poses;
-    at the end of fit, log one predicted mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
+    """Every ``every_n_epochs`` validation epochs, log pred | truth | |error| for ``num_poses`` fixed val
+    poses (:func:`panel_figure`, fixed scales; tag :func:`panel_tag`); at the end of fit, log one predicted
+    mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
 
-    def __init__(self, every_n_epochs: int = 5, num_poses: int = 4, mesh_dir: str | None = None) -> None:
+    def __init__(self, every_n_epochs: int = 5, num_poses: int = 4, mesh_dir: str | None = None,
+                 error_scale_cm: float = 5.0, offset_scale_cm: float = 10.0) -> None:
         self.every = max(1, int(every_n_epochs))
         self.num = int(num_poses)
+        self.error_scale_cm = float(error_scale_cm)
+        self.offset_scale_cm = float(offset_scale_cm)
         self.mesh_dir = Path(mesh_dir) if mesh_dir else None
         self._batch: dict | None = None
 
@@ -322,10 +401,8 @@ class ImagePanel(L.Callback):
         if out is None:
             return
         _, t, pred, _ = out
-        mask = t["mask"].expand_as(pred)
-        panels = [image_panel(pred[i].float().cpu(), t["image"][i].float().cpu(), mask[i].float().cpu())
-                  for i in range(pred.shape[0])]
-        tb.add_image("val/panel_pred_gt_error", torch.cat(panels, dim=1), global_step=trainer.global_step)
+        fig = panel_figure(pred, t["image"], t["mask"], self.error_scale_cm, self.offset_scale_cm)
+        tb.add_figure(panel_tag(self.error_scale_cm), fig, global_step=trainer.global_step, close=True)
 
     def on_fit_end(self, trainer, pl_module) -> None:
         if not trainer.is_global_zero:

@@ -53,10 +53,13 @@ def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles:
 
 def crop_windows_figure(ops512: ImageOperators, image: np.ndarray, cage, crop_size: int, path: Path) -> None:
     """The 512 image's dn channel per side with every patch's crop window drawn on it."""
-    fig, axes = plt.subplots(1, 2, figsize=(14, 7))
+    fig, axes = plt.subplots(1, 2, figsize=(14, 7.6), layout="constrained")
+    # one symmetric colour scale for both sides, so front and back compare
+    lim = max(float(np.abs(image[[2, 5]][ops512.mask.numpy()]).max(initial=0.0)), 1e-9)
     for s in range(2):
         ax = axes[s]
-        ax.imshow(np.where(ops512.mask[s].numpy(), image[3 * s + 2], np.nan), cmap="RdBu_r")
+        h = ax.imshow(np.where(ops512.mask[s].numpy(), image[3 * s + 2], np.nan), cmap="RdBu_r", vmin=-lim,
+                      vmax=lim)
         for p in cage.patches:
             if p.side != s:
                 continue
@@ -65,6 +68,7 @@ def crop_windows_figure(ops512: ImageOperators, image: np.ndarray, cage, crop_si
             ax.text(c0 + size / 2, r0 + size / 2, str(p.id), ha="center", va="center", fontsize=7)
         ax.set_title(f"{'front' if s == 0 else 'back'}: crop windows ({crop_size} px)")
         ax.axis("off")
+    fig.colorbar(h, ax=axes.tolist(), location="bottom", shrink=0.4, aspect=40, label="dn offset (m)")
     save_figure(fig, path, dpi=80)
 
 
