@@ -191,38 +191,43 @@ class Source:
     what: str
 
 
-def source_from_dataset(ds, index: int, resolution: int, pad: int, cache_dir=None, run: str | None = None) -> Source:
+def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> Source:
     """Sample `index` of a dataset: its draped offsets rendered (run=None), or a whole-shirt model's
-    prediction for its pose (run = the model's run dir)."""
-    from pbc.pixels.frames import to_offsets
-    from pbc.pixels.operators import ImageOperators
-    from pbc.pixels.reconstruct import Skinner
+    prediction for its pose (run = the model's run dir).
+
+    image_cfg: the `image` config node; the image is at its whole_resolution. A run's prediction is read
+    under the run's own image config (recorded by pbc.train), `image_cfg` only when the run has none.
+    Operators and skinning come from the whole-shirt cloth target (`pbc.pixels.target.make_target`).
+    """
+    from pbc.pixels.target import make_target
 
     if not 0 <= index < len(ds):
         raise ValueError(f"sample {index} is out of range: the dataset {ds.dir} has {len(ds)} samples")
     pose = torch.from_numpy(np.array(ds.poses[index], np.float32))[None]
-    anchors, frames = Skinner(ds.body, ds.garment, ds.embedding)(pose)
-    space = "local"
     if run is None:
-        ops = ImageOperators.for_garment(ds.garment, resolution, pad, cache_dir=cache_dir)
+        target = make_target(ds, image_cfg, "whole")
         verts = torch.from_numpy(np.array(ds.verts[index], np.float32))[None]
-        image = ops.render(to_offsets(verts, anchors, frames, space))
+        t = target.render({"pose": pose, "verts": verts})
+        image, anchors, frames = t["image"], t["anchors"], t["frames"]
         what = f"dataset sample {index}"
     else:
         from pbc.predict import load_decoder, read_run
+        from pbc.runs import run_image_config
 
         info = read_run(run)
         if info.kind != "whole":
             raise ValueError(f"{run}: a {info.kind!r} run; image editing needs a whole-shirt run (6-channel image)")
         net, hp = load_decoder(info.checkpoint)
-        space = hp.get("space", "local")
+        target = make_target(ds, run_image_config(info, image_cfg), "whole", space=hp.get("space", "local"))
         with torch.inference_mode():
             image = net.eval()(pose.reshape(1, -1)).float()
-        res = int(image.shape[-1])
-        ops = ImageOperators.for_garment(ds.garment, res, pad, cache_dir=cache_dir)
-        image = image * ops.image_mask()
+        if tuple(image.shape[-2:]) != target.image_size:
+            raise ValueError(f"{run}: the model predicts {tuple(image.shape[-2:])} images but its image config "
+                             f"says {target.image_size}; pass the run's image.whole_resolution as an override")
+        image = image * target.ops.image_mask()
+        anchors, frames = target.skinner(pose)
         what = f"prediction of {info.dir} for the pose of sample {index}"
-    return Source(image.contiguous(), anchors, frames, ops, space, ds.garment, ds.cage, what)
+    return Source(image.contiguous(), anchors, frames, target.ops, target.space, ds.garment, ds.cage, what)
 
 
 # ------------------------------------------------------------------------------------------- figure
@@ -313,14 +318,10 @@ def run_edit(args) -> dict:
     from pbc.config import load_config
     from pbc.data.dataset import load_dataset
     from pbc.geometry.garment import save_garment_obj
-    from pbc.pixels.operators import image_sizes
 
-    cfg = load_config(args.overrides)
+    cfg = load_config(args.overrides + ([f"image.whole_resolution={args.resolution}"] if args.resolution else []))
     ds = load_dataset(args.data_dir or cfg.data.dir)
-    sizes = image_sizes(cfg.image)
-    res = args.resolution or sizes["whole_resolution"]
-    pad = sizes["whole_pad"] if res == sizes["whole_resolution"] else sizes["patch_pad"]
-    src = source_from_dataset(ds, args.sample, res, pad, cache_dir=Path(cfg.paths.data_dir) / "cache", run=args.run)
+    src = source_from_dataset(ds, args.sample, cfg.image, run=args.run)
     res = src.ops.res
     mask = _mask_from_args(args, src)
     feature = None
@@ -377,7 +378,8 @@ def parse_args(argv=None):
     ap.add_argument("--data-dir", default=None, help="dataset directory (default: the config's data.dir)")
     ap.add_argument("--sample", type=int, default=0, help="dataset sample whose pose (and cloth) is edited")
     ap.add_argument("--run", default=None, help="a whole-shirt run dir: edit its prediction instead of the data")
-    ap.add_argument("--resolution", type=int, default=None, help="image resolution (default image.whole_resolution)")
+    ap.add_argument("--resolution", type=int, default=None,
+                    help="image resolution (sets image.whole_resolution; a --run uses its own)")
     ap.add_argument("--shift-u", type=float, default=0.0, help="metres added to du")
     ap.add_argument("--shift-v", type=float, default=0.0, help="metres added to dv")
     ap.add_argument("--normal", type=float, default=0.0, help="metres added to dn (+ inflate, - shrink)")

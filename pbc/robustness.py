@@ -156,10 +156,10 @@ def mean_baseline(data_dir: Path) -> dict:
     """
     from pbc.data.dataset import load_dataset
     from pbc.pixels.frames import from_offsets, to_offsets
-    from pbc.pixels.reconstruct import Skinner
+    from pbc.pixels.target import make_target
 
     ds = load_dataset(data_dir)
-    skin = Skinner(ds.body, ds.garment, ds.embedding)
+    skin = make_target(ds, None, "fc").skinner  # per-vertex target: the skinner, no operators
 
     def split(name):
         idx = ds.split(name)
@@ -231,21 +231,24 @@ def predict_on(run_dir: Path, data_dir: Path, index: int):
     posed trial body (Vb, 3), dataset)."""
     from pbc.data.dataset import load_dataset
     from pbc.geometry.body import pose_body
-    from pbc.pixels.frames import from_offsets, to_offsets
-    from pbc.pixels.operators import ImageOperators
-    from pbc.pixels.reconstruct import Skinner
+    from pbc.pixels.frames import to_offsets
+    from pbc.pixels.target import make_target
     from pbc.predict import load_decoder, read_run
+    from pbc.runs import run_image_config
 
     ds = load_dataset(data_dir)
     info = read_run(run_dir)
     net, hp = load_decoder(info.checkpoint)
-    space = hp.get("space", "local")
+    image_cfg = run_image_config(info)
+    if image_cfg is None:
+        raise ValueError(f"{run_dir}: metrics.json records no config.image (train the trial with pbc.train)")
+    # the run's own image config and offset space: the operators exactly as its training built them
+    target = make_target(ds, image_cfg, "whole", space=hp.get("space", "local"))
     pose = torch.from_numpy(np.array(ds.poses[index], np.float32))[None]
     with torch.inference_mode():
         img = net(pose.reshape(1, -1)).float()
-    ops = ImageOperators.for_garment(ds.garment, int(img.shape[-1]), 1)
-    anchors, frames = Skinner(ds.body, ds.garment, ds.embedding)(pose)
-    pred = from_offsets(ops.sample(img), anchors, frames, space)
+    anchors, frames = target.skinner(pose)
+    pred = target.positions(img, {"anchors": anchors, "frames": frames})
     gt = torch.from_numpy(np.array(ds.verts[index], np.float32))[None]
     return (pred[0], gt[0], to_offsets(pred, anchors, frames)[0], to_offsets(gt, anchors, frames)[0],
             pose_body(ds.body, pose)[0], ds)

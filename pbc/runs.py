@@ -348,6 +348,16 @@ def read_run(run_dir: str | Path) -> RunInfo:
                    str(ident.get("garment_hash", "")), ckpt, metrics.get("config") or {}, metrics.get("data"))
 
 
+def run_image_config(info: RunInfo, default=None):
+    """The `image` config node a run was trained under (its metrics.json "config", resolved within the
+    whole config), or `default` when the run records none."""
+    if not (info.config or {}).get("image"):
+        return default
+    from omegaconf import OmegaConf
+
+    return OmegaConf.create(info.config).image
+
+
 def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
     """Run dirs from a list of run dirs and/or sweep dirs (any dir holding */metrics.json below it)."""
     if isinstance(paths, str | Path):

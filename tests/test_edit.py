@@ -109,11 +109,14 @@ def _whole_run(run, res: int = 64):
     net = ConvDecoder(**{k: v for k, v in net_cfg.items() if k != "_target_"})
     net.output_mean.copy_(0.01 * torch.randn_like(net.output_mean))
     identity = {"garment_hash": "fake", "kind": "whole", "patch_id": None, "space": "local", "resolution": res}
+    image = {"whole_resolution": res, "patch_resolution": res, "reference_resolution": res, "pad": 4,
+             "crop_size": 16, "margin": 2}  # the run's image config, as pbc.train records it
     ck = run / "checkpoints" / "epoch_000.ckpt"
     ck.parent.mkdir(parents=True)
     torch.save({"hyper_parameters": {"net": net_cfg, "space": "local", "identity": identity},
                 "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ck)
-    (run / "metrics.json").write_text(json.dumps({"status": "ok", "best_checkpoint": str(ck), "identity": identity}))
+    (run / "metrics.json").write_text(json.dumps({"status": "ok", "best_checkpoint": str(ck), "identity": identity,
+                                                  "config": {"image": image}}))
     return run
 
 
@@ -123,13 +126,13 @@ def test_prediction_source_edits_a_models_image(tmp_path):
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from test_evaluate import fake_dataset
+    from test_evaluate import IMAGE, fake_dataset
 
     from pbc.edit import source_from_dataset
 
     ds = fake_dataset(tmp_path / "ds")
     run = _whole_run(tmp_path / "whole")
-    src = source_from_dataset(ds, 3, RES, 4, run=str(run))
+    src = source_from_dataset(ds, 3, IMAGE, run=str(run))  # the run's own image config (RES) wins
     assert src.image.shape == (1, 6, RES, RES) and src.ops.res == RES
     assert (src.image * (1 - src.ops.image_mask())).abs().max() == 0
     assert src.image.abs().max() > 0
@@ -138,4 +141,4 @@ def test_prediction_source_edits_a_models_image(tmp_path):
     before = reconstruct(src.image, src.ops, src.anchors, src.frames)
     torch.testing.assert_close(after - before, 0.01 * src.frames[:, :, 2], atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="out of range"):
-        source_from_dataset(ds, 99, RES, 4)
+        source_from_dataset(ds, 99, IMAGE)

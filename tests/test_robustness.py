@@ -96,6 +96,7 @@ def test_painted_weights_follow_the_arm(body):
         paint_weights(body, "tail", art["regions"])
 
 
+@pytest.mark.slow  # trains a model per trial: ~1 min on the 2-core CPU
 def test_study_at_smoke_scale(body, tmp_path):
     """Bodies, one training per trial and the report, in-process on the stand-in data (a few trials)."""
     from pbc.robustness import main

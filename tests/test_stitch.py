@@ -245,6 +245,8 @@ def test_hierarchy_detail_takes_low_frequencies_from_the_whole_model(tmp_path):
     shift = torch.tensor([0.01, -0.02, 0.005])
     crops = torch.stack([c.render(x + shift) for c in crops_ops], 1)
     assert torch.allclose(st(crops, "average"), x + shift, atol=1e-5)
+    assert st.cage is None  # the cage basis is built on the first `cage` call only
+    assert st(crops, "cage").shape == x.shape and st.cage is not None
     assert (st(crops, "hierarchy_detail", x) - x).abs().max() < 1e-4
     with pytest.raises(ValueError, match="needs the whole-shirt"):
         st(crops, "hierarchy_detail")

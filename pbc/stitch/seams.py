@@ -29,6 +29,7 @@ from torch import Tensor
 
 from pbc.stitch.assemble import Assembler
 from pbc.stitch.cage_basis import CageSeams, tensor_from_config
+from pbc.stitch.crops import sample_crops, uv_to_pixel
 from pbc.stitch.pca import PCABasis, project
 
 METHODS = ("average", "pca", "inpaint", "hierarchy", "hierarchy_detail", "cage")
@@ -36,12 +37,6 @@ NEEDS_WHOLE = ("hierarchy", "hierarchy_detail")
 
 
 # ----------------------------------------------------------------------------- band
-
-
-def uv_to_pixel(uv: Tensor, size: tuple[int, int]) -> Tensor:
-    """(..., 2) uv in [0, 1]^2 (u -> column, v -> row) -> (..., 2) (row, col), pixel centres at integers."""
-    H, W = size
-    return torch.stack([uv[..., 1] * H - 0.5, uv[..., 0] * W - 0.5], -1)
 
 
 def rasterise_segments(segments: np.ndarray, sides: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -237,21 +232,6 @@ def edge_jump(pred: Tensor, gt: Tensor, edges: Tensor) -> Tensor:
     return d.norm(dim=-1).mean(1)
 
 
-def sample_crops(crops: Tensor, crop_ids: Tensor, pix: Tensor, origins: Tensor) -> Tensor:
-    """Bilinear values of given crops at full-image pixel positions.
-
-    crops: (B, P, C, h, w); crop_ids: (K,) which crop; pix: (K, 2) (row, col) in the full image;
-    origins: (P, 2) crop origins -> (B, K, C).
-    """
-    B, P, C, h, w = crops.shape
-    local = pix - origins[crop_ids].to(pix)
-    grid = torch.stack([(local[:, 1] + 0.5) / w * 2 - 1, (local[:, 0] + 0.5) / h * 2 - 1], -1).to(crops)
-    sel = crops[:, crop_ids]  # (B, K, C, h, w)
-    vals = F.grid_sample(sel.reshape(B * len(crop_ids), C, h, w), grid.repeat(B, 1)[:, None, None, :],
-                         mode="bilinear", align_corners=False)
-    return vals.view(B, -1, C)
-
-
 def patch_disagreement(crops: Tensor, origins: Tensor, vertex_pix: Tensor, edges: Tensor,
                        vertex_patch: Tensor) -> Tensor:
     """Jump between neighbouring patches' own predictions before blending.
@@ -303,6 +283,9 @@ class Stitcher:
     detail_sigma: float = 16.0
     coverage: Tensor | None = None
     cage: Callable[[Tensor], Tensor] | None = None  # CageSeams: crops -> (B, V, 3)
+    # builds `cage` on the first `cage` call: the cage basis costs ~1.7 s on the full shirt, and only
+    # that method needs it
+    cage_builder: Callable[[], Callable[[Tensor], Tensor]] | None = None
 
     def fold(self, sample_matrix: Tensor) -> None:
         """Precompute sample∘assemble as one sparse (V, P*h*w) matrix (same for every channel).
@@ -352,6 +335,8 @@ class Stitcher:
                 raise ValueError("stitch=hierarchy_detail needs the whole-shirt model's prediction and a renderer")
             return self.sample(self.base_plus_detail(self.assembler.images(crops), self.render(whole)))
         if method == "cage":
+            if self.cage is None and self.cage_builder is not None:
+                self.cage = self.cage_builder()
             if self.cage is None:
                 raise ValueError("stitch=cage needs the cage basis (build the stitcher with build_stitcher)")
             return self.cage(crops)
@@ -378,12 +363,13 @@ def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) 
     image_band = (weight.numpy() > 0) & ops.mask.numpy()
     weight6 = weight[:, None].expand(2, 3, H, W).reshape(1, 6, H, W)
     vertex_band = ops.sample(weight6)[0, :, 0]
+    tensor = tensor_from_config(cfg)  # checked now: a bad anisotropy is an error at build, not first use
     st = Stitcher(asm, ops.sample, vertex_band, image_band,
                   fill_index=nearest_fill_index(asm.coverage().numpy()), pca=pca,
                   pca_band_only=bool(cfg.pca_band_only),
                   pca_components=None if cfg.pca_components is None else int(cfg.pca_components),
                   render=ops.render, detail_sigma=float(cfg.detail_sigma), coverage=asm.coverage(),
-                  cage=CageSeams(garment, cage, crops, ops.res, tensor_from_config(cfg)))
+                  cage_builder=lambda: CageSeams(garment, cage, crops, ops.res, tensor))
     S = ops.scipy_S().tocoo()
     st.fold(torch.sparse_coo_tensor(torch.from_numpy(np.stack([S.row, S.col]).astype(np.int64)),
                                     torch.from_numpy(S.data.astype(np.float32)), S.shape, check_invariants=False))
