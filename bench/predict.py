@@ -101,8 +101,8 @@ def main() -> None:
     from pbc.evaluate import fit_training_pca
 
     pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
-    name = torch.cuda.get_device_name(DEVICE) if DEVICE.type == "cuda" else "CPU"
-    print(f"device {DEVICE} ({name}), threads {torch.get_num_threads()}, V = {pred.faces.max().item() + 1}, "
+    dev_name = torch.cuda.get_device_name(DEVICE) if DEVICE.type == "cuda" else "CPU"
+    print(f"device {DEVICE} ({dev_name}), threads {torch.get_num_threads()}, V = {pred.faces.max().item() + 1}, "
           f"torch {torch.__version__}")
 
     forms = {"stacked (device default layout)": pred.patch_net}
@@ -159,7 +159,7 @@ def main() -> None:
     print(f"\nbfloat16 vs float32 on {len(poses)} poses: vertex distance mean {diff_cm.mean():.4f} cm, "
           f"max {diff_cm.max():.4f} cm")
     ms = {f"b{b} {what}": round(t, 2) for b, what, t in rows}
-    figures = {"device": f"{DEVICE} ({name})", "threads": torch.get_num_threads(), "ms": ms,
+    figures = {"device": f"{DEVICE} ({dev_name})", "threads": torch.get_num_threads(), "ms": ms,
                "bf16_vertex_diff_cm_mean": round(diff_cm.mean().item(), 5),
                "bf16_vertex_diff_cm_max": round(diff_cm.max().item(), 5)}
     for B in args.batches:  # side-by-side ratios of the same run
