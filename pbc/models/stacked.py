@@ -161,8 +161,8 @@ class StackedPatchModule(ClothModule):
     """The ClothModule of ``model.kind=patches``: a ``StackedDecoder`` on a ``PatchesTarget``.
 
     Loss: the sum over patches of each patch's single-run loss (eq. 1 on its crop + the normal / edge
-    terms on its vertices / edges). Logged per split: ``patch_NN/vertex_error_cm`` and
-    ``patch_NN/normal_distance`` per patch; ``vertex_error_cm`` and ``normal_distance`` as the mean
+    terms on its vertices / edges); eq. 1 runs once over the channel-stacked crops (the same sum).
+    Logged per split: ``patch_NN/vertex_error_cm`` and ``patch_NN/normal_distance`` per patch; ``vertex_error_cm`` and ``normal_distance`` as the mean
     over patches (the checkpoint monitor ``val/vertex_error_cm`` is that mean); ``loss`` and the loss
     terms as sums.
     """
@@ -174,8 +174,12 @@ class StackedPatchModule(ClothModule):
         truth, mask = self.target.truth(t)
         subs = self.target.patches
         faces, _ = self.target.topology(pred.device)
+        # eq. 1 over the channel-stacked crops in one call: with one mask piece per channel it is the sum of
+        # the per-patch losses exactly (image_loss sums its pieces), without P slices in the backward
+        image = image_loss(pred, truth, mask, lc["norm"])
+        crops = pred.unflatten(1, (len(subs), -1)).unbind(1)  # P x (B, 3, S, S); one stack in the backward
         # each patch's 3D: ground truth outside its vertices (as its single run builds it)
-        pos = torch.stack([s.positions(pred[:, 3 * p:3 * p + 3], t) for p, s in enumerate(subs)])  # (P, B, V, 3)
+        pos = torch.stack([s.positions(crops[p], t) for p, s in enumerate(subs)])  # (P, B, V, 3)
         need_normals = lc["normal_weight"] > 0 or split != "train"
         n_pred = n_gt = None
         if need_normals:
@@ -183,13 +187,11 @@ class StackedPatchModule(ClothModule):
             n_pred = vertex_normals(pos.reshape(P * B, V, 3), faces).view(P, B, V, 3)
             n_gt = vertex_normals(t["verts"], faces)
         logs: dict[str, Tensor] = {}
-        terms: dict[str, list[Tensor]] = {"image_loss": [], "normal_loss": [], "edge_loss": [], "loss": []}
+        terms: dict[str, list[Tensor]] = {"normal_loss": [], "edge_loss": []}
         errs, ndist = [], []
+        total = image
         for p, sub in enumerate(subs):
-            c = slice(3 * p, 3 * p + 3)
             ids = sub.vertices.to(pred.device)
-            total = image_loss(pred[:, c], truth[:, c], mask[:, c], lc["norm"])
-            terms["image_loss"].append(total)
             if lc["normal_weight"] > 0:
                 nl = normal_loss(n_pred[p][:, ids], n_gt[:, ids])
                 terms["normal_loss"].append(nl)
@@ -199,25 +201,25 @@ class StackedPatchModule(ClothModule):
                 el = edge_loss(edge_lengths(pos[p], edges), edge_lengths(t["verts"], edges))
                 terms["edge_loss"].append(el)
                 total = total + lc["edge_weight"] * el
-            terms["loss"].append(total)
             with torch.no_grad():
                 errs.append(vertex_error_cm(pos[p], t["verts"], ids))
                 logs[f"patch_{sub.patch_id:02d}/vertex_error_cm"] = errs[-1]
                 if n_pred is not None:
                     ndist.append(normal_cosine_distance(n_pred[p], n_gt, ids))
                     logs[f"patch_{sub.patch_id:02d}/normal_distance"] = ndist[-1]
+        logs["image_loss"] = image
         for k, v in terms.items():
             if v:
                 logs[k] = torch.stack(v).sum()
-        total = logs["loss"]
+        logs["loss"] = total
         logs["vertex_error_cm"] = torch.stack(errs).mean()
         if ndist:
             logs["normal_distance"] = torch.stack(ndist).mean()
         if not torch.isfinite(total):
             which = batch.get("index")
-            bad = [s.patch_id for s, v in zip(subs, terms["loss"], strict=True) if not torch.isfinite(v)]
+            bad = [s.patch_id for p, s in enumerate(subs) if not torch.isfinite(crops[p]).all()]
             raise FloatingPointError(
-                f"non-finite {split} loss {total.item()} (patches {bad}) at global step {self.global_step}, "
+                f"non-finite {split} loss {total.item()} (non-finite output in patches {bad}) at global step {self.global_step}, "
                 f"epoch {self.current_epoch}, batch {batch_idx}"
                 + (f" (sample ids {which.tolist()})" if which is not None else "")
                 + "; stopping instead of training a NaN model")
