@@ -76,7 +76,8 @@ class StackedPatchNet(nn.Module):
 
     forward: pose (B, in_features) -> crops (B, P, C, h, w) float32, equal to stacking the decoders'
     outputs in eval mode. layer_modes: per group "bmm" (batched matmul + fold) or "grouped" (grouped
-    conv); None = `default_layer_modes` of the input's device, chosen at every forward. dtype: the weights' and activations' dtype; ``torch.bfloat16`` runs on the CPU's bf16/AMX
+    conv); None = `default_layer_modes` of the input's device, chosen at every forward.
+    dtype: the weights' and activations' dtype; ``torch.bfloat16`` runs on the CPU's bf16/AMX
     units (on the reference CPU at batch 1: 85 vs 246 ms for the 28 nets, 1.5x on the full pose -> mesh,
     0.015 cm mean vertex difference; bench/predict.py).
     """
@@ -134,7 +135,7 @@ class StackedPatchNet(nn.Module):
             for name, prm in self.named_parameters():
                 if name != "output_mean":
                     prm.data = prm.data.to(dtype)
-            for name, buf in self.named_buffers():
+            for buf in self.buffers():
                 buf.data = buf.data.to(dtype)
 
     def _fit_modes(self, modes: Sequence[str]) -> tuple[str, ...]:

@@ -119,7 +119,7 @@ def test_one_step_of_the_stacked_job_equals_the_single_patch_steps(world):
     loss, _ = stacked.step(batch, "train", 0)
     single_losses = [m.step(batch, "train", 0)[0] for m in singles]
     assert loss.item() == pytest.approx(sum(v.item() for v in single_losses), rel=1e-5)
-    for m, v, opt in zip([stacked, *singles], [loss, *single_losses], opts, strict=True):
+    for v, opt in zip([loss, *single_losses], opts, strict=True):
         opt.zero_grad()
         v.backward()
     net = stacked.net

@@ -162,9 +162,9 @@ class StackedPatchModule(ClothModule):
 
     Loss: the sum over patches of each patch's single-run loss (eq. 1 on its crop + the normal / edge
     terms on its vertices / edges); eq. 1 runs once over the channel-stacked crops (the same sum).
-    Logged per split: ``patch_NN/vertex_error_cm`` and ``patch_NN/normal_distance`` per patch; ``vertex_error_cm`` and ``normal_distance`` as the mean
-    over patches (the checkpoint monitor ``val/vertex_error_cm`` is that mean); ``loss`` and the loss
-    terms as sums.
+    Logged per split: ``patch_NN/vertex_error_cm`` and ``patch_NN/normal_distance`` per patch;
+    ``vertex_error_cm`` and ``normal_distance`` as the mean over patches (the checkpoint monitor
+    ``val/vertex_error_cm`` is that mean); ``loss`` and the loss terms as sums.
     """
 
     def step(self, batch: dict, split: str, batch_idx: int) -> tuple[Tensor, dict]:
@@ -219,8 +219,8 @@ class StackedPatchModule(ClothModule):
             which = batch.get("index")
             bad = [s.patch_id for p, s in enumerate(subs) if not torch.isfinite(crops[p]).all()]
             raise FloatingPointError(
-                f"non-finite {split} loss {total.item()} (non-finite output in patches {bad}) at global step {self.global_step}, "
-                f"epoch {self.current_epoch}, batch {batch_idx}"
+                f"non-finite {split} loss {total.item()} (non-finite output in patches {bad}) at global step "
+                f"{self.global_step}, epoch {self.current_epoch}, batch {batch_idx}"
                 + (f" (sample ids {which.tolist()})" if which is not None else "")
                 + "; stopping instead of training a NaN model")
         bs = batch["pose"].shape[0]
