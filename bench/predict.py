@@ -2,6 +2,7 @@
 
     .venv/bin/python bench/predict.py                        # paper-size random decoders, stand-in shirt
     .venv/bin/python bench/predict.py --whole RUN --patches SWEEP_DIR   # trained runs
+    .venv/bin/python bench/predict.py --device cuda          # on a GPU (the default when one is present)
 Also measures the bfloat16 patch net (CPU AMX / AVX512-bf16) and its vertex distance to float32 in cm.
 Prints a markdown table of the best-of-N milliseconds at batch 1 and batch 32 (full pose -> (B, V, 3),
 skinning included). Timings are only comparable on a quiet machine; say when it is shared.
@@ -30,12 +31,23 @@ class Rows(list):
         print(f"| {row[0]} | {row[1]} | {row[2]:.1f} |", flush=True)
 
 
+DEVICE = torch.device("cpu")
+
+
+def sync() -> None:
+    """Wait for queued GPU work, so a timing covers the kernels and not only their launch."""
+    if DEVICE.type == "cuda":
+        torch.cuda.synchronize(DEVICE)
+
+
 def best_ms(fn, reps: int) -> float:
-    fn()  # warm-up: allocations, oneDNN primitive caches
+    fn()  # warm-up: allocations, oneDNN primitive caches, cuDNN algorithm choice
+    sync()
     ts = []
     for _ in range(reps):
         t0 = time.perf_counter()
         fn()
+        sync()
         ts.append(time.perf_counter() - t0)
     return 1000 * min(ts)
 
@@ -59,7 +71,7 @@ def paper_predictor(stitch_cfg):
     torch.manual_seed(0)
     whole = instantiate(whole_cfg).eval()
     patches = [instantiate(patch_cfg).eval() for _ in range(28)]
-    return ClothPredictor(ds, IMAGE, whole, patches, stitch_cfg)
+    return ClothPredictor(ds, IMAGE, whole, patches, stitch_cfg, device=DEVICE)
 
 
 def main() -> None:
@@ -70,7 +82,11 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--batches", type=int, nargs="*", default=[1, 32])
     ap.add_argument("--skip-loop", action="store_true")
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu",
+                    help="where the networks and the stitch run (default: cuda when present)")
     args = ap.parse_args()
+    global DEVICE
+    DEVICE = torch.device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
     from pbc.predict import LoopPatchNet, StackedPatchNet
@@ -79,24 +95,27 @@ def main() -> None:
     if args.patches:
         from pbc.predict import ClothPredictor
 
-        pred = ClothPredictor.from_runs(args.whole, args.patches, stitch_cfg)
+        pred = ClothPredictor.from_runs(args.whole, args.patches, stitch_cfg, device=DEVICE)
     else:
         pred = paper_predictor(stitch_cfg)
     from pbc.evaluate import fit_training_pca
 
     pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
-    print(f"threads {torch.get_num_threads()}, V = {pred.faces.max().item() + 1}, torch {torch.__version__}")
+    dev_name = torch.cuda.get_device_name(DEVICE) if DEVICE.type == "cuda" else "CPU"
+    print(f"device {DEVICE} ({dev_name}), threads {torch.get_num_threads()}, V = {pred.faces.max().item() + 1}, "
+          f"torch {torch.__version__}")
 
-    forms = {"stacked (default: bmm x2, grouped CL x3)": pred.patch_net}
+    forms = {"stacked (device default layout)": pred.patch_net}
     if not args.skip_loop:
-        forms["loop of 28"] = LoopPatchNet(pred.patch_nets).eval()
-    forms["stacked, all bmm"] = StackedPatchNet(pred.patch_nets, ("bmm",) * 5).eval()
-    forms["stacked, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5).eval()
-    forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5, False).eval()
-    bf16 = StackedPatchNet(pred.patch_nets, dtype=torch.bfloat16).eval()
+        forms["loop of 28"] = LoopPatchNet(pred.patch_nets).eval().to(DEVICE)
+    forms["stacked, all bmm"] = StackedPatchNet(pred.patch_nets, ("bmm",) * 5).eval().to(DEVICE)
+    forms["stacked, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5).eval().to(DEVICE)
+    forms["stacked, all grouped (no CL)"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5,
+                                                            False).eval().to(DEVICE)
+    bf16 = StackedPatchNet(pred.patch_nets, dtype=torch.bfloat16).eval().to(DEVICE)
     forms["stacked, bfloat16"] = bf16
     forms["stacked, bfloat16, all grouped CL"] = StackedPatchNet(pred.patch_nets, ("grouped",) * 5,
-                                                                 dtype=torch.bfloat16).eval()
+                                                                 dtype=torch.bfloat16).eval().to(DEVICE)
     fp32_net = pred.patch_net
 
     def with_net(net, fn):
@@ -110,7 +129,7 @@ def main() -> None:
     rows = Rows()
     print("\n| batch | what | ms |\n|---|---|---|", flush=True)
     for B in args.batches:
-        pose = torch.from_numpy(pred.dataset.poses[:1]).float().expand(B, -1, -1, -1).contiguous()
+        pose = torch.from_numpy(pred.dataset.poses[:1]).float().expand(B, -1, -1, -1).contiguous().to(DEVICE)
         reps = args.reps if B == 1 else max(1, args.reps // 2)
         with torch.inference_mode():
             x = pose.reshape(B, -1)
@@ -132,7 +151,7 @@ def main() -> None:
             fn = lambda pose=pose: with_net(bf16, lambda: pred(pose, method="pca"))  # noqa: E731
             rows.append((B, "pose -> mesh: 28 patches (bfloat16) + pca", best_ms(fn, reps)))
     # what bf16 costs in accuracy: the same poses through both precisions, vertex distance in cm
-    poses = torch.from_numpy(pred.dataset.poses[:32]).float()
+    poses = torch.from_numpy(pred.dataset.poses[:32]).float().to(DEVICE)
     with torch.inference_mode():
         exact = pred(poses, method="pca")
         fast = with_net(bf16, lambda: pred(poses, method="pca"))
@@ -140,11 +159,11 @@ def main() -> None:
     print(f"\nbfloat16 vs float32 on {len(poses)} poses: vertex distance mean {diff_cm.mean():.4f} cm, "
           f"max {diff_cm.max():.4f} cm")
     ms = {f"b{b} {what}": round(t, 2) for b, what, t in rows}
-    figures = {"threads": torch.get_num_threads(), "ms": ms,
+    figures = {"device": f"{DEVICE} ({dev_name})", "threads": torch.get_num_threads(), "ms": ms,
                "bf16_vertex_diff_cm_mean": round(diff_cm.mean().item(), 5),
                "bf16_vertex_diff_cm_max": round(diff_cm.max().item(), 5)}
     for B in args.batches:  # side-by-side ratios of the same run
-        stacked = ms.get(f"b{B} 28 patch nets, stacked (default: bmm x2, grouped CL x3)")
+        stacked = ms.get(f"b{B} 28 patch nets, stacked (device default layout)")
         loop = ms.get(f"b{B} 28 patch nets, loop of 28")
         if stacked and loop:
             figures[f"b{B}_loop_over_stacked"] = round(loop / stacked, 3)

@@ -8,7 +8,10 @@ The 28 patch decoders are identical networks, so they run as one stacked network
 one matmul, and per group either a batched matmul + `fold` (col2im; best for the weight-bound first
 groups at small batch) or one grouped transpose convolution holding all 28 models in channels-last
 layout (best for the large late groups). `bench/predict.py` measures the alternatives; the defaults
-here are what measured fastest on the 2-core CPU.
+here are what measured fastest on the 2-core CPU. The layout is chosen per device at forward time
+(`default_layer_modes`): the bmm+fold groups are a CPU tuning; on a GPU every group runs as one grouped
+convolution unless `layer_modes` says otherwise. Every weight is a parameter or buffer, so
+`.to(device)` / `ClothPredictor(..., device=)` move all of it.
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ from pbc.validate import as_poses
 
 # measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
 DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
+# on a GPU: one grouped transpose convolution per group (cuDNN); the H100 figures are owed (bench/predict.py
+# --device cuda prints every layout side by side)
+GPU_LAYER_MODES = ("grouped", "grouped", "grouped", "grouped", "grouped")
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 
 
@@ -65,6 +71,11 @@ def open_run_dataset(run: RunInfo, directory: str | Path | None = None) -> datas
 # ----------------------------------------------------------------------------- stacked patches
 
 
+def default_layer_modes(device: torch.device | str) -> tuple[str, ...]:
+    """The per-group layout used on `device` when a StackedPatchNet is given no `layer_modes`."""
+    return DEFAULT_LAYER_MODES if torch.device(device).type == "cpu" else GPU_LAYER_MODES
+
+
 def _fold_bn(conv: nn.ConvTranspose2d, bn: nn.BatchNorm2d) -> tuple[Tensor, Tensor]:
     """Eval-mode BatchNorm folded into the preceding transpose conv: weight (cin, cout, k, k), bias (cout,)."""
     s = bn.weight / torch.sqrt(bn.running_var + bn.eps)
@@ -78,12 +89,13 @@ class StackedPatchNet(nn.Module):
 
     forward: pose (B, in_features) -> crops (B, P, C, h, w) float32, equal to stacking the decoders'
     outputs in eval mode. layer_modes: per group "bmm" (batched matmul + fold) or "grouped" (grouped
-    conv). dtype: the weights' and activations' dtype; ``torch.bfloat16`` runs on the CPU's bf16/AMX
+    conv); None = `default_layer_modes` of the input's device, chosen at every forward.
+    dtype: the weights' and activations' dtype; ``torch.bfloat16`` runs on the CPU's bf16/AMX
     units (on the reference CPU at batch 1: 85 vs 246 ms for the 28 nets, 1.5x on the full pose -> mesh,
     0.015 cm mean vertex difference; bench/predict.py).
     """
 
-    def __init__(self, decoders: Sequence[ConvDecoder], layer_modes: Sequence[str] = DEFAULT_LAYER_MODES,
+    def __init__(self, decoders: Sequence[ConvDecoder], layer_modes: Sequence[str] | None = None,
                  channels_last: bool = True, dtype: torch.dtype = torch.float32):
         super().__init__()
         self.dtype = dtype
@@ -101,10 +113,16 @@ class StackedPatchNet(nn.Module):
                                                zip(ws, decoders, strict=True)]), False)
         groups = [list(d.groups) for d in decoders]
         n = len(groups[0]) // 3
-        if len(layer_modes) < n:
-            layer_modes = tuple(layer_modes) + (layer_modes[-1],) * (n - len(layer_modes))
-        self.modes = tuple(layer_modes[:n])
-        self.weights, self.biases, self.bmm_weights = nn.ParameterList(), nn.ParameterList(), []
+        self.num_groups = n
+        self.modes = None if layer_modes is None else self._fit_modes(layer_modes)
+        bad = set(self.modes or ()) - {"bmm", "grouped"}
+        if bad:
+            raise ValueError(f"layer_modes entries must be 'bmm' or 'grouped', got {sorted(bad)}")
+        # the bmm layout is kept for the groups any layout this net may run uses it for
+        bmm_groups = {i for modes in ([self.modes] if self.modes else [self._fit_modes(DEFAULT_LAYER_MODES),
+                                                                      self._fit_modes(GPU_LAYER_MODES)])
+                      for i, m in enumerate(modes) if m == "bmm"}
+        self.weights, self.biases = nn.ParameterList(), nn.ParameterList()
         for i in range(n):
             convs = [g[3 * i] for g in groups]
             if any(c.stride != (2, 2) or c.kernel_size != (4, 4) or c.padding != (1, 1) for c in convs):
@@ -113,9 +131,10 @@ class StackedPatchNet(nn.Module):
             w = torch.stack([x[0] for x in wb])  # (P, cin, cout, 4, 4)
             self.weights.append(nn.Parameter(w.flatten(0, 1).contiguous(), False))  # grouped layout
             self.biases.append(nn.Parameter(torch.stack([x[1] for x in wb]), False))  # (P, cout)
-        # bmm layout: (P, cout*16, cin), made lazily for the groups that use it
-        self._bmm = {i: self.weights[i].view(self.P, -1, self.weights[i].shape[1] * 16).transpose(1, 2)
-                     .contiguous() for i in range(n) if self.modes[i] == "bmm"}
+        # bmm layout: (P, cout*16, cin) for the groups that use it; buffers, so .to() moves them
+        for i in sorted(bmm_groups):
+            self.register_buffer(f"bmm_{i}", self.weights[i].view(self.P, -1, self.weights[i].shape[1] * 16)
+                                 .transpose(1, 2).contiguous(), persistent=False)
         # each decoder's output_scale (C,) folded into its head
         scale = torch.cat([d.output_scale.detach().flatten() for d in decoders])  # (P*C,)
         self.head_w = nn.Parameter(torch.cat([d.head.weight.detach() for d in decoders]) * scale[:, None, None, None],
@@ -129,14 +148,24 @@ class StackedPatchNet(nn.Module):
             for name, prm in self.named_parameters():
                 if name != "output_mean":
                     prm.data = prm.data.to(dtype)
-            self._bmm = {i: w.to(dtype) for i, w in self._bmm.items()}
+            for buf in self.buffers():
+                buf.data = buf.data.to(dtype)
+
+    def _fit_modes(self, modes: Sequence[str]) -> tuple[str, ...]:
+        """Modes padded with the last one (or cut) to the number of groups."""
+        modes = tuple(modes)
+        return (modes + (modes[-1],) * (self.num_groups - len(modes)))[:self.num_groups]
+
+    def layer_modes(self, device: torch.device | str) -> tuple[str, ...]:
+        """The per-group layout a forward on `device` runs."""
+        return self.modes if self.modes is not None else self._fit_modes(default_layer_modes(device))
 
     def forward(self, pose: Tensor) -> Tensor:
         B, P = pose.shape[0], self.P
         h0, w0 = self.s0
         x = F.linear(pose.reshape(B, -1).to(self.dtype), self.first_w, self.first_b).relu_()
         x = x.view(B, P * self.c0, h0, w0)
-        for i, mode in enumerate(self.modes):
+        for i, mode in enumerate(self.layer_modes(pose.device)):
             w, b = self.weights[i], self.biases[i]
             cin, cout = w.shape[0] // P, w.shape[1]
             s = x.shape[-1]
@@ -144,7 +173,7 @@ class StackedPatchNet(nn.Module):
             # all-grouped form measured 1.3x faster than the mix (bench/predict.py)
             if mode == "bmm" and B <= self.bmm_max_batch:
                 x3 = x.reshape(B, P, cin, s * s).permute(1, 2, 0, 3).reshape(P, cin, B * s * s)
-                cols = torch.bmm(self._bmm[i], x3)  # (P, cout*16, B*s*s)
+                cols = torch.bmm(getattr(self, f"bmm_{i}"), x3)  # (P, cout*16, B*s*s)
                 cols = cols.view(P, cout * 16, B, s * s).permute(2, 0, 1, 3).reshape(B * P, cout * 16, s * s)
                 x = F.fold(cols, (2 * s, 2 * s), 4, stride=2, padding=1).view(B, P * cout, 2 * s, 2 * s)
                 x = x.add_(b.reshape(1, P * cout, 1, 1)).relu_()  # in place: these maps are the big ones
@@ -176,12 +205,14 @@ class ClothPredictor:
     Built by `from_runs`. `model="patches"` (28 patch models + the seam method `method`) or "whole".
     precision: "float32" (exact) or "bfloat16" (the stacked patch net in bf16 on the CPU's AMX/AVX512-bf16
     units; the stitch, skinning and the whole model stay float32).
+    device: where the networks, operators and stitch run ("cpu", "cuda", ...); poses are moved there and
+    meshes come back on it. layer_modes: None = the device's default layout (`default_layer_modes`).
     """
 
     def __init__(self, dataset, image_cfg, whole_net: ConvDecoder | None, patch_nets: Sequence[ConvDecoder],
                  stitch_cfg, space: str = "local", pca=None, cache_dir=None, backend: str = "stacked",
-                 layer_modes: Sequence[str] = DEFAULT_LAYER_MODES, threads: int | None = None,
-                 precision: str = "float32"):
+                 layer_modes: Sequence[str] | None = None, threads: int | None = None,
+                 precision: str = "float32", device: str | torch.device = "cpu"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         if precision != "float32" and backend != "stacked":
@@ -210,6 +241,7 @@ class ClothPredictor:
                           if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval() if patches else None
         if pca is not None:
             self.use_pca(pca)
+        self.to(device)
 
     def use_pca(self, basis) -> None:
         """Filter with PCA basis `basis`; refused when it was fitted on another dataset than this one."""
@@ -217,6 +249,14 @@ class ClothPredictor:
             raise ValueError("a PCA basis filters the patches' seams: this predictor has no patch models")
         check_pca_matches(basis, self.dataset)
         self.stitcher.pca = basis
+
+    def to(self, device: str | torch.device) -> ClothPredictor:
+        """Move the networks and the stitcher to `device` (operators and skinning follow the pose's device)."""
+        self.device = torch.device(device)
+        for part in (self.patch_net, self.whole_net, self.stitcher):
+            if part is not None:
+                part.to(self.device)
+        return self
 
     @classmethod
     def from_runs(cls, whole_run, patch_runs=None, stitch_cfg=None, pca=None, data_dir=None,
@@ -259,14 +299,14 @@ class ClothPredictor:
 
     @torch.inference_mode()
     def patch_crops(self, pose: Tensor) -> Tensor:
-        """pose (B, J, 3, 3) -> crops (B, P, 3, h, w)."""
-        return self.patch_net(pose.reshape(pose.shape[0], -1))
+        """pose (B, J, 3, 3) -> crops (B, P, 3, h, w), on the predictor's device."""
+        return self.patch_net(pose.reshape(pose.shape[0], -1).to(self.device, torch.float32))
 
     @torch.inference_mode()
     def whole_offsets(self, pose: Tensor) -> Tensor:
         if self.whole_net is None:
             raise ValueError("no whole-shirt run was given")
-        return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1)))
+        return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1).to(self.device, torch.float32)))
 
     @torch.inference_mode()
     def __call__(self, pose, model: str | None = None, method: str | None = None) -> Tensor:
@@ -280,6 +320,9 @@ class ClothPredictor:
         if model == "patches" and self.patch_net is None:
             raise ValueError("this predictor has no patch models (built from a whole-shirt run alone): use "
                              "model='whole', or give from_runs the 28 patch runs")
+        pose = pose.to(self.device, torch.float32)
+        if self.stitcher is not None:
+            self.stitcher.to(self.device)  # a basis set after construction (pbc.evaluate's PCA) follows too
         if model == "whole":
             off = self.whole_offsets(pose)
         else:

@@ -21,6 +21,9 @@ import yaml
 from pbc.io import load_checkpoint, read_json
 
 NUM_PATCHES = 28
+# Where a stacked all-patches run (`+experiment=patches`) exports its P single-patch run dirs
+# (`<run>/patches/patch_NN/`): `find_runs` given such a run dir answers those.
+PATCH_EXPORT_DIR = "patches"
 METRICS_FILE = "metrics.json"
 # Keys under which a failing job records why it failed in its metrics.json (pbc.train writes "error").
 ERROR_KEYS = ("error", "exception", "traceback")
@@ -359,13 +362,16 @@ def run_image_config(info: RunInfo, default=None):
 
 
 def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
-    """Run dirs from a list of run dirs and/or sweep dirs (any dir holding */metrics.json below it)."""
+    """Run dirs from a list of run dirs and/or sweep dirs (any dir holding */metrics.json below it).
+
+    A stacked all-patches run dir stands for the single-patch runs it exported (PATCH_EXPORT_DIR)."""
     if isinstance(paths, str | Path):
         paths = [paths]
     out: list[Path] = []
     for p in map(Path, paths):
         if (p / "metrics.json").is_file():
-            out.append(p)
+            exported = sorted(m.parent for m in (p / PATCH_EXPORT_DIR).glob("*/metrics.json"))
+            out += exported or [p]
         elif p.is_dir():
             # a sweep dir: training runs only (an evaluate run below it has no checkpoints/)
             found = sorted(m.parent for m in p.rglob("metrics.json") if (m.parent / "checkpoints").is_dir())

@@ -89,6 +89,8 @@ def net_config(cfg: DictConfig, target: VertexTarget) -> dict:
     """``model.net`` sized to what the target serves: image size for decoders, vertex count for FC nets."""
     net = OmegaConf.to_container(cfg.model.net, resolve=True)
     fit = {"output_size": list(target.image_size)} if target.image_size else {"num_vertices": target.num_vertices}
+    if getattr(target, "num_patches", None):  # a stacked all-patches net: the cage's patch count
+        fit["num_patches"] = int(target.num_patches)
     for k, v in fit.items():
         if net.get(k) != v:
             log.info("model.net.%s %s -> %s (what the target serves)", k, net.get(k), v)
@@ -182,6 +184,8 @@ def train(cfg: DictConfig) -> dict:
         "identity": identity, "training_identity": training, "data": run_data_record(dm.data),
         "config": recorded_config(cfg, dm),
     }
+    if hasattr(module, "export_runs") and best_path:  # all patches in one job -> P single-patch run dirs
+        metrics["patch_runs"] = module.export_runs(best_path, out, metrics, dm.data)
     log_final(trainer, summary, metrics)
     write_metrics(out, metrics)
     return metrics

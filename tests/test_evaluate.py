@@ -159,6 +159,23 @@ def test_stacked_patch_net_matches_loop(world, patched_load):
     assert (xb - pred(pose, model="whole")).norm(dim=-1).max() < 0.05
 
 
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_predictor_on_the_gpu_matches_the_cpu(world, patched_load):
+    from pbc.predict import ClothPredictor
+
+    root, ds, whole = world
+    cpu = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("pca"))
+    gpu = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("pca"), device="cuda")
+    from pbc.evaluate import fit_training_pca
+
+    cpu.stitcher.pca = gpu.stitcher.pca = fit_training_pca(cpu, 16, 64)  # set after construction, as evaluate does
+    pose = torch.from_numpy(ds.poses[:3]).float()
+    for method in ("average", "pca", "hierarchy"):
+        a, b = cpu(pose, method=method), gpu(pose, method=method)
+        assert b.is_cuda and torch.allclose(a, b.cpu(), atol=1e-4), method
+
+
 def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
     from pbc.evaluate import evaluate
 

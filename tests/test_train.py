@@ -91,6 +91,8 @@ def test_every_config_composes_and_instantiates():
         net = dict(OmegaConf.to_container(cfg.model.net))
         if cfg.model.kind == "fc":
             net["num_vertices"] = 10
+        if cfg.model.kind == "patches":  # pbc.train sets it from the cage
+            net["num_patches"] = 2
         instantiate(net)
     for group in ("model", "loss", "trainer", "logger", "callbacks"):
         for opt in _group_options(group):

@@ -8,6 +8,7 @@ Kinds (the only place that switches on them is :func:`make_target`):
     whole  `(B, 6, H, W)` front (du,dv,dn) then back, H = W = image.whole_resolution
     patch  `(B, 3, S, S)` one patch's crop of the image.patch_resolution image (S = scaled crop_size)
     fc     `(B, V, 3)`    per-vertex values (the fully connected baselines of appendix E.3)
+    patches `(B, P*3, S, S)` every patch's crop, channel-stacked (all patch models in one job)
 
 Every target offers
     render(batch)          adds anchors (B,V,3), frames (B,V,3,3), offsets (B,V,3) and, for image kinds,
@@ -19,8 +20,8 @@ Every target offers
     identity(dataset)      what a checkpoint must match to be loaded by a run of this target
 
 Operators are built by :func:`image_operators` only: cached under `<dataset>/operators/` with the
-config's `exact_sample` and `method`. A future "all patches in one job" target fits as one more subclass
-holding the shared `patch_resolution` ImageOperators and its list of crops: render once, cut every window.
+config's `exact_sample` and `method`. The "all patches in one job" target (`PatchesTarget`) holds the
+shared `patch_resolution` ImageOperators and its list of crops: render once, cut every window.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from pbc.pixels.frames import SPACES, from_offsets, to_offsets
 from pbc.pixels.operators import ImageOperators, PatchCrop, image_sizes
 from pbc.pixels.reconstruct import Skinner, mesh_edges
 
-KINDS = ("whole", "patch", "fc")
+KINDS = ("whole", "patch", "fc", "patches")
 
 
 def image_operators(dataset, image_cfg, which: str, cache_dir: str | Path | None = None) -> ImageOperators:
@@ -227,9 +228,75 @@ class PatchTarget(WholeTarget):
         return t["verts"].index_copy(1, ids, inner.to(t["verts"].dtype))
 
 
+class PatchesTarget(WholeTarget):
+    """Every cage patch's crop in one target: the patch-resolution image is rendered ONCE per batch and
+    each patch's window cut from it, channel-stacked as `(B, P*3, S, S)` (channels [3p, 3p+3) = patch p),
+    which is the layout of a stacked (grouped-convolution) network's output.
+
+    patches: one `PatchTarget` per crop sharing the skinner, for per-patch losses, positions and the
+    identity an exported single-patch checkpoint carries (`patch_identity`).
+    """
+
+    kind = "patches"
+
+    def __init__(self, skinner, faces: Tensor, ops: ImageOperators, crops: list[PatchCrop], space: str = "local"):
+        super().__init__(skinner, faces, ops, space)
+        sizes = {c.window[2] for c in crops}
+        if len(sizes) != 1:
+            raise ValueError(f"all patch crops must have one size to be stacked, got sizes {sorted(sizes)}")
+        self.crops = list(crops)
+        self.patches = [PatchTarget(skinner, faces, c, ops.res, space) for c in crops]
+        self.num_vertices = max([self.num_vertices] + [p.num_vertices for p in self.patches])
+        self._masks: dict[str, Tensor] = {}
+
+    @property
+    def num_patches(self) -> int:
+        return len(self.crops)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        s = self.crops[0].window[2]
+        return (s, s)
+
+    def identity(self, dataset) -> dict:
+        return dict(super().identity(dataset), crop_size=self.image_size[0], num_patches=self.num_patches)
+
+    def patch_identity(self, dataset, p: int) -> dict:
+        """The identity of patch p's single-patch run (what an exported checkpoint must carry)."""
+        return self.patches[p].identity(dataset)
+
+    def image_mask(self, device, dtype=torch.float32) -> Tensor:
+        """(1, P*3, S, S) the crops' masks, channel-stacked, made once per device."""
+        key = f"{device}/{dtype}"
+        if key not in self._masks:
+            self._masks[key] = torch.cat([c.image_mask(device, dtype) for c in self.crops], 1).contiguous()
+        return self._masks[key]
+
+    @torch.no_grad()
+    def render(self, batch: dict) -> dict:
+        out = VertexTarget.render(self, batch)
+        full = self.ops.render(out["offsets"])  # (B, 6, R, R): one render shared by every crop
+        out["image"] = torch.cat([full[:, 3 * c.side:3 * c.side + 3, c.window[0]:c.window[0] + c.window[2],
+                                       c.window[1]:c.window[1] + c.window[2]] for c in self.crops], 1)
+        out["mask"] = self.image_mask(out["verts"].device, out["verts"].dtype)
+        return out
+
+    def values(self, pred: Tensor) -> Tensor:
+        raise NotImplementedError("a stacked prediction covers overlapping vertex sets: use "
+                                  "target.patches[p].values(pred[:, 3p:3p+3]) per patch")
+
+    def positions(self, pred: Tensor, t: dict) -> Tensor:
+        """(B, P*3, S, S) -> (B, V, 3): ground truth with each patch's vertices set by its crop (a later
+        patch overwrites an earlier one on the vertices they share: a preview, not a stitch)."""
+        pos = t["verts"]
+        for p, sub in enumerate(self.patches):
+            pos = sub.positions(pred[:, 3 * p:3 * p + 3], dict(t, verts=pos))
+        return pos
+
+
 def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, space: str = "local",
                 skinner=None) -> VertexTarget:
-    """The one factory: the cloth target of `kind` ("whole" | "patch" | "fc") for `dataset` (a loaded
+    """The one factory: the cloth target of `kind` ("whole" | "patch" | "fc" | "patches") for `dataset` (a loaded
     pbc dataset: garment, body, embedding, cage, dir) under the `image` config node.
 
     skinner: reuse one (its per-device tensors) instead of building it from the dataset.
@@ -243,6 +310,9 @@ def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, spac
         return VertexTarget(skinner, faces, space, len(dataset.garment.vertices))
     if kind == "whole":
         return WholeTarget(skinner, faces, image_operators(dataset, image_cfg, "whole"), space)
+    if kind == "patches":
+        ops = image_operators(dataset, image_cfg, "patch")
+        return PatchesTarget(skinner, faces, ops, patch_crops(dataset, image_cfg, ops), space)
     n = len(dataset.cage.patches)
     if patch_id is None or not 0 <= int(patch_id) < n:
         raise ValueError(f"unknown patch_id {patch_id}: dataset {dataset.dir} has patches 0..{n - 1}")

@@ -287,6 +287,18 @@ class Stitcher:
     # that method needs it
     cage_builder: Callable[[], Callable[[Tensor], Tensor]] | None = None
 
+    def to(self, device) -> Stitcher:
+        """Move this stitcher's tensors to `device`, in place (the `sample`/`render` operators already work
+        on any device; inpaint runs its solve on the CPU and comes back). Same device: nothing is copied."""
+        self.assembler = self.assembler.to(device)
+        for name in ("vertex_band", "folded", "coverage"):
+            v = getattr(self, name)
+            if v is not None and v.device != torch.device(device):
+                setattr(self, name, v.to(device))
+        if self.pca is not None and self.pca.mean.device != torch.device(device):
+            self.pca = self.pca.to(device)
+        return self
+
     def fold(self, sample_matrix: Tensor) -> None:
         """Precompute sample∘assemble as one sparse (V, P*h*w) matrix (same for every channel).
 
