@@ -54,11 +54,11 @@ from pbc.sim.drape import (
     DrapeResult,
     _get,
     _np,
-    _oriented_panels,
     _part_meshes,
     _validate,
     init_warp,
     pattern_triangles,
+    scene_builder,
 )
 
 log = logging.getLogger(__name__)
@@ -444,45 +444,20 @@ class BatchedDrape:
     def _build(self, rest_pattern_triangles, start, body):
         wp_ = init_warp(_get(self.cfg, "kernel_cache_dir"))
         import newton
-        from newton.solvers import SolverStyle3D, style3d
+        from newton.solvers import SolverStyle3D
 
         cfg = self.cfg
         if int(newton.ParticleFlags.ACTIVE) != _PARTICLE_ACTIVE:
             raise RuntimeError("newton's ParticleFlags changed; the batched drape needs newton==1.8.0")
         device = _get(cfg, "device") or None
-        faces, n_faces, k = self.faces, self.faces.shape[0], self.n_worlds
-        thickness = float(_get(cfg, "thickness"))
+        faces, k = self.faces, self.n_worlds
         friction = float(_get(cfg, "friction"))
         gravity = wp_.vec3(0.0, -float(_get(cfg, "gravity")), 0.0)
 
-        # one world's scene, exactly as `build_drape_sim` makes it, then replicated into K worlds
-        world = newton.ModelBuilder(up_axis=newton.Axis.Y)
-        world.gravity = gravity
-        SolverStyle3D.register_custom_attributes(world)
-        style3d.add_cloth_mesh(
-            world,
-            pos=wp_.vec3(0.0, 0.0, 0.0),
-            rot=wp_.quat_identity(),
-            vel=wp_.vec3(0.0, 0.0, 0.0),
-            vertices=(start + 1.0e-5 * np.random.default_rng(0).standard_normal(start.shape)).tolist(),
-            indices=faces.reshape(-1).tolist(),
-            panel_verts=_oriented_panels(rest_pattern_triangles, faces, start).tolist(),
-            panel_indices=np.arange(3 * n_faces).tolist(),
-            density=float(_get(cfg, "density")),
-            particle_radius=thickness,
-            tri_aniso_ke=wp_.vec3(*[float(x) for x in _get(cfg, "stretch_ke")]),
-            edge_aniso_ke=wp_.vec3(*[float(x) for x in _get(cfg, "bend_ke")]),
-        )
-        if world.particle_count != start.shape[0] or len(world.tri_indices) != n_faces:
-            raise ValueError("Style3D dropped degenerate pattern triangles; the rest pattern has zero-area faces")
-        shape_cfg = newton.ModelBuilder.ShapeConfig(
-            mu=friction, margin=0.0, has_shape_collision=False, has_particle_collision=True
-        )
+        # one world's scene, exactly as the single drape builds it, then replicated into K worlds
         self.topology = _PartTopology(body, self.body_faces, self.part_masks)
         part_meshes = self.topology.meshes(body)
-        for verts, tris in part_meshes:
-            world.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
-                                                           is_solid=True), cfg=shape_cfg)
+        world, _ = scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg)
         self.n_parts = len(part_meshes)
         self.part_faces = [tris for _, tris in part_meshes]
 

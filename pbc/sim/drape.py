@@ -218,25 +218,18 @@ def _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, v
         raise ValueError(f"body_faces must be (Fb, 3), got {np.asarray(body_faces).shape}")
 
 
-def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks, cfg):
-    """Build (model, solver, collision pipeline, contacts, states) for one drape. Returns a dict.
+def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
+    """One drape's newton scene: the garment as Style3D cloth starting at `start` (V, 3) with its sewing
+    pattern as rest shape, and one static collision mesh per body part [(verts, tris), ...].
 
-    Split out of `drape` so tests and benchmarks can inspect the model (masses, contact pairs).
+    Returns (ModelBuilder, shape ids). The single drape finalizes it; the batched drape replicates it into
+    K worlds, so both simulate exactly the same scene.
     """
     wp = init_warp(_get(cfg, "kernel_cache_dir"))
     import newton
     from newton.solvers import SolverStyle3D, style3d
 
-    _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks)
-    device = _get(cfg, "device") or None
-    faces = np.asarray(faces, dtype=np.int64)
-    start = np.asarray(start, dtype=np.float64)
     n_faces = faces.shape[0]
-    stretch = [float(x) for x in _get(cfg, "stretch_ke")]
-    bend = [float(x) for x in _get(cfg, "bend_ke")]
-    thickness = float(_get(cfg, "thickness"))
-    friction = float(_get(cfg, "friction"))
-
     builder = newton.ModelBuilder(up_axis=newton.Axis.Y)
     builder.gravity = wp.vec3(0.0, -float(_get(cfg, "gravity")), 0.0)
     SolverStyle3D.register_custom_attributes(builder)
@@ -254,20 +247,37 @@ def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_fa
         panel_indices=np.arange(3 * n_faces).tolist(),
         density=float(_get(cfg, "density")),
         # the particle radius is the cloth-body contact distance: the thickness
-        particle_radius=thickness,
-        tri_aniso_ke=wp.vec3(*stretch),
-        edge_aniso_ke=wp.vec3(*bend),
+        particle_radius=float(_get(cfg, "thickness")),
+        tri_aniso_ke=wp.vec3(*[float(x) for x in _get(cfg, "stretch_ke")]),
+        edge_aniso_ke=wp.vec3(*[float(x) for x in _get(cfg, "bend_ke")]),
     )
     if builder.particle_count != start.shape[0] or len(builder.tri_indices) != n_faces:
         raise ValueError("Style3D dropped degenerate pattern triangles; the rest pattern has zero-area faces")
-
     shape_cfg = newton.ModelBuilder.ShapeConfig(
-        mu=friction, margin=0.0, has_shape_collision=False, has_particle_collision=True
+        mu=float(_get(cfg, "friction")), margin=0.0, has_shape_collision=False, has_particle_collision=True
     )
-    shape_ids = []
-    for verts, tris in _part_meshes(body_vertices, body_faces, part_masks):
-        mesh = newton.Mesh(verts, tris.reshape(-1), compute_inertia=False, is_solid=True)
-        shape_ids.append(builder.add_shape_mesh(body=-1, mesh=mesh, cfg=shape_cfg))
+    shape_ids = [builder.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
+                                                                   is_solid=True), cfg=shape_cfg)
+                 for verts, tris in part_meshes]
+    return builder, shape_ids
+
+
+def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks, cfg):
+    """Build (model, solver, collision pipeline, contacts, states) for one drape. Returns a dict.
+
+    Split out of `drape` so tests and benchmarks can inspect the model (masses, contact pairs).
+    """
+    wp = init_warp(_get(cfg, "kernel_cache_dir"))
+    import newton
+    from newton.solvers import SolverStyle3D
+
+    _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks)
+    device = _get(cfg, "device") or None
+    faces = np.asarray(faces, dtype=np.int64)
+    start = np.asarray(start, dtype=np.float64)
+    friction = float(_get(cfg, "friction"))
+    builder, shape_ids = scene_builder(rest_pattern_triangles, faces, start,
+                                       _part_meshes(body_vertices, body_faces, part_masks), cfg)
 
     model = builder.finalize(device=device)
     model.soft_contact_ke = float(_get(cfg, "contact_ke"))
