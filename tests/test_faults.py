@@ -436,6 +436,15 @@ def test_load_dataset_refuses_a_nan_in_the_middle(tiny_dir, tmp_path):
         load_dataset(d)
 
 
+def _copy_with_seed(src: Path, dst: Path, seed: int) -> Path:
+    """A copy of a dataset whose manifest claims another seed: other data, same arrays."""
+    shutil.copytree(src, dst)
+    m = read_json(dst / "manifest.json")
+    m["seed"] = seed
+    write_json(dst / "manifest.json", m)
+    return dst
+
+
 def test_run_records_resolved_dir_and_fingerprint_and_refuses_other_data(tiny_dir, tmp_path, monkeypatch):
     from pbc.data.dataset import load_dataset, open_recorded_dataset, run_data_record
 
@@ -444,11 +453,7 @@ def test_run_records_resolved_dir_and_fingerprint_and_refuses_other_data(tiny_di
     assert rec["dir"] == str(tiny_dir.resolve())  # ...recorded absolute
     monkeypatch.chdir(tmp_path)  # another shell, another cwd: the run still finds its data
     assert len(open_recorded_dataset(rec)) == 6
-    other = tmp_path / "other"
-    shutil.copytree(tiny_dir, other)
-    m = read_json(other / "manifest.json")
-    m["seed"] = 7
-    write_json(other / "manifest.json", m)
+    other = _copy_with_seed(tiny_dir, tmp_path / "other", 7)
     with pytest.raises(ValueError, match=r"not the data the run was trained on(.|\n)*seed: recorded 0 vs found 7"):
         open_recorded_dataset(rec, other)
     with pytest.raises(FileNotFoundError, match="the run's dataset is not at"):
@@ -605,11 +610,7 @@ def test_run_remembers_its_data_from_any_shell(trained, tiny_dir, tmp_path, monk
     monkeypatch.chdir(tmp_path)  # another shell: other cwd, other PBC_ROOT
     monkeypatch.setenv("PBC_ROOT", str(tmp_path))
     assert len(open_run_dataset(info)) == 6
-    other = tmp_path / "other"
-    shutil.copytree(tiny_dir, other)
-    m = read_json(other / "manifest.json")
-    m["seed"] = 7
-    write_json(other / "manifest.json", m)
+    other = _copy_with_seed(tiny_dir, tmp_path / "other", 7)
     with pytest.raises(ValueError, match=r"not the data the run was trained on(.|\n)*seed: recorded 0 vs found 7"):
         open_run_dataset(info, other)
     # a run written before the record existed still opens its config's data.dir

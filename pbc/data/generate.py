@@ -150,6 +150,11 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
     t1 = time.perf_counter()
     res = drape_garment(scene.garment, start, body_v[0], scene.body, scene.embedding, scene.sim)
     t2 = time.perf_counter()
+    return _drape_record(scene, res, t1 - t0, t2 - t1)
+
+
+def _drape_record(scene: Scene, res, t_skin: float, t_drape: float) -> dict:
+    """What a worker reports of one drape: the positions, the keep/discard decision and the costs."""
     ok, reason = check_garment_result(res, scene.garment, scene.sim)
     return {
         "positions": res.positions.astype(np.float32),
@@ -158,8 +163,8 @@ def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
         "residual": float(res.residual),
         "residual_max": float(res.residual_max),
         "iterations": int(res.iterations),
-        "t_skin": t1 - t0,
-        "t_drape": t2 - t1,
+        "t_skin": t_skin,
+        "t_drape": t_drape,
     }
 
 
@@ -180,20 +185,7 @@ def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
                                                   batch_worlds(scene.sim), starts[0], bodies[0])
     results = scene.batched.run(np.stack(starts), np.stack(bodies))
     t2 = time.perf_counter()
-    records = []
-    for res in results:
-        ok, reason = check_garment_result(res, scene.garment, scene.sim)
-        records.append({
-            "positions": res.positions.astype(np.float32),
-            "ok": ok,
-            "reason": reason,
-            "residual": float(res.residual),
-            "residual_max": float(res.residual_max),
-            "iterations": int(res.iterations),
-            "t_skin": (t1 - t0) / len(poses),
-            "t_drape": (t2 - t1) / len(poses),
-        })
-    return records
+    return [_drape_record(scene, res, (t1 - t0) / len(poses), (t2 - t1) / len(poses)) for res in results]
 
 
 _SCENE: Scene | None = None
