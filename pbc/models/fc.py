@@ -19,8 +19,27 @@ from pbc.models.decoder import register_pose_standardisation
 MODES = ("direct", "pca")
 
 
+def principal_components(values: Tensor, k: int, exact_below: float = float("inf")) -> tuple[Tensor, Tensor, Tensor]:
+    """The one PCA of pbc: the top principal components of samples, in float64.
+
+    values (N, D); k clamped to min(N, D). Exact SVD when min(N, D) <= exact_below, otherwise randomized
+    `torch.svd_lowrank` (oversampled, with power iterations) so a 20k-sample, 3V-wide matrix stays cheap.
+    Returns mean (D,), components (k, D) orthonormal rows, singular values (k,).
+    """
+    x = values.reshape(values.shape[0], -1).double()
+    n, d = x.shape
+    k = min(int(k), n, d)
+    mean = x.mean(dim=0)
+    x = x - mean
+    if min(n, d) <= exact_below:
+        _, s, vh = torch.linalg.svd(x, full_matrices=False)
+        return mean, vh[:k], s[:k]
+    _, s, v = torch.svd_lowrank(x, q=min(k + 16, n, d), niter=4)
+    return mean, v[:, :k].T, s[:k]
+
+
 def fit_pca(values: Tensor, num_components: int) -> tuple[Tensor, Tensor, Tensor]:
-    """PCA of training samples.
+    """The FC baselines' basis of training samples (exact SVD).
 
     Args:
         values: (N, D) float samples (D = V*3).
@@ -30,16 +49,13 @@ def fit_pca(values: Tensor, num_components: int) -> tuple[Tensor, Tensor, Tensor
         When N or D is below K, the missing components are zero rows with scale 1 (shapes stay fixed,
         so a checkpoint loads whatever split size it was fitted on).
     """
-    values = values.double()
-    mean = values.mean(dim=0)
-    x = values - mean
-    _, s, vh = torch.linalg.svd(x, full_matrices=False)
-    k = min(num_components, vh.shape[0])
+    mean, vh, s = principal_components(values, num_components)
+    k = vh.shape[0]
     comps = torch.zeros(num_components, values.shape[1], dtype=torch.float64)
-    comps[:k] = vh[:k]
+    comps[:k] = vh
     scale = torch.ones(num_components, dtype=torch.float64)
     # std of the coefficients; floor keeps degenerate directions from exploding the decoded output
-    scale[:k] = (s[:k] / max(values.shape[0] - 1, 1) ** 0.5).clamp_min(1e-8)
+    scale[:k] = (s / max(values.shape[0] - 1, 1) ** 0.5).clamp_min(1e-8)
     return mean.float(), comps.float(), scale.float()
 
 

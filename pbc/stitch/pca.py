@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from pbc.io import atomic_path
+from pbc.models.fc import principal_components
 
 
 @dataclass
@@ -43,20 +44,10 @@ def fit_pca(samples: Tensor, n_components: int, dataset_hash: str = "", exact_be
     """Fit the top principal components of the samples.
 
     samples: (N, V, 3) or (N, D) float; n_components: K, clamped to min(N, D) (the most a basis can
-    hold). Exact SVD when min(N, D) <= exact_below, otherwise randomized `torch.svd_lowrank` (with
-    oversampling and power iterations) so a 20k-sample, 3V-wide matrix stays cheap.
+    hold); exact SVD up to min(N, D) = exact_below, randomized above (pbc.models.fc.principal_components).
     """
-    X = samples.reshape(samples.shape[0], -1).double()  # float64: the identity test needs it exact
-    N, D = X.shape
-    k = min(int(n_components), N, D)
-    mean = X.mean(0)
-    Xc = X - mean
-    if min(N, D) <= exact_below:
-        _, s, vh = torch.linalg.svd(Xc, full_matrices=False)
-        comps, s = vh[:k], s[:k]
-    else:
-        _, s, v = torch.svd_lowrank(Xc, q=min(k + 16, N, D), niter=4)
-        comps, s = v[:, :k].T, s[:k]
+    # float64 inside: the identity test needs it exact
+    mean, comps, s = principal_components(samples, n_components, exact_below)
     return PCABasis(mean.float(), comps.float().contiguous(), s.float(), dataset_hash, fingerprint)
 
 
