@@ -122,11 +122,14 @@ class ClothModule(L.LightningModule):
         # 3D is always built: the cm metric needs it; only the optional losses add graph work
         pos = self.positions(pred, t)
         ids = self.target.vertices
-        faces, edges = self.target.topology(pos.device)
+        edges = self.target.topology(pos.device)[1]
         n_pred = n_gt = None
         if lc["normal_weight"] > 0 or split != "train":
+            # only the faces around the covered vertices (a patch's neighbourhood); ground-truth normals
+            # from the target cache when the DataModule has one (they depend only on the sample)
+            faces = self.target.normal_faces(pos.device)
             n_pred = vertex_normals(pos, faces)
-            n_gt = vertex_normals(t["verts"], faces)
+            n_gt = t["normals"] if "normals" in t else vertex_normals(t["verts"], faces)
         if lc["normal_weight"] > 0:
             sel = slice(None) if ids is None else ids.to(pos.device)
             nl = normal_loss(n_pred[:, sel], n_gt[:, sel])
