@@ -112,6 +112,14 @@ class ClothModule(L.LightningModule):
     def step(self, batch: dict, split: str, batch_idx: int) -> tuple[Tensor, dict]:
         t = self.targets(batch)
         pred = self(batch["pose"])
+        # under trainer.precision=bf16-mixed only the network runs in bf16: losses, the image -> 3D path and
+        # the metrics stay float32 (bf16 keeps 8 mantissa bits: millimetres on a garment a metre across)
+        with torch.autocast(pred.device.type, enabled=False):
+            return self.losses(batch, t, pred.float(), split, batch_idx)
+
+    def losses(self, batch: dict, t: dict, pred: Tensor, split: str, batch_idx: int) -> tuple[Tensor, dict]:
+        """Eq. 1-3 (+ edge loss) and the metrics of one batch's prediction `pred` against its targets `t`;
+        logged under `split`. Returns (total loss, {pred, image, mask, positions})."""
         lc = self.hparams.loss
         logs: dict[str, Tensor] = {}
         truth, mask = self.target.truth(t)
