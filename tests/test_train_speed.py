@@ -147,8 +147,8 @@ def test_patch_normals_need_only_the_patch_neighbourhood(world):
 
 def module(t, normal_weight=0.01):
     res = t.image_size[0]
-    net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": 6 if t.kind == "whole" else 3,
-           "output_size": [res, res], "start_size": [8, 8], "start_channels": 32}
+    net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90,
+           "out_channels": 6 if t.kind == "whole" else 3, "output_size": [res, res], "start_size": [8, 8], "start_channels": 32}
     m = ClothModule(net, t.kind, "local", {"norm": "l1", "normal_weight": normal_weight, "edge_weight": 0.1},
                     1e-3, {}, patch_id=t.patch_id)
     m.log_dict = lambda *a, **k: None
@@ -202,3 +202,29 @@ def test_cache_on_cuda_equals_cpu_render(world):
         want = t.render(dict(batch))
         for k, v in want.items():
             torch.testing.assert_close(got[k].cpu(), v, rtol=1e-5, atol=1e-6)
+
+
+@run_if(cuda=True)
+@pytest.mark.parametrize("trainer", ["gpu", "ddp", "gpu_bf16"])
+def test_gpu_trainers_run_end_to_end(tiny_dataset, tmp_path, trainer):
+    """`trainer=gpu`, `trainer=ddp` (one device here: the DDP strategy and synced BatchNorm) and bf16-mixed
+    train, test and write metrics on the session's tiny dataset, with the target cache on the GPU."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import tiny_overrides
+
+    over = {"gpu": ["trainer=gpu"], "ddp": ["trainer=ddp", "trainer.devices=1"],
+            "gpu_bf16": ["trainer=gpu", "trainer.precision=bf16-mixed"]}[trainer]
+    run = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "pbc.train", *tiny_overrides(tiny_dataset.parent), "+experiment=whole",
+                        "+scale=smoke", *over, "trainer.max_epochs=2", f"hydra.run.dir={run}"],
+                       cwd=Path(__file__).resolve().parents[1], env=dict(os.environ, PBC_ROOT=str(tmp_path)),
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
+    assert "target cache" in r.stdout + r.stderr and "on cuda" in r.stdout + r.stderr
