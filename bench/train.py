@@ -9,7 +9,7 @@ For each model (whole 6-channel image, one patch crop) and each variant:
                               image) -> forward -> eq. 1 loss (+ normal loss through image -> vertices ->
                               normals when "on") -> backward -> Adam
     full, cache on, normal    the same, targets looked up in the DataModule's target cache
-Samples/s of each and the ratio full / bare (goal >= 0.9 with the normal loss on: the data path must not
+Samples/s of each, the ratio full / bare, and the milliseconds of the step spent getting the targets (goal >= 0.9 with the normal loss on: the data path must not
 be the bottleneck). Variants run interleaved (one step of each per round, median over rounds) so a shared
 machine's load hits all of them alike. Also measured: building the cache, and the error a float16 image
 cache would add (image units = metres of offset, and cm on the garment after sampling back to 3D), next to
@@ -116,13 +116,20 @@ def bench_model(args, kind: str, dev: torch.device) -> dict:
         m.log_dict = lambda *a, **k: None  # no Trainer here: logging is not what is measured
         return m
 
-    def full(normal_weight: float, cached: bool):
+    data_s: dict[str, list[float]] = {}
+
+    def full(name: str, normal_weight: float, cached: bool):
         m = module(normal_weight)
         opt = m.configure_optimizers()
+        data_s[name] = []
 
         def step():
             dm.cache_targets, target.cache = cached, cache if cached else None
-            b = dm.on_after_batch_transfer(next_batch(), 0)
+            b = next_batch()
+            t = time.perf_counter()
+            b = dm.on_after_batch_transfer(b, 0)
+            sync(dev)
+            data_s[name].append(time.perf_counter() - t)
             optimise(m.step(b, "train", 0)[0], opt)
         return step
 
@@ -141,7 +148,8 @@ def bench_model(args, kind: str, dev: torch.device) -> dict:
     variants = {"bare network": bare()}
     for cached in (False, True):
         for nw in (0.0, NORMAL_WEIGHT):
-            variants[f"full, cache {'on' if cached else 'off'}, normal {'on' if nw else 'off'}"] = full(nw, cached)
+            name = f"full, cache {'on' if cached else 'off'}, normal {'on' if nw else 'off'}"
+            variants[name] = full(name, nw, cached)
     times: dict[str, list[float]] = {k: [] for k in variants}
     for rnd in range(args.warmup + args.reps):  # interleaved rounds: shared load hits every variant alike
         for name, fn in variants.items():
@@ -156,7 +164,9 @@ def bench_model(args, kind: str, dev: torch.device) -> dict:
            "cache_build_s": round(build_s, 3),
            "cache_gib": None if cache is None else round(cache.nbytes / 2**30, 4),
            "samples_per_s": {k: round(args.batch / v, 2) for k, v in med.items()},
-           "ratio_to_bare": {k: round(bare_t / v, 3) for k, v in med.items()}}
+           "ratio_to_bare": {k: round(bare_t / v, 3) for k, v in med.items()},
+           # the targets' share of a step (render, or cache lookup), ms: the part the cache takes away
+           "data_path_ms": {k: round(1000 * statistics.median(v[args.warmup:]), 2) for k, v in data_s.items()}}
     out["fp16_cache"] = fp16_error(target, dm, dev)
     return out
 
@@ -185,9 +195,10 @@ def main() -> None:
     for kind, r in out["models"].items():
         print(f"\n{kind} {r['image']} ({r['samples']} samples; cache {r['cache_gib']} GiB built in "
               f"{r['cache_build_s']} s)")
-        print(f"  {'step':34s} {'samples/s':>10s} {'x bare':>7s}")
+        print(f"  {'step':34s} {'samples/s':>10s} {'x bare':>7s} {'targets ms':>10s}")
         for name, sps in r["samples_per_s"].items():
-            print(f"  {name:34s} {sps:10.2f} {r['ratio_to_bare'][name]:7.3f}")
+            ms = r["data_path_ms"].get(name)
+            print(f"  {name:34s} {sps:10.2f} {r['ratio_to_bare'][name]:7.3f} {'' if ms is None else f'{ms:10.1f}'}")
         e = r["fp16_cache"]
         print(f"  fp16 image cache: max |d image| {e['image_max_abs_m']:.2e} m (values up to "
               f"{e['image_max_abs_value_m']:.3f} m); decoded vertices {e['fp16_vs_fp32_cm_mean']:.2e} cm mean, "

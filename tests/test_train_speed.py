@@ -148,7 +148,8 @@ def test_patch_normals_need_only_the_patch_neighbourhood(world):
 def module(t, normal_weight=0.01):
     res = t.image_size[0]
     net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90,
-           "out_channels": 6 if t.kind == "whole" else 3, "output_size": [res, res], "start_size": [8, 8], "start_channels": 32}
+           "out_channels": 6 if t.kind == "whole" else 3, "output_size": [res, res], "start_size": [8, 8],
+           "start_channels": 32}
     m = ClothModule(net, t.kind, "local", {"norm": "l1", "normal_weight": normal_weight, "edge_weight": 0.1},
                     1e-3, {}, patch_id=t.patch_id)
     m.log_dict = lambda *a, **k: None
