@@ -9,12 +9,12 @@ For each model (whole 6-channel image, one patch crop) and each variant:
                               image) -> forward -> eq. 1 loss (+ normal loss through image -> vertices ->
                               normals when "on") -> backward -> Adam
     full, cache on, normal    the same, targets looked up in the DataModule's target cache
-Samples/s of each, the ratio full / bare, and the milliseconds of the step spent getting the targets
-(goal >= 0.9 with the normal loss on: the data path must not
-be the bottleneck). Variants run interleaved (one step of each per round, median over rounds) so a shared
-machine's load hits all of them alike. Also measured: building the cache, and the error a float16 image
-cache would add (image units = metres of offset, and cm on the garment after sampling back to 3D), next to
-the representation floor (the float32 image's own round-trip error back to the draped vertices).
+Samples/s of each, the ratio full / bare (goal >= 0.9 with the normal loss on: the data path must not be
+the bottleneck) and the milliseconds of the step spent getting the targets. Variants run interleaved (one
+step of each per round, median over rounds) so a shared machine's load hits all of them alike. Also
+measured: building the cache, and the error a float16 image cache would add (image units = metres of
+offset, and cm on the garment after sampling back to 3D), next to the representation floor (the float32
+image's own round-trip error back to the draped vertices).
 Batches are drawn with replacement from every sample of the data set, so a small data set serves any
 batch size. Prints a table and, as the last line, JSON. Generates the dataset on first use.
 """
