@@ -102,7 +102,12 @@ class ClothModule(L.LightningModule):
     # ------------------------------------------------------------------------------ targets
     def targets(self, batch: dict) -> dict:
         """Ground truth of a batch (anchors, frames, offsets and the target image): what the DataModule
-        already rendered on the device, else rendered here by the same target."""
+        already rendered on the device, else looked up in (or rendered by) the same target. Under a Trainer
+        whose DataModule caches targets, the cache is built first (the mean-image and PCA passes of
+        on_fit_start then read it too)."""
+        dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        if getattr(dm, "cache_targets", False) and dm.target is self.target and not self.target.rendered(batch):
+            dm.ensure_cache(batch["pose"].device)
         return self.target.ensure(batch)
 
     def positions(self, pred: Tensor, t: dict) -> Tensor:
