@@ -319,7 +319,7 @@ class TargetCache:
         rows = self.row[batch["index"]]
         out = dict(batch)
         for k, v in self.per_sample.items():
-            v = v.index_select(0, rows)
+            v = v[rows]  # advanced indexing: index_select on a 4-D tensor was 6x slower on the CPU
             out[k] = v if v.dtype == torch.float32 or not v.is_floating_point() else v.float()
         out.update(self.constants)
         return out
