@@ -36,7 +36,7 @@ def _compose(overrides):
 
 def test_sweep_names_and_scales():
     assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
-    assert SCALES == ["cpu", "paper", "smoke"]
+    assert SCALES == ["cpu", "gpu", "paper", "smoke"]
     assert sweeps.sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
     assert len(sweeps.sweep_values("experiment", "glob([whole,patch_*])")) == 29
 
@@ -74,7 +74,30 @@ def test_scales_compose_in_sweeps_and_single_runs(scale):
     for c in (cfg, single):
         assert c.hydra.runtime.choices["scale"] == scale
         assert c.data.num_samples > 0 and c.trainer.max_epochs > 0 and c.datamodule.batch_size > 0
-    assert cfg.data.name == {"smoke": "tshirt_tiny", "cpu": "tshirt_small", "paper": "tshirt_paper"}[scale]
+    assert cfg.data.name == {"smoke": "tshirt_tiny", "cpu": "tshirt_small", "paper": "tshirt_paper",
+                             "gpu": "tshirt_gpu"}[scale]
+
+
+@pytest.mark.usefixtures("_hydra")
+@pytest.mark.parametrize("name", ["hierarchy", "losses"])
+def test_gpu_scale_schedule_composes_and_paper_stays_plain_adam(name):
+    """`python -m pbc.sweeps hierarchy|losses scale=gpu`: the GPU data set and trainer, a cosine LR decay
+    over the run's epochs and early stopping on the checkpoint's metric; scale=paper keeps plain Adam."""
+    import torch
+    from hydra.utils import instantiate
+
+    cfg = _compose([*SEARCH, f"+sweep={name}", "scale=gpu"])
+    assert cfg.data.name == "tshirt_gpu" and cfg.trainer.accelerator == "gpu"
+    assert cfg.image.whole_resolution == 256 and cfg.datamodule.batch_size == 32  # the paper's sizes
+    assert cfg.callbacks.early_stopping.monitor == cfg.callbacks.model_checkpoint.monitor == "val/vertex_error_cm"
+    job = _compose([*SEARCH, f"+sweep={name}", "scale=gpu", "experiment=patch_07"]) if name == "hierarchy" else cfg
+    model = instantiate(job.model, identity={}, summary={})
+    sched = model.configure_optimizers()["lr_scheduler"]["scheduler"]
+    assert isinstance(sched, torch.optim.lr_scheduler.CosineAnnealingLR) and sched.T_max == cfg.trainer.max_epochs
+    cmds = dict(sweeps.sweep_commands(name, ["scale=gpu"], Path("/tmp/sweep"), python="py"))
+    assert "data=tshirt_gpu" in cmds["data"] and "scale=gpu" in cmds["train"]
+    paper = _compose([*SEARCH, f"+sweep={name}", "scale=paper"])
+    assert paper.model.scheduler is None and "early_stopping" not in paper.callbacks
 
 
 @pytest.mark.usefixtures("_hydra")

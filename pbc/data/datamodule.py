@@ -2,8 +2,10 @@
 images per batch, on the batch's device.
 
 One job: turn a dataset directory into train/val/test batches. Only per-vertex data is read from disk
-(memory-mapped); targets are rendered in `on_after_batch_transfer` by the run's cloth target
-(`pbc.pixels.target`, `dm.target`), never stored. It only reads: a missing dataset is an error that
+(memory-mapped); targets are made in `on_after_batch_transfer` by the run's cloth target
+(`pbc.pixels.target`, `dm.target`), never written to disk: with `cache_targets` (the default) every
+sample's targets are rendered once on the training device and looked up per batch; without, rendered
+per batch. It only reads: a missing dataset is an error that
 says how to make it (`python -m pbc.generate`; `python -m pbc.train` makes it first when missing).
 
 Batch dict (B = batch size, V garment vertices, H = W = image.whole_resolution, S = crop size):
@@ -22,11 +24,15 @@ Batch dict (B = batch size, V garment vertices, H = W = image.whole_resolution, 
       mask   (1, 3, S, S)     float32  patch k's pixels dilated by `margin`, inside the padded chart
       vertices (Vk,)          int64    garment vertex ids of patch k
     target=fc: no image (the per-vertex baselines)
+  added from the target cache (`cache_targets`, the default) besides the above:
+    normals  (B, V, 3)        float32  ground-truth unit vertex normals of `verts` (the normal loss's n_gt)
 `dm.target.positions(pred, batch)` maps a prediction back to 3D; `dm.target.values(pred)` to offsets.
 """
 
 from __future__ import annotations
 
+import logging
+import time
 from pathlib import Path
 
 import lightning as L
@@ -36,9 +42,11 @@ from torch.utils.data import DataLoader, Dataset
 
 from pbc.data.dataset import ClothDataset, load_dataset
 from pbc.pixels.frames import SPACES
-from pbc.pixels.target import KINDS, VertexTarget, make_target
+from pbc.pixels.target import KINDS, TargetCache, VertexTarget, build_cache, make_target
 
+log = logging.getLogger(__name__)
 TARGETS = KINDS
+CACHE_DTYPES = {"float32": torch.float32, "float16": torch.float16, "bfloat16": torch.bfloat16}
 
 
 class PoseVerts(Dataset):
@@ -71,6 +79,13 @@ class ClothDataModule(L.LightningDataModule):
         space: offset space of the targets ("local", "root", "position").
         batch_size, num_workers, pin_memory: DataLoader settings.
         render: render targets in `on_after_batch_transfer` (False: only pose/verts/index).
+        cache_targets: render every sample's targets once, on the device of the first batch, and look
+            them up per batch (`pbc.pixels.target.TargetCache`); same values as rendering per batch.
+            Falls back to per-batch rendering (with a warning) when the cache would exceed cache_max_gb.
+        cache_dtype: storage of the cached cloth images, "float32" (exact) or "float16" (half the memory;
+            error measured by bench/train.py). Per-vertex values are always float32.
+        cache_max_gb: largest cache built on a device, in GiB.
+        cache_chunk: samples rendered at a time while building the cache.
         garment_hash: if set, the dataset must have been made for this garment (manifest garment_hash).
     """
 
@@ -86,6 +101,10 @@ class ClothDataModule(L.LightningDataModule):
         pin_memory: bool = False,
         render: bool = True,
         garment_hash: str | None = None,
+        cache_targets: bool = True,
+        cache_dtype: str = "float32",
+        cache_max_gb: float = 8.0,
+        cache_chunk: int = 64,
     ):
         super().__init__()
         if target not in TARGETS:
@@ -98,6 +117,11 @@ class ClothDataModule(L.LightningDataModule):
         self.patch_id = None if patch_id is None else int(patch_id)  # read by the patch target only
         self.batch_size, self.num_workers, self.pin_memory = int(batch_size), int(num_workers), bool(pin_memory)
         self.render, self.garment_hash = bool(render), garment_hash
+        if cache_dtype not in CACHE_DTYPES:
+            raise ValueError(f"datamodule.cache_dtype must be one of {tuple(CACHE_DTYPES)}, got {cache_dtype!r}")
+        self.cache_targets, self.cache_dtype = bool(cache_targets), CACHE_DTYPES[cache_dtype]
+        self.cache_max_gb, self.cache_chunk = float(cache_max_gb), int(cache_chunk)
+        self._cache_refused: set[str] = set()
         self.data: ClothDataset | None = None
         self.target: VertexTarget | None = None
         self.splits: dict[str, np.ndarray] = {}
@@ -180,4 +204,41 @@ class ClothDataModule(L.LightningDataModule):
             return batch
         if self.target is None:
             self.setup()
-        return self.target.render(batch)
+        if self.cache_targets:
+            self.ensure_cache(batch["pose"].device)
+        return self.target.fetch(batch)
+
+    def ensure_cache(self, device) -> TargetCache | None:
+        """Attach to the target a cache of every split's targets on `device` (built once, chunked), or
+        None when it would exceed `cache_max_gb` (then batches are rendered as they come)."""
+        if self.target is None:
+            self.setup()
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:  # batches live on an indexed device
+            device = torch.device("cuda", torch.cuda.current_device())
+        cache = self.target.cache
+        if cache is not None and cache.device == device:
+            return cache
+        if str(device) in self._cache_refused:
+            return None
+        index = np.unique(np.concatenate([self.splits[s] for s in ("train", "val", "test")]))
+        one = self.target.render({"pose": torch.from_numpy(np.array(self.data.poses[index[:1]], np.float32)),
+                                  "verts": torch.from_numpy(np.array(self.data.verts[index[:1]], np.float32))})
+        per = sum(v.numel() * (self.cache_dtype.itemsize if k == "image" else v.element_size())
+                  for k, v in one.items() if k not in ("pose", "verts", *self.target.constant_keys))
+        per += one["verts"].numel() * 4  # the ground-truth normals
+        gib = per * len(index) / 2**30
+        if gib > self.cache_max_gb:
+            log.warning("target cache of %d samples would take %.1f GiB > datamodule.cache_max_gb=%.1f: "
+                        "rendering per batch instead (raise cache_max_gb or set cache_dtype=float16)",
+                        len(index), gib, self.cache_max_gb)
+            self._cache_refused.add(str(device))
+            return None
+        t0 = time.perf_counter()
+        self.target.cache = build_cache(
+            self.target, torch.from_numpy(np.array(self.data.poses[index], np.float32)).reshape(len(index), -1),
+            torch.from_numpy(np.array(self.data.verts[index], np.float32)), torch.from_numpy(index), device,
+            chunk=self.cache_chunk, image_dtype=self.cache_dtype)
+        log.info("target cache: %d samples, %.2f GiB on %s, built in %.1f s", len(index),
+                 self.target.cache.nbytes / 2**30, device, time.perf_counter() - t0)
+        return self.target.cache

@@ -129,7 +129,12 @@ class ClothModule(L.LightningModule):
     # ------------------------------------------------------------------------------ targets
     def targets(self, batch: dict) -> dict:
         """Ground truth of a batch (anchors, frames, offsets and the target image): what the DataModule
-        already rendered on the device, else rendered here by the same target."""
+        already rendered on the device, else looked up in (or rendered by) the same target. Under a Trainer
+        whose DataModule caches targets, the cache is built first (the mean-image and PCA passes of
+        on_fit_start then read it too)."""
+        dm = getattr(self._trainer, "datamodule", None) if self._trainer is not None else None
+        if getattr(dm, "cache_targets", False) and dm.target is self.target and not self.target.rendered(batch):
+            dm.ensure_cache(batch["pose"].device)
         return self.target.ensure(batch)
 
     def positions(self, pred: Tensor, t: dict) -> Tensor:
@@ -139,6 +144,14 @@ class ClothModule(L.LightningModule):
     def step(self, batch: dict, split: str, batch_idx: int) -> tuple[Tensor, dict]:
         t = self.targets(batch)
         pred = self(batch["pose"])
+        # under trainer.precision=bf16-mixed only the network runs in bf16: losses, the image -> 3D path and
+        # the metrics stay float32 (bf16 keeps 8 mantissa bits: millimetres on a garment a metre across)
+        with torch.autocast(pred.device.type, enabled=False):
+            return self.losses(batch, t, pred.float(), split, batch_idx)
+
+    def losses(self, batch: dict, t: dict, pred: Tensor, split: str, batch_idx: int) -> tuple[Tensor, dict]:
+        """Eq. 1-3 (+ edge loss) and the metrics of one batch's prediction `pred` against its targets `t`;
+        logged under `split`. Returns (total loss, {pred, image, mask, positions})."""
         lc = self.hparams.loss
         logs: dict[str, Tensor] = {}
         truth, mask = self.target.truth(t)
@@ -149,11 +162,14 @@ class ClothModule(L.LightningModule):
         # 3D is always built: the cm metric needs it; only the optional losses add graph work
         pos = self.positions(pred, t)
         ids = self.target.vertices
-        faces, edges = self.target.topology(pos.device)
+        edges = self.target.topology(pos.device)[1]
         n_pred = n_gt = None
         if lc["normal_weight"] > 0 or split != "train":
+            # only the faces around the covered vertices (a patch's neighbourhood); ground-truth normals
+            # from the target cache when the DataModule has one (they depend only on the sample)
+            faces = self.target.normal_faces(pos.device)
             n_pred = vertex_normals(pos, faces)
-            n_gt = vertex_normals(t["verts"], faces)
+            n_gt = t["normals"] if "normals" in t else vertex_normals(t["verts"], faces)
         if lc["normal_weight"] > 0:
             sel = slice(None) if ids is None else ids.to(pos.device)
             nl = normal_loss(n_pred[:, sel], n_gt[:, sel])

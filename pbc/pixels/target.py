@@ -33,7 +33,7 @@ from torch import Tensor
 
 from pbc.pixels.frames import SPACES, from_offsets, to_offsets
 from pbc.pixels.operators import ImageOperators, PatchCrop, image_sizes
-from pbc.pixels.reconstruct import Skinner, mesh_edges
+from pbc.pixels.reconstruct import Skinner, mesh_edges, vertex_normals
 
 KINDS = ("whole", "patch", "fc", "patches")
 
@@ -132,7 +132,34 @@ class VertexTarget:
 
     def ensure(self, batch: dict) -> dict:
         """The batch, rendered unless the DataModule already did (batches from a bare DataLoader)."""
-        return batch if self.rendered(batch) else self.render(batch)
+        return batch if self.rendered(batch) else self.fetch(batch)
+
+    def normal_faces(self, device) -> Tensor:
+        """(Fk, 3) faces whose normals reach the covered vertices (all faces, or those touching a patch):
+        the normal loss's vertex normals at those vertices need no other face. Copied to `device` once."""
+        key = f"normal_faces:{device}"
+        if key not in self._on:
+            faces = self.faces
+            ids = self.vertices
+            if ids is not None:
+                inside = torch.zeros(max(int(faces.max()), int(ids.max())) + 1, dtype=torch.bool)
+                inside[ids] = True
+                faces = faces[inside[faces].any(1)]
+            self._on[key] = faces.to(device)
+        return self._on[key]
+
+    # ------------------------------------------------------------------ the target cache
+    # What render adds that is the same for every sample (not stacked per sample in a TargetCache).
+    constant_keys = ("mask", "vertices")
+    cache: TargetCache | None = None
+
+    def fetch(self, batch: dict) -> dict:
+        """The batch with its targets: looked up in `self.cache` (a :class:`TargetCache` the DataModule
+        attaches) when it holds every sample of the batch on the batch's device, else rendered."""
+        cache = self.cache
+        if cache is not None and cache.covers(batch):
+            return cache.lookup(batch)
+        return self.render(batch)
 
     def truth(self, t: dict) -> tuple[Tensor, Tensor | None]:
         """(ground truth the value loss compares the prediction to, its mask or None)."""
@@ -320,3 +347,87 @@ def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, spac
     sizes = image_sizes(image_cfg)
     crop = ops.crop(dataset.cage.patches[int(patch_id)], sizes["crop_size"], sizes["margin"])
     return PatchTarget(skinner, faces, crop, ops.res, space)
+
+
+# ---------------------------------------------------------------------------------- the target cache
+class TargetCache:
+    """The rendered targets of a fixed set of samples, held on one device (docs/architecture.md).
+
+    A sample's anchors, frames, offsets, cloth image (and mask) depend only on the sample, so they are
+    rendered once per dataset instead of once per batch per epoch; `lookup` then costs one gather.
+
+    per_sample: key -> (N, ...) tensors, row i = sample `index[i]`; constants: key -> tensors every batch
+    shares (mask (1, C, H, W), a patch's vertex ids); index (N,) int64 dataset sample ids.
+    Stored dtypes are kept (an fp16 image costs half the memory); `lookup` serves float32.
+    """
+
+    def __init__(self, per_sample: dict[str, Tensor], constants: dict[str, Tensor], index: Tensor):
+        self.per_sample, self.constants = per_sample, constants
+        index = torch.as_tensor(index).long()
+        self.device = index.device if not per_sample else next(iter(per_sample.values())).device
+        self.row = torch.full((int(index.max()) + 1 if len(index) else 0,), -1, dtype=torch.long,
+                              device=self.device)
+        self.row[index.to(self.device)] = torch.arange(len(index), device=self.device)
+
+    def __len__(self) -> int:
+        return int((self.row >= 0).sum())
+
+    @property
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in self.per_sample.values())
+
+    def covers(self, batch: dict) -> bool:
+        """True when the batch (with its `index`) lives on this cache's device and every sample is held."""
+        idx = batch.get("index")
+        if idx is None or idx.device != self.device:
+            return False
+        return bool(len(idx) == 0 or (int(idx.max()) < len(self.row) and int(idx.min()) >= 0
+                                      and (self.row[idx] >= 0).all()))
+
+    def lookup(self, batch: dict) -> dict:
+        """The batch plus its cached targets (float32), as the target's render would give them."""
+        rows = self.row[batch["index"]]
+        out = dict(batch)
+        for k, v in self.per_sample.items():
+            v = v[rows]  # advanced indexing: index_select on a 4-D tensor was 6x slower on the CPU
+            out[k] = v if v.dtype == torch.float32 or not v.is_floating_point() else v.float()
+        out.update(self.constants)
+        return out
+
+
+@torch.no_grad()
+def build_cache(target: VertexTarget, pose: Tensor, verts: Tensor, index: Tensor, device=None,
+                chunk: int = 64, image_dtype: torch.dtype = torch.float32,
+                normals: bool = True) -> TargetCache:
+    """Render the targets of N samples once, `chunk` at a time, on `device`.
+
+    pose (N, 90) or (N, J, 3, 3), verts (N, V, 3) float32 (any device; copied chunk by chunk), index (N,)
+    their dataset sample ids. image_dtype: storage of the cloth images (float16 halves the cache; its
+    error is measured by bench/train.py); per-vertex values stay float32. normals: also cache the
+    ground-truth vertex normals (N, V, 3) the normal loss and metric compare to.
+    """
+    device = torch.device(device) if device is not None else verts.device
+    n = int(verts.shape[0])
+    if n == 0:
+        raise ValueError("build_cache needs at least one sample")
+    faces = target.topology(device)[0]
+    per_sample: dict[str, Tensor] = {}
+    constants: dict[str, Tensor] = {}
+    for start in range(0, n, int(chunk)):
+        stop = min(start + int(chunk), n)
+        batch = {"pose": torch.as_tensor(pose[start:stop]).to(device, torch.float32),
+                 "verts": torch.as_tensor(verts[start:stop]).to(device, torch.float32)}
+        out = target.render(batch)
+        if normals:
+            out["normals"] = vertex_normals(batch["verts"], faces)
+        for k, v in out.items():
+            if k in batch:
+                continue
+            if k in target.constant_keys:
+                constants.setdefault(k, v)
+                continue
+            if k not in per_sample:
+                dtype = image_dtype if k == "image" else v.dtype
+                per_sample[k] = torch.empty((n, *v.shape[1:]), dtype=dtype, device=device)
+            per_sample[k][start:stop] = v
+    return TargetCache(per_sample, constants, torch.as_tensor(index).long().to(device))
