@@ -199,7 +199,7 @@ def test_report_paths_are_relative(tmp_path):
     assert "../sweep/9_experiment=whole/x.ckpt" in text and " data/tshirt_small_seed0/manifest.json" in text
     # the error bars the hierarchy figure promises exist in what it plots
     rows = json.loads((out / "report.json").read_text())["patches"]
-    assert all(r["values"]["test/vertex_error_cm_std"] == 0.05 for r in rows)
+    assert all(r["values"]["test/patch_vertex_error_cm_std"] == 0.05 for r in rows)  # a patch run: scoped
     # legends under the plots: a legend beside them would widen the saved PNG past the figure's width
     from PIL import Image
 

@@ -117,7 +117,8 @@ class ClothModule(L.LightningModule):
         Checked first (pbc.validate.as_poses): shape, finiteness and (see ``check_rotation``) rotations; a
         single pose is refused rather than read as a batch of J*9 scalars.
         """
-        j = self.net.input_mean.numel() // 9 if hasattr(self.net, "input_mean") else pose.shape[-1] // 9
+        # the pose width every net standardises its input with ((in_features,), or (P, in_features) stacked)
+        j = self.net.input_mean.shape[-1] // 9 if hasattr(self.net, "input_mean") else pose.shape[-1] // 9
         check = self.hparams.get("check_rotation")
         rot, batched = as_poses(pose, j, what="ClothModule pose",
                                 check_rotation=(not self.training) if check is None else bool(check))
