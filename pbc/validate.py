@@ -264,11 +264,9 @@ def training_identity(cfg: Any, data_fingerprint: Mapping | None) -> dict:
     """
     out: dict[str, Any] = {}
     for name, key in IDENTITY_PATHS.items():
-        if key is None:
-            out[name] = "Adam"
-            continue
-        present, v = _get(cfg, key)
-        out[name] = _plain(v) if present else None
+        present, v = (True, "Adam") if key is None else _get(cfg, key)
+        head, _, leaf = name.rpartition(".")
+        (out.setdefault(head, {}) if head else out)[leaf] = _plain(v) if present else None
     out["data"] = dict(data_fingerprint) if data_fingerprint is not None else None
     return out
 
