@@ -186,13 +186,7 @@ class ClothModule(L.LightningModule):
             logs["vertex_error_cm"] = vertex_error_cm(pos, t["verts"], idv)
             if n_pred is not None:
                 logs["normal_distance"] = normal_cosine_distance(n_pred, n_gt, idv)
-        if not torch.isfinite(total):
-            which = batch.get("index")
-            raise FloatingPointError(
-                f"non-finite {split} loss {total.item()} at global step {self.global_step}, epoch "
-                f"{self.current_epoch}, batch {batch_idx}"
-                + (f" (sample ids {which.tolist()})" if which is not None else "")
-                + "; stopping instead of training a NaN model")
+        self.check_finite(total, split, batch, batch_idx)
         bs = batch["pose"].shape[0]
         # a patch model's vertex metrics cover its patch only: their names say so (patch_vertex_error_cm)
         logs = {scoped_name(k, self.hparams.kind): v for k, v in logs.items()}
@@ -219,6 +213,17 @@ class ClothModule(L.LightningModule):
 
     # ------------------------------------------------------------------------------ per-pose spread
     @torch.no_grad()
+    def check_finite(self, total: Tensor, split: str, batch: dict, batch_idx: int, detail: str = "") -> None:
+        """Stop on a non-finite loss, naming where (step, epoch, batch, sample ids): never train a NaN model."""
+        if torch.isfinite(total):
+            return
+        which = batch.get("index")
+        raise FloatingPointError(
+            f"non-finite {split} loss {total.item()}{detail} at global step {self.global_step}, epoch "
+            f"{self.current_epoch}, batch {batch_idx}"
+            + (f" (sample ids {which.tolist()})" if which is not None else "")
+            + "; stopping instead of training a NaN model")
+
     def _record_spread(self, split: str, logs: dict, pos: Tensor, verts: Tensor, ids: Tensor | None) -> None:
         """Keep each test pose's vertex error (cm), so the epoch end can log their spread as
         ``<split>/<vertex error name>_std`` (the error bars of pbc.report's figures)."""

@@ -216,13 +216,8 @@ class StackedPatchModule(ClothModule):
         if ndist:
             logs["normal_distance"] = torch.stack(ndist).mean()
         if not torch.isfinite(total):
-            which = batch.get("index")
             bad = [s.patch_id for p, s in enumerate(subs) if not torch.isfinite(crops[p]).all()]
-            raise FloatingPointError(
-                f"non-finite {split} loss {total.item()} (non-finite output in patches {bad}) at global step "
-                f"{self.global_step}, epoch {self.current_epoch}, batch {batch_idx}"
-                + (f" (sample ids {which.tolist()})" if which is not None else "")
-                + "; stopping instead of training a NaN model")
+            self.check_finite(total, split, batch, batch_idx, f" (non-finite output in patches {bad})")
         bs = batch["pose"].shape[0]
         per_step = {k: v for k, v in logs.items() if not k.startswith("patch_")}
         per_patch = {k: v for k, v in logs.items() if k.startswith("patch_")}

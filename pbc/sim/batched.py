@@ -59,6 +59,7 @@ from pbc.sim.drape import (
     init_warp,
     pattern_triangles,
     scene_builder,
+    stepping,
 )
 
 log = logging.getLogger(__name__)
@@ -605,15 +606,7 @@ class BatchedDrape:
         s0, s1 = self.states
         solver.rebuild_bvh(s0)
 
-        fps = float(_get(cfg, "fps"))
-        substeps = int(_get(cfg, "substeps"))
-        frame_dt = 1.0 / fps
-        dt = frame_dt / substeps
-        tol = float(_get(cfg, "tolerance"))
-        min_frames = int(_get(cfg, "min_frames", 1))
-        max_frames = int(_get(cfg, "max_frames"))
-        keep = 1.0 - float(_get(cfg, "velocity_damping", 0.0))
-        quantile = float(_get(cfg, "residual_quantile", 1.0))
+        frame_dt, dt, substeps, tol, min_frames, max_frames, keep, quantile = stepping(cfg)
         h = (n_per - 1) * quantile
         q_index = int(math.floor(h))
         q_frac = float(h - q_index)

@@ -262,6 +262,18 @@ def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
     return builder, shape_ids
 
 
+def stepping(cfg) -> tuple[float, float, int, float, int, int, float, float]:
+    """The frame loop's settings, read in one place for the single and the batched drape:
+    (frame_dt, dt, substeps, tolerance, min_frames, max_frames, keep, residual_quantile), where `keep`
+    is the velocity kept per frame: a quasi-static drape only needs the end state, so bleeding kinetic
+    energy (cfg.velocity_damping) shortens the settle without changing the equilibrium."""
+    substeps = int(_get(cfg, "substeps"))
+    frame_dt = 1.0 / float(_get(cfg, "fps"))
+    return (frame_dt, frame_dt / substeps, substeps, float(_get(cfg, "tolerance")), int(_get(cfg, "min_frames", 1)),
+            int(_get(cfg, "max_frames")), 1.0 - float(_get(cfg, "velocity_damping", 0.0)),
+            float(_get(cfg, "residual_quantile", 1.0)))
+
+
 def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks, cfg):
     """Build (model, solver, collision pipeline, contacts, states) for one drape. Returns a dict.
 
@@ -361,18 +373,7 @@ def drape(
     solver, pipeline, contacts, control = sim["solver"], sim["pipeline"], sim["contacts"], sim["control"]
     s0, s1 = sim["states"]
 
-    fps = float(_get(cfg, "fps"))
-    substeps = int(_get(cfg, "substeps"))
-    frame_dt = 1.0 / fps
-    dt = frame_dt / substeps
-    tol = float(_get(cfg, "tolerance"))
-    min_frames = int(_get(cfg, "min_frames", 1))
-    max_frames = int(_get(cfg, "max_frames"))
-    # extra velocity damping per frame: a quasi-static drape only needs the end state, so bleeding
-    # kinetic energy shortens the settle without changing the equilibrium
-    keep = 1.0 - float(_get(cfg, "velocity_damping", 0.0))
-
-    quantile = float(_get(cfg, "residual_quantile", 1.0))
+    frame_dt, dt, substeps, tol, min_frames, max_frames, keep, quantile = stepping(cfg)
     x_prev = s0.particle_q.numpy().copy()
     residual = residual_max = float("inf")
     frames = 0
