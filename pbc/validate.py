@@ -39,14 +39,16 @@ __all__ = [
 def rotation_errors(rot: Tensor) -> tuple[Tensor, Tensor]:
     """Orthonormality and determinant errors of rotation matrices.
 
-    rot (..., 3, 3) -> (ortho (...), det_err (...)): max |R^T R - I| and |det R - 1| per matrix, in the
-    input's float precision (float32 round-off, ~1e-7, is far below ROTATION_TOL).
+    rot (..., 3, 3) -> (ortho (...), det_err (...)): max |R^T R - I| and |det R - 1| per matrix, in float32
+    (float64 input stays float64; float32 round-off, ~1e-7, is far below ROTATION_TOL), autocast or not.
     """
-    r = rot if rot.is_floating_point() else rot.float()
-    eye = torch.eye(3, dtype=r.dtype, device=r.device)
-    ortho = (r.transpose(-1, -2) @ r - eye).abs().flatten(-2).amax(-1)
-    # det as the triple product of the rows: torch.linalg.det runs an LU per matrix, ~10x slower here
-    det = (torch.linalg.cross(r[..., 0, :], r[..., 1, :]) * r[..., 2, :]).sum(-1)
+    r = rot if rot.dtype == torch.float64 else rot.float()
+    # outside autocast: under bf16-mixed the product would be bf16, whose round-off (~4e-3) fails the test
+    with torch.autocast(r.device.type, enabled=False):
+        eye = torch.eye(3, dtype=r.dtype, device=r.device)
+        ortho = (r.transpose(-1, -2) @ r - eye).abs().flatten(-2).amax(-1)
+        # det as the triple product of the rows: torch.linalg.det runs an LU per matrix, ~10x slower here
+        det = (torch.linalg.cross(r[..., 0, :], r[..., 1, :]) * r[..., 2, :]).sum(-1)
     return ortho, (det - 1.0).abs()
 
 

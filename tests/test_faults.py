@@ -674,3 +674,16 @@ def test_datamodule_finds_a_nan_anywhere_when_it_opens(tiny_dir, tmp_path):
     dm = ClothDataModule(str(d), load_config(["data=tshirt_tiny"]).image, target="fc")
     with pytest.raises(ValueError, match=r"pose not finite: rows \[2\]"):
         dm.setup("fit")
+
+
+def test_rotation_check_is_float32_exact_under_bf16_autocast():
+    """Validation under trainer.precision=bf16-mixed: proper rotations pass (a bf16 product would not)."""
+    from scipy.spatial.transform import Rotation
+
+    from pbc.validate import ROTATION_TOL, rotation_errors
+
+    rot = torch.from_numpy(Rotation.random(70, random_state=0).as_matrix()).float()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        ortho, det = rotation_errors(rot)
+    assert ortho.dtype == torch.float32 and ortho.max() < 1e-5 < ROTATION_TOL and det.max() < 1e-5
+
