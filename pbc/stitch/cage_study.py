@@ -174,7 +174,7 @@ def main(argv=None) -> int:
     write_json(out / "cage_basis.json", res)
     lines = [f"# How much of a patch is its cage ({ds.dir.name}, {args.split}: {len(idx)} samples)", "",
              f"{res['interior_vertices']} interior vertices filled from {res['cage_vertices']} cage vertices "
-             f"(28 patches); mean error over interior vertices, cm.", "",
+             f"({len(iso)} patches); mean error over interior vertices, cm.", "",
              "| basis | fill of the offsets | mean + fill of (offsets - mean) | cage-mean constant "
              "| interior offset size |",
              "|---|---|---|---|---|"]
