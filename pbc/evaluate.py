@@ -32,7 +32,7 @@ from omegaconf import DictConfig, OmegaConf
 from pbc.data.dataset import run_data_record
 from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
-from pbc.pixels.frames import from_offsets, to_offsets
+from pbc.pixels.frames import from_offsets
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
 from pbc.predict import ClothPredictor, fit_training_pca
 from pbc.stitch.pca import dataset_hash, load_pca, save_pca
@@ -41,11 +41,6 @@ from pbc.validate import check_config
 
 log = logging.getLogger(__name__)
 CM = 100.0
-
-
-def _offsets_of(predictor, poses: torch.Tensor, verts: torch.Tensor):
-    anchors, frames = predictor.skinner(poses)
-    return to_offsets(verts, anchors, frames, predictor.space), anchors, frames
 
 
 def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
@@ -105,7 +100,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
             j = idx[i:i + int(cfg.batch_size)]
             poses = torch.from_numpy(ds.poses[j]).float()
             gt = torch.from_numpy(ds.verts[j]).float()
-            gt_off, anchors, frames = _offsets_of(pred, poses, gt)
+            gt_off, anchors, frames = pred.offsets_of(poses, gt)
 
             def pos_of(off, anchors=anchors, frames=frames):
                 return from_offsets(off, anchors, frames, pred.space)

@@ -28,7 +28,7 @@ from torch import Tensor, nn
 import pbc.data.dataset as datasets
 from pbc.io import load_checkpoint
 from pbc.models.decoder import ConvDecoder
-from pbc.pixels.frames import from_offsets
+from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import image_operators, patch_crops
 from pbc.runs import NUM_PATCHES, RunInfo, find_runs, read_run, select_patch_runs  # noqa: F401  (re-exported)
@@ -297,6 +297,12 @@ class ClothPredictor:
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
         return self.skinner(pose)
 
+    def offsets_of(self, pose: Tensor, verts: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Garment positions verts (B, V, 3) at poses (B, J, 3, 3) -> (offsets (B, V, 3) in the models'
+        space, anchors (B, V, 3), frames (B, V, 3, 3)): what the models would have to predict."""
+        anchors, frames = self.skinner(pose)
+        return to_offsets(verts, anchors, frames, self.space), anchors, frames
+
     @torch.inference_mode()
     def patch_crops(self, pose: Tensor) -> Tensor:
         """pose (B, J, 3, 3) -> crops (B, P, 3, h, w), on the predictor's device."""
@@ -358,7 +364,6 @@ def stitch_config(method: str):
 def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: int, batch: int = 64):
     """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
     from pbc.data.dataset import dataset_fingerprint
-    from pbc.pixels.frames import to_offsets
     from pbc.stitch.pca import dataset_hash, fit_pca
 
     ds = predictor.dataset
@@ -367,8 +372,8 @@ def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: 
     with torch.inference_mode():
         for i in range(0, len(idx), batch):
             j = idx[i:i + batch]
-            anchors, frames = predictor.skinner(torch.from_numpy(ds.poses[j]).float())
-            offs.append(to_offsets(torch.from_numpy(ds.verts[j]).float(), anchors, frames, predictor.space))
+            offs.append(predictor.offsets_of(torch.from_numpy(ds.poses[j]).float(),
+                                             torch.from_numpy(ds.verts[j]).float())[0])
     return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
 
 
