@@ -106,7 +106,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
                 return from_offsets(off, anchors, frames, pred.space)
 
             batch = {"gt": gt}
-            batch["floor_256"] = pos_of(pred.ops_whole.sample(pred.ops_whole.render(gt_off)))
+            batch["floor_256"] = pos_of(pred.whole_target.values(pred.whole_target.encode(gt_off)))
             batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
             # the no-model baseline: every pose gets the training split's mean offsets
             batch["train_mean"] = pos_of(basis.mean.view(1, -1, 3).expand(len(j), -1, -1).to(gt_off))
@@ -115,7 +115,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
                 batch["whole"] = pos_of(whole_off)
             crops = pred.patch_crops(poses)
             gt_crops = torch.stack([c.render(gt_off) for c in pred.crops], 1)
-            gt_whole = pred.ops_whole.sample(pred.ops_whole.render(gt_off))
+            gt_whole = pred.whole_target.values(pred.whole_target.encode(gt_off))
             for m in cfg.methods:
                 if m in NEEDS_WHOLE and whole_off is None:
                     continue

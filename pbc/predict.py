@@ -27,10 +27,10 @@ from torch import Tensor, nn
 
 import pbc.data.dataset as datasets
 from pbc.io import load_checkpoint
-from pbc.models.decoder import ConvDecoder
+from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import Skinner
-from pbc.pixels.target import image_operators, patch_crops
+from pbc.pixels.target import image_operators, make_target, patch_crops
 from pbc.runs import NUM_PATCHES, RunInfo, find_runs, read_run, select_patch_runs  # noqa: F401  (re-exported)
 from pbc.stitch.pca import check_pca_matches
 from pbc.stitch.seams import NEEDS_WHOLE, build_stitcher
@@ -100,6 +100,9 @@ class StackedPatchNet(nn.Module):
         super().__init__()
         self.dtype = dtype
         d0 = decoders[0]
+        if len({d.input_joints for d in decoders}) > 1:
+            raise ValueError("StackedPatchNet: the decoders read different joints of the pose (model input_joints)")
+        self.input_joints = d0.input_joints
         if d0.first_layer != "linear" or len(d0.mlp) > 0:
             raise ValueError("StackedPatchNet needs decoders with a linear first layer and no hidden MLP")
         self.P = len(decoders)
@@ -163,7 +166,7 @@ class StackedPatchNet(nn.Module):
     def forward(self, pose: Tensor) -> Tensor:
         B, P = pose.shape[0], self.P
         h0, w0 = self.s0
-        x = F.linear(pose.reshape(B, -1).to(self.dtype), self.first_w, self.first_b).relu_()
+        x = F.linear(pose_features(pose, self.input_joints).to(self.dtype), self.first_w, self.first_b).relu_()
         x = x.view(B, P * self.c0, h0, w0)
         for i, mode in enumerate(self.layer_modes(pose.device)):
             w, b = self.weights[i], self.biases[i]
@@ -227,7 +230,9 @@ class ClothPredictor:
             raise ValueError("no model to predict with: give a whole-shirt run and/or the 28 patch runs")
         # whole-only (no patch nets): no patch operators, stitcher or patch net; model="whole" throughout
         patches = bool(patch_nets)
-        self.ops_whole = image_operators(dataset, image_cfg, "whole", cache_dir)
+        # what the whole model predicts and how it goes back to offsets: the run's own cloth target
+        self.whole_target = make_target(dataset, image_cfg, "whole", space=space, skinner=self.skinner,
+                                        cache_dir=cache_dir)
         self.ops_patch = image_operators(dataset, image_cfg, "patch", cache_dir) if patches else None
         self.crops = patch_crops(dataset, image_cfg, self.ops_patch) if patches else []
         self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
@@ -312,7 +317,7 @@ class ClothPredictor:
     def whole_offsets(self, pose: Tensor) -> Tensor:
         if self.whole_net is None:
             raise ValueError("no whole-shirt run was given")
-        return self.ops_whole.sample(self.whole_net(pose.reshape(pose.shape[0], -1).to(self.device, torch.float32)))
+        return self.whole_target.values(self.whole_net(pose.to(self.device, torch.float32)))
 
     @torch.inference_mode()
     def __call__(self, pose, model: str | None = None, method: str | None = None) -> Tensor:

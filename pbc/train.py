@@ -52,7 +52,7 @@ from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.pixels.target import VertexTarget
 from pbc.runs import monitor
-from pbc.validate import check_config, check_resume, identity_diff, training_identity
+from pbc.validate import check_config, check_pose_joints, check_resume, identity_diff, training_identity
 
 log = logging.getLogger(__name__)
 register_resolvers()  # ${pbc.monitor:...} in conf/callbacks
@@ -86,9 +86,22 @@ def datamodule(cfg: DictConfig) -> ClothDataModule:
 
 
 def net_config(cfg: DictConfig, target: VertexTarget) -> dict:
-    """``model.net`` sized to what the target serves: image size for decoders, vertex count for FC nets."""
+    """``model.net`` sized to what the target serves (image size and channels for decoders, vertex count for
+    FC nets) and to the pose it reads: every joint of the dataset's skeleton, or the joints named by
+    ``data.pose_joints`` (the necktie's 4 of 10: the net keeps those of the full pose it is given)."""
     net = OmegaConf.to_container(cfg.model.net, resolve=True)
-    fit = {"output_size": list(target.image_size)} if target.image_size else {"num_vertices": target.num_vertices}
+    fit = ({"output_size": list(target.image_size), "out_channels": target.channels} if target.image_size
+           else {"num_vertices": target.num_vertices})
+    joints = list(target.skinner.skeleton.names)
+    wanted = OmegaConf.select(cfg, "data.pose_joints")
+    if wanted is None:
+        fit["in_features"] = 9 * len(joints)
+    else:
+        unknown = [n for n in wanted if n not in joints]
+        if unknown:
+            raise ValueError(f"data.pose_joints: unknown joints {unknown}; the body's joints are {joints}")
+        fit.update(in_features=9 * len(wanted), input_joints=[joints.index(n) for n in wanted],
+                   num_joints=len(joints))
     if getattr(target, "num_patches", None):  # a stacked all-patches net: the cage's patch count
         fit["num_patches"] = int(target.num_patches)
     for k, v in fit.items():
@@ -195,6 +208,8 @@ def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
     """Once the dataset is open: the patch id against its cage, and its generation settings against the
     config's (garment, sim, seed, num_samples), so a run never records settings it did not train on."""
     check_config(cfg, num_patches=len(dm.data.cage.patches))
+    check_pose_joints(dm.data.poses, dm.data.body.skeleton.names, OmegaConf.select(cfg, "data.pose_joints"),
+                      f"dataset {dm.data.dir}")
     if OmegaConf.select(cfg, "garment") is None or OmegaConf.select(cfg, "sim") is None:
         return  # a config without generation settings (a bare data.dir) has nothing to compare
     if not {"seed", "num_samples", "sim"} <= set(dm.data.manifest):

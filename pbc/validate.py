@@ -137,8 +137,34 @@ def as_poses(
     return rot, batched
 
 
+def moving_joints(poses: Any, names: Sequence[str], tol: float = 1e-6) -> list[str]:
+    """The joints whose rotation differs from the rest pose (identity) in any of `poses` (N, J, 3, 3) or
+    (N, J * 9): what a dataset poses, in skeleton order. Chunked, so a memory-mapped array is read once."""
+    n, out = len(poses), np.zeros(len(names), bool)
+    eye = np.eye(3).reshape(1, 1, 3, 3)
+    for i in range(0, n, 4096):
+        chunk = np.asarray(poses[i:i + 4096], np.float64).reshape(-1, len(names), 3, 3)
+        out |= (np.abs(chunk - eye) > tol).any(axis=(0, 2, 3))
+    return [name for name, m in zip(names, out, strict=True) if m]
+
+
+def check_pose_joints(poses: Any, names: Sequence[str], read: Sequence[str] | None, where: str) -> None:
+    """Refuse a model that would not see joints its data moves: `read` (data.pose_joints; None = all) must
+    hold every joint posed in `poses` (N, J, 3, 3), else the cloth would change with poses the model
+    cannot tell apart."""
+    if read is None:
+        return
+    missed = [j for j in moving_joints(poses, names) if j not in set(read)]
+    if missed:
+        raise ValueError(f"{where} poses joints {missed} that the model does not read (data.pose_joints="
+                         f"{list(read)}): add them to data.pose_joints, or set data.pose_joints=null to read "
+                         "every joint")
+
+
 # ------------------------------------------------------------------------------------------ config
-KINDS = ("whole", "patch", "fc")
+# What a model predicts (the cloth target's kinds, pbc.pixels.target, which reads them from here): one whole
+# garment image, one patch's crop, every patch's crop in one job, or per-vertex values (the FC baselines)
+KINDS = ("whole", "patch", "patches", "fc")
 SPACES = ("local", "root", "position")
 NORMS = ("l1", "l2")
 
@@ -165,6 +191,10 @@ def _is_int(v: Any) -> bool:
 
 def _is_real(v: Any) -> bool:
     return (_is_int(v) or isinstance(v, float | np.floating)) and np.isfinite(float(v))
+
+
+def _is_list(v: Any) -> bool:
+    return isinstance(v, Sequence) and not isinstance(v, str)
 
 
 def check_config(cfg: Any, num_patches: int | None = None) -> None:
@@ -210,6 +240,14 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
         want(f"image.{key}", pos_int, "a positive integer (pixels)")
     for key in ("margin", "pad"):
         want(f"image.{key}", nonneg_int, "an integer >= 0 (pixels)")
+    want("image.whole_sides", lambda v: _is_list(v) and 0 < len(v) == len(set(v)) and all(s in (0, 1) and _is_int(s)
+                                                                                      for s in v),
+         "a list of distinct chart sides: [0, 1] (front and back) or [0]")
+    want("image.whole_rows", lambda v: _is_list(v) and len(v) == 2 and all(map(_is_real, v)) and 0 <= v[0] < v[1] <= 1,
+         "[first, last] fractions of the image height with 0 <= first < last <= 1, e.g. [0.0, 1.0]")
+    want("data.pose_joints", lambda v: _is_list(v) and len(v) > 0 and all(isinstance(n, str) for n in v),
+         "null (every joint of the body) or a list of joint names, e.g. [lower_back, spine, neck, neck1]",
+         optional=True)
 
     present, shards = _get(cfg, "data.num_shards")
     n_shards = shards if present and _is_int(shards) and shards > 0 else None

@@ -68,7 +68,7 @@ def test_whole_model_alone_is_a_predictor(setup):
     # the same as the decoder's own image sampled and turned back by hand
     net, _ = load_decoder(whole / "checkpoints" / "epoch_000.ckpt")
     with torch.no_grad():
-        off = pred.ops_whole.sample(net(pose.reshape(3, -1)))
+        off = pred.whole_target.values(net(pose.reshape(3, -1)))
     anchors, frames = pred.skinner(pose)
     from pbc.pixels.frames import from_offsets
 

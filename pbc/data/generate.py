@@ -40,7 +40,7 @@ from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import atomic_path, dir_lock, hash_arrays, load_npz, read_json, save_npy, write_json
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
-from pbc.validate import check_config, identity_diff
+from pbc.validate import check_config, identity_diff, moving_joints
 
 log = logging.getLogger(__name__)
 
@@ -430,6 +430,8 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     manifest.update(
         num_vertices=int(scene.garment.vertices.shape[0]),
         joints=list(scene.body.skeleton.names),
+        # the joints the kept poses move (the rest stay at the T-pose): a garment's own joint set
+        posed_joints=moving_joints(poses[kept], scene.body.skeleton.names),
         counts={"requested": len(poses), "kept": len(kept), "discarded": reasons},
         source_index=kept,
         splits=splits,

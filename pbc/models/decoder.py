@@ -49,6 +49,43 @@ def group_strides(start_size: Sequence[int], output_size: Sequence[int]) -> list
     return [(2 if i < nh else 1, 2 if i < nw else 1) for i in range(max(nh, nw))]
 
 
+def register_pose_input(net: nn.Module, in_features: int, input_joints: Sequence[int] | None = None,
+                        num_joints: int | None = None) -> None:
+    """What pose a net reads: `net.num_joints` rotations, (B, num_joints * 9) or (B, num_joints, 3, 3), of
+    which it keeps the joints `net.input_joints` (None = all, in order; :func:`pose_features`), then
+    standardises them (:func:`register_pose_standardisation`). A garment that moves with a few joints
+    (the necktie: 4 of the body's 10) reads the full pose and keeps its own, so every caller passes the
+    same pose. Raises ValueError when in_features is not 9 per kept joint.
+    """
+    set_pose_joints(net, in_features, input_joints, num_joints)
+    register_pose_standardisation(net, in_features)
+
+
+def set_pose_joints(net: nn.Module, in_features: int, input_joints: Sequence[int] | None = None,
+                    num_joints: int | None = None) -> None:
+    """`net.input_joints` and `net.num_joints` of :func:`register_pose_input`, checked against in_features."""
+    net.input_joints = None if input_joints is None else tuple(int(j) for j in input_joints)
+    kept = None if net.input_joints is None else len(net.input_joints)
+    net.num_joints = int(num_joints) if num_joints is not None else (kept or int(in_features) // 9)
+    if kept is None:
+        return
+    if not all(0 <= j < net.num_joints for j in net.input_joints):
+        raise ValueError(f"input_joints {list(net.input_joints)}: a {net.num_joints}-joint pose has joints "
+                         f"0..{net.num_joints - 1}")
+    if 9 * kept != int(in_features):
+        raise ValueError(f"the net keeps {kept} joints {list(net.input_joints)}: that is {9 * kept} input "
+                         f"numbers, but in_features={in_features}")
+
+
+def pose_features(pose: Tensor, input_joints: Sequence[int] | None) -> Tensor:
+    """pose (B, J * 9) or (B, J, 3, 3) -> (B, 9 * len(input_joints)) the kept joints' rotations, flattened
+    (all J of them when input_joints is None)."""
+    x = pose.reshape(pose.shape[0], -1)
+    if input_joints is None:
+        return x
+    return x.view(x.shape[0], -1, 9)[:, list(input_joints)].reshape(x.shape[0], -1)
+
+
 def register_pose_standardisation(net: nn.Module, in_features: int) -> None:
     """Buffers input_mean / input_scale (in_features,): the net reads (pose - mean) / scale.
 
@@ -84,6 +121,9 @@ class ConvDecoder(nn.Module):
             as the whole-shirt network) or ``"linear"`` (Linear to h*w*c, reshaped).
         hidden: widths of linear+ReLU layers applied to the pose before the first layer.
         final_kernel: kernel of the last convolution (3 in the paper).
+        input_joints: the joints of the pose the net reads (None = all; the necktie: its 4), and
+        num_joints: how many the pose has (:func:`register_pose_input`; ``pbc.train`` sets both from
+            ``data.pose_joints`` and the dataset's skeleton).
     """
 
     def __init__(
@@ -96,6 +136,8 @@ class ConvDecoder(nn.Module):
         first_layer: str = "conv_transpose",
         hidden: Sequence[int] = (),
         final_kernel: int = 3,
+        input_joints: Sequence[int] | None = None,
+        num_joints: int | None = None,
     ) -> None:
         super().__init__()
         self.in_features = int(in_features)
@@ -146,11 +188,11 @@ class ConvDecoder(nn.Module):
         self.register_buffer("output_mean", torch.zeros(1, self.out_channels, *self.output_size))
         self.register_buffer("output_scale", torch.ones(1, self.out_channels, 1, 1))
         add_buffer_defaults(self, ("output_scale",))
-        register_pose_standardisation(self, self.in_features)
+        register_pose_input(self, self.in_features, input_joints, num_joints)
 
     def forward(self, pose: Tensor) -> Tensor:
-        """pose (B, in_features) (or (B, J, 3, 3), flattened) -> (B, out_channels, H, W)."""
-        x = self.mlp((pose.reshape(pose.shape[0], -1) - self.input_mean) / self.input_scale)
+        """pose (B, num_joints * 9) or (B, num_joints, 3, 3) -> (B, out_channels, H, W)."""
+        x = self.mlp((pose_features(pose, self.input_joints) - self.input_mean) / self.input_scale)
         h0, w0 = self.start_size
         if self.first_layer == "conv_transpose":
             x = self.first(x[:, :, None, None])

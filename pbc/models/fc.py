@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from pbc.models.decoder import register_pose_standardisation
+from pbc.models.decoder import pose_features, register_pose_input
 
 MODES = ("direct", "pca")
 
@@ -68,6 +68,7 @@ class FCNet(nn.Module):
         hidden: hidden layer widths (paper: 256, 256).
         mode: ``"direct"`` or ``"pca"``.
         num_components: K for ``"pca"`` (paper: 128).
+        input_joints, num_joints: the joints of the pose read (``pbc.models.decoder.register_pose_input``).
     """
 
     def __init__(
@@ -77,6 +78,8 @@ class FCNet(nn.Module):
         hidden: Sequence[int] = (256, 256),
         mode: str = "direct",
         num_components: int = 128,
+        input_joints: Sequence[int] | None = None,
+        num_joints: int | None = None,
     ) -> None:
         super().__init__()
         if mode not in MODES:
@@ -92,7 +95,7 @@ class FCNet(nn.Module):
             width = int(h)
         layers.append(nn.Linear(width, out))
         self.mlp = nn.Sequential(*layers)
-        register_pose_standardisation(self, in_features)
+        register_pose_input(self, in_features, input_joints, num_joints)
         if mode == "pca":
             # Buffers, not parameters: fitted once on the train split, then frozen and checkpointed.
             self.register_buffer("pca_mean", torch.zeros(dim))
@@ -108,8 +111,8 @@ class FCNet(nn.Module):
         self.pca_fitted.fill_(True)
 
     def forward(self, pose: Tensor) -> Tensor:
-        """pose (B, in_features) or (B, J, 3, 3) -> (B, V, 3)."""
-        y = self.mlp((pose.reshape(pose.shape[0], -1) - self.input_mean) / self.input_scale)
+        """pose (B, num_joints * 9) or (B, num_joints, 3, 3) -> (B, V, 3)."""
+        y = self.mlp((pose_features(pose, self.input_joints) - self.input_mean) / self.input_scale)
         if self.mode == "pca":
             # the network predicts whitened coefficients so its outputs are O(1) like the direct mode
             y = (y * self.pca_scale) @ self.pca_components + self.pca_mean

@@ -27,6 +27,7 @@ from torch import Tensor
 from pbc.geometry.meshio import submesh, write_garment_mesh
 from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose
+from pbc.models.decoder import pose_features
 from pbc.models.fc import fit_pca as fit_pca_values
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.pixels.target import KINDS, VertexTarget
@@ -38,7 +39,7 @@ log = logging.getLogger(__name__)
 MONITOR = monitor("whole")  # a patch model's is monitor("patch"): val/patch_vertex_error_cm
 # log prefixes of the test dataloaders, in order (see pbc.data.datamodule.ClothDataModule.scoring_dataloaders)
 TEST_SPLITS = ("test", "train_final")
-IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space")
+IDENTITY_KEYS = ("garment_hash", "num_vertices", "kind", "resolution", "patch_id", "space", "window")
 
 
 def on_progress_bar(split: str, name: str) -> bool:
@@ -117,8 +118,8 @@ class ClothModule(L.LightningModule):
         Checked first (pbc.validate.as_poses): shape, finiteness and (see ``check_rotation``) rotations; a
         single pose is refused rather than read as a batch of J*9 scalars.
         """
-        # the pose width every net standardises its input with ((in_features,), or (P, in_features) stacked)
-        j = self.net.input_mean.shape[-1] // 9 if hasattr(self.net, "input_mean") else pose.shape[-1] // 9
+        # the joints of the pose the net reads (all of them, or a garment's own: the necktie keeps 4 of 10)
+        j = getattr(self.net, "num_joints", None) or pose.shape[-1] // 9
         check = self.hparams.get("check_rotation")
         rot, batched = as_poses(pose, j, what="ClothModule pose",
                                 check_rotation=(not self.training) if check is None else bool(check))
@@ -261,7 +262,8 @@ class ClothModule(L.LightningModule):
     @torch.no_grad()
     def fit_input_stats(self, loader) -> None:
         """Set the net's input_mean / input_scale to the train split's per-entry pose mean and spread."""
-        pose = torch.cat([b["pose"].reshape(b["pose"].shape[0], -1).double() for b in loader])
+        keep = getattr(self.net, "input_joints", None)  # the joints the net reads (all, or a garment's own)
+        pose = torch.cat([pose_features(b["pose"], keep).double() for b in loader])
         if pose.shape[0] < 2:
             return
         # entries that never vary (a joint's fixed axis) keep scale 1 instead of dividing by ~0

@@ -27,7 +27,7 @@ from torch import Tensor, nn
 from pbc.io import atomic_path, write_json
 from pbc.losses import edge_loss, image_loss, normal_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm
-from pbc.models.decoder import ConvDecoder, add_buffer_defaults, group_strides
+from pbc.models.decoder import ConvDecoder, add_buffer_defaults, group_strides, pose_features, set_pose_joints
 from pbc.models.module import MONITOR, ClothModule
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
 from pbc.runs import PATCH_EXPORT_DIR
@@ -46,7 +46,8 @@ class StackedDecoder(nn.Module):
 
     def __init__(self, num_patches: int, in_features: int, out_channels: int, output_size: Sequence[int],
                  start_size: Sequence[int], start_channels: int, first_layer: str = "linear",
-                 hidden: Sequence[int] = (), final_kernel: int = 3) -> None:
+                 hidden: Sequence[int] = (), final_kernel: int = 3, input_joints: Sequence[int] | None = None,
+                 num_joints: int | None = None) -> None:
         super().__init__()
         if first_layer != "linear" or len(hidden):
             raise ValueError("StackedDecoder stacks patch decoders: first_layer must be 'linear' with no "
@@ -59,6 +60,8 @@ class StackedDecoder(nn.Module):
                                "output_size": [int(v) for v in output_size],
                                "start_size": [int(v) for v in start_size], "start_channels": int(start_channels),
                                "first_layer": "linear", "final_kernel": int(final_kernel)}
+        if input_joints is not None:  # a garment's own joints (register_pose_input); absent = every joint
+            self.decoder_kwargs.update(input_joints=[int(j) for j in input_joints], num_joints=num_joints)
         self.in_features, self.out_channels = int(in_features), int(out_channels)
         self.start_size, self.start_channels = tuple(int(v) for v in start_size), int(start_channels)
         h0, w0 = self.start_size
@@ -78,6 +81,7 @@ class StackedDecoder(nn.Module):
         self.register_buffer("input_mean", torch.zeros(P, self.in_features))
         self.register_buffer("input_scale", torch.ones(P, self.in_features))
         add_buffer_defaults(self, ("output_scale", "input_mean", "input_scale"))
+        set_pose_joints(self, self.in_features, input_joints, num_joints)
         # initialised exactly as P single decoders built one after the other
         for p in range(P):
             self.load_patch(p, ConvDecoder(**self.decoder_kwargs))
@@ -86,7 +90,8 @@ class StackedDecoder(nn.Module):
     def from_decoders(cls, decoders: Sequence[ConvDecoder]) -> StackedDecoder:
         d = decoders[0]
         net = cls(len(decoders), d.in_features, d.out_channels, d.output_size, d.start_size, d.start_channels,
-                  d.first_layer, [m.out_features for m in d.mlp if isinstance(m, nn.Linear)], d.head.kernel_size[0])
+                  d.first_layer, [m.out_features for m in d.mlp if isinstance(m, nn.Linear)], d.head.kernel_size[0],
+                  d.input_joints, d.num_joints)
         for p, dec in enumerate(decoders):
             net.load_patch(p, dec)
         return net.to(d.output_mean.device)
@@ -148,7 +153,7 @@ class StackedDecoder(nn.Module):
     # ------------------------------------------------------------------ forward
     def forward(self, pose: Tensor) -> Tensor:
         B, P = pose.shape[0], self.num_patches
-        x = (pose.reshape(B, 1, -1) - self.input_mean) / self.input_scale  # (B, P, in)
+        x = (pose_features(pose, self.input_joints)[:, None] - self.input_mean) / self.input_scale  # (B, P, in)
         # the P first layers as one batched matmul: (P, B, in) @ (P, in, out)
         x = torch.baddbmm(self.first_bias[:, None], x.transpose(0, 1), self.first_weight.transpose(1, 2))
         h0, w0 = self.start_size

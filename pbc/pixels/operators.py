@@ -44,17 +44,21 @@ def scaled_pixels(n: int, resolution: int, reference: int) -> int:
     return max(1, int(round(n * resolution / reference)))
 
 
-def image_sizes(image_cfg) -> dict[str, int]:
+def image_sizes(image_cfg) -> dict:
     """Pixel sizes from the `image` config: crop_size, margin and pad are given at
     `reference_resolution` (512) and scale with the resolution they are used at.
 
     -> {whole_resolution, patch_resolution, whole_pad, patch_pad, crop_size, margin} (crop/margin at
-    the patch resolution).
+    the patch resolution), whole_sides (chart sides a whole-garment model predicts, in channel order) and
+    whole_rows (first, stop) (the band of rows of the whole image it predicts).
     """
     ref = int(image_cfg["reference_resolution"])
     whole, patch = int(image_cfg["whole_resolution"]), int(image_cfg["patch_resolution"])
     pad = int(image_cfg["pad"])
+    rows = image_cfg.get("whole_rows", None) or (0.0, 1.0)
     return {
+        "whole_sides": tuple(int(s) for s in (image_cfg.get("whole_sides", None) or (0, 1))),
+        "whole_rows": (int(round(float(rows[0]) * whole)), int(round(float(rows[1]) * whole))),
         "whole_resolution": whole,
         "patch_resolution": patch,
         "whole_pad": scaled_pixels(pad, whole, ref),

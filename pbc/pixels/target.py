@@ -5,7 +5,9 @@ skinner that every caller needs, so the DataModule, the LightningModule, the pre
 the previews and the benchmarks cannot build them differently (docs/architecture.md, "The cloth target").
 
 Kinds (the only place that switches on them is :func:`make_target`):
-    whole  `(B, 6, H, W)` front (du,dv,dn) then back, H = W = image.whole_resolution
+    whole  `(B, 6, H, W)` front (du,dv,dn) then back, H = W = image.whole_resolution; or, for a garment whose
+           charts fill a band of the image (image.whole_sides / whole_rows: the necktie), that window of it,
+           `(B, 3 * sides, rows, W)` (`WindowTarget`)
     patch  `(B, 3, S, S)` one patch's crop of the image.patch_resolution image (S = scaled crop_size)
     fc     `(B, V, 3)`    per-vertex values (the fully connected baselines of appendix E.3)
     patches `(B, P*3, S, S)` every patch's crop, channel-stacked (all patch models in one job)
@@ -16,7 +18,7 @@ Every target offers
     values(pred)           prediction -> offsets of the vertices it covers (B, Vk, 3)
     positions(pred, t)     prediction -> garment positions (B, V, 3); outside a patch, ground truth
     truth(t)               (target tensor, mask or None): what the value loss compares the prediction to
-    image_size             served (H, W), or None for per-vertex targets
+    image_size             served (H, W), or None for per-vertex targets; channels: of one served image
     identity(dataset)      what a checkpoint must match to be loaded by a run of this target
 
 Operators are built by :func:`image_operators` only: cached under `<dataset>/operators/` with the
@@ -28,14 +30,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from pbc.pixels.frames import SPACES, from_offsets, to_offsets
 from pbc.pixels.operators import ImageOperators, PatchCrop, image_sizes
 from pbc.pixels.reconstruct import Skinner, mesh_edges, vertex_normals
-
-KINDS = ("whole", "patch", "fc", "patches")
+from pbc.validate import KINDS
 
 
 def image_operators(dataset, image_cfg, which: str, cache_dir: str | Path | None = None) -> ImageOperators:
@@ -205,8 +208,77 @@ class WholeTarget(VertexTarget):
     def truth(self, t: dict) -> tuple[Tensor, Tensor | None]:
         return t["image"], t["mask"]
 
+    def encode(self, offsets: Tensor) -> Tensor:
+        """Offsets (B, V, 3) -> the image this target serves (what a perfect model would predict)."""
+        return self.ops.render(offsets)
+
     def values(self, pred: Tensor) -> Tensor:
         return self.ops.sample(pred)
+
+    @property
+    def channels(self) -> int:
+        """Channels of one predicted image: (du, dv, dn) per chart side."""
+        return 6
+
+
+class WindowTarget(WholeTarget):
+    """A whole garment whose charts fill only part of the square image: the model predicts the band of rows
+    `rows` of the chart sides `sides`, (B, 3 * len(sides), rows[1] - rows[0], R). The necktie (appendix F):
+    side 0, rows 96..160 of 256 -> (B, 3, 64, 256). Rendering renders the full image and keeps the window;
+    sampling puts the prediction back into a zero image, so every vertex must sample inside the window
+    (checked here: an image window that cuts a chart is refused, naming the rows the vertices need).
+
+    sides: chart sides kept, in channel order; rows: (first, stop) image rows kept.
+    """
+
+    def __init__(self, skinner, faces: Tensor, ops: ImageOperators, sides, rows, space: str = "local"):
+        super().__init__(skinner, faces, ops, space)
+        self.sides = tuple(int(s) for s in sides)
+        self.rows = (int(rows[0]), int(rows[1]))
+        self._channels = torch.tensor([3 * s + c for s in self.sides for c in range(3)])
+        res = ops.res
+        if not 0 <= self.rows[0] < self.rows[1] <= res:
+            raise ValueError(f"image window rows {self.rows} are not inside the {res}px image: check image.whole_rows")
+        pix, w = np.asarray(ops.arrays["S_pix"]), np.asarray(ops.arrays["S_w"])
+        side, row = pix // res**2, pix % res**2 // res
+        outside = (w > 0) & (~np.isin(side, self.sides) | (row < self.rows[0]) | (row >= self.rows[1]))
+        if outside.any():
+            need = row[w > 0]
+            raise ValueError(
+                f"the image window (sides {list(self.sides)}, rows {self.rows[0]}..{self.rows[1]} of {res}) cuts the "
+                f"garment's charts: {int(outside.any(1).sum())} vertices sample outside it (the charts use sides "
+                f"{sorted(set(side[w > 0].tolist()))}, rows {int(need.min())}..{int(need.max()) + 1}); widen "
+                "image.whole_rows or add the side to image.whole_sides")
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return (self.rows[1] - self.rows[0], self.ops.res)
+
+    @property
+    def channels(self) -> int:
+        return 3 * len(self.sides)
+
+    def identity(self, dataset) -> dict:
+        return dict(super().identity(dataset), window=[list(self.sides), *self.rows])
+
+    def _cut(self, full: Tensor) -> Tensor:
+        """(B, 6, R, R) -> (B, 3 * len(sides), rows[1] - rows[0], R): the window."""
+        return full.index_select(1, self._channels.to(full.device))[:, :, self.rows[0]:self.rows[1]]
+
+    def encode(self, offsets: Tensor) -> Tensor:
+        return self._cut(self.ops.render(offsets))
+
+    @torch.no_grad()
+    def render(self, batch: dict) -> dict:
+        out = VertexTarget.render(self, batch)
+        out["image"] = self.encode(out["offsets"]).contiguous()
+        out["mask"] = self._cut(self.ops.image_mask(out["verts"].device, out["verts"].dtype)).contiguous()
+        return out
+
+    def values(self, pred: Tensor) -> Tensor:
+        b, res = pred.shape[0], self.ops.res
+        full = pred.new_zeros(b, 6, *pred.shape[2:]).index_copy(1, self._channels.to(pred.device), pred)
+        return self.ops.sample(F.pad(full, (0, 0, self.rows[0], res - self.rows[1])))
 
 
 class PatchTarget(WholeTarget):
@@ -230,6 +302,10 @@ class PatchTarget(WholeTarget):
     @property
     def vertices(self) -> Tensor:
         return self.ops.vertices
+
+    @property
+    def channels(self) -> int:
+        return 3
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -281,6 +357,11 @@ class PatchesTarget(WholeTarget):
         return len(self.crops)
 
     @property
+    def channels(self) -> int:
+        """Channels of one patch's crop (the stacked net's per-patch output)."""
+        return 3
+
+    @property
     def image_size(self) -> tuple[int, int]:
         s = self.crops[0].window[2]
         return (s, s)
@@ -322,11 +403,12 @@ class PatchesTarget(WholeTarget):
 
 
 def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, space: str = "local",
-                skinner=None) -> VertexTarget:
+                skinner=None, cache_dir: str | Path | None = None) -> VertexTarget:
     """The one factory: the cloth target of `kind` ("whole" | "patch" | "fc" | "patches") for `dataset` (a loaded
     pbc dataset: garment, body, embedding, cage, dir) under the `image` config node.
 
-    skinner: reuse one (its per-device tensors) instead of building it from the dataset.
+    skinner: reuse one (its per-device tensors) instead of building it from the dataset; cache_dir: where
+    operators are cached (default `<dataset>/operators/`).
     Raises ValueError naming the bad kind, space or patch id.
     """
     if kind not in KINDS:
@@ -336,14 +418,17 @@ def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, spac
     if kind == "fc":
         return VertexTarget(skinner, faces, space, len(dataset.garment.vertices))
     if kind == "whole":
-        return WholeTarget(skinner, faces, image_operators(dataset, image_cfg, "whole"), space)
+        ops, sizes = image_operators(dataset, image_cfg, "whole", cache_dir), image_sizes(image_cfg)
+        if sizes["whole_sides"] == (0, 1) and sizes["whole_rows"] == (0, ops.res):
+            return WholeTarget(skinner, faces, ops, space)
+        return WindowTarget(skinner, faces, ops, sizes["whole_sides"], sizes["whole_rows"], space)
     if kind == "patches":
-        ops = image_operators(dataset, image_cfg, "patch")
+        ops = image_operators(dataset, image_cfg, "patch", cache_dir)
         return PatchesTarget(skinner, faces, ops, patch_crops(dataset, image_cfg, ops), space)
     n = len(dataset.cage.patches)
     if patch_id is None or not 0 <= int(patch_id) < n:
         raise ValueError(f"unknown patch_id {patch_id}: dataset {dataset.dir} has patches 0..{n - 1}")
-    ops = image_operators(dataset, image_cfg, "patch")
+    ops = image_operators(dataset, image_cfg, "patch", cache_dir)
     sizes = image_sizes(image_cfg)
     crop = ops.crop(dataset.cage.patches[int(patch_id)], sizes["crop_size"], sizes["margin"])
     return PatchTarget(skinner, faces, crop, ops.res, space)
