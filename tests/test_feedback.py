@@ -126,7 +126,8 @@ def test_panel_tag_in_the_event_file(tmp_path):
     from pbc.models.module import PANEL_COLUMNS, panel_figure, panel_tag
 
     gt, mask = _images()
-    fig = panel_figure(gt + 0.005, gt, mask, 2.0, 10.0)
+    # the mask as a target serves it: one for the batch, per channel (1, 6, H, W)
+    fig = panel_figure(gt + 0.005, gt, mask[:1].expand(1, 6, -1, -1), 2.0, 10.0)
     titles = [ax.get_title() for ax in fig.axes[:3]]
     assert titles[:2] == list(PANEL_COLUMNS[:2]) and titles[2].startswith("|error|") and "0-2 cm" in titles[2]
     w = SummaryWriter(str(tmp_path))

@@ -85,8 +85,11 @@ def test_every_config_composes_and_instantiates():
 
     from pbc.config import load_config
 
+    from pbc.validate import check_config
+
     for exp in _group_options("experiment"):
         cfg = load_config([f"+experiment={exp}", "paths.output_dir=/tmp/x"])
+        check_config(cfg)  # what pbc.train checks first (it once refused model.kind=patches)
         OmegaConf.resolve(cfg.model)
         net = dict(OmegaConf.to_container(cfg.model.net))
         if cfg.model.kind == "fc":

@@ -334,7 +334,7 @@ def panel_figure(pred: Tensor, gt: Tensor, mask: Tensor, error_scale_cm: float, 
                  names: list[str] | None = None):
     """A matplotlib figure: one row per (pose, piece), columns pred | truth | |error|, all at fixed scales.
 
-    pred, gt (B, 3P, H, W) metres, mask (B, 3P or 1, H, W). Offsets map to RGB at +-``offset_scale_cm``
+    pred, gt (B, 3P, H, W) metres, mask (B or 1, 3P or 1, H, W). Offsets map to RGB at +-``offset_scale_cm``
     (grey = 0); the error column is the per-pixel offset error on 0..``error_scale_cm`` (colour bar), so
     brightness means the same across poses and epochs.
     """
@@ -344,6 +344,7 @@ def panel_figure(pred: Tensor, gt: Tensor, mask: Tensor, error_scale_cm: float, 
     import matplotlib.pyplot as plt
 
     pred, gt, mask = pred.detach().float().cpu(), gt.detach().float().cpu(), mask.detach().float().cpu()
+    mask = mask.expand(pred.shape[0], -1, -1, -1)  # a target's mask is one for the batch, (1, C, H, W)
     err = panel_error_cm(pred, gt, mask)
     b, p = err.shape[:2]
     pieces = names or (["front", "back"] if p == 2 else [f"piece {k}" for k in range(p)])
