@@ -113,3 +113,158 @@ def test_an_unknown_posed_joint_is_refused(body):
 
     with pytest.raises(ValueError, match=r"posed_joints: unknown joints \['neck2'\]"):
         sample_poses(body.skeleton, 2, 0, None, SamplingSettings(posed_joints=("neck", "neck2")))
+
+
+# ------------------------------------------------------------------------------------- training the tie
+@pytest.fixture(scope="module")
+def tie_ops(tie, tmp_path_factory):
+    from pbc.pixels.operators import ImageOperators
+
+    return ImageOperators.for_garment(tie[0], 256, 4, exact=True, cache_dir=tmp_path_factory.mktemp("ops"))
+
+
+def test_the_tie_image_is_the_window_its_chart_fills_and_goes_back_exactly(cfg, tie, tie_ops):
+    from pbc.pixels.operators import image_sizes
+    from pbc.pixels.target import WindowTarget
+
+    g = tie[0]
+    sizes = image_sizes(cfg.image)
+    assert sizes["whole_sides"] == (0,) and sizes["whole_rows"] == (96, 160)  # appendix F: 64 x 256
+    target = WindowTarget(None, g.faces, tie_ops, sizes["whole_sides"], sizes["whole_rows"], "root")
+    assert target.image_size == (64, 256) and target.channels == 3
+    x = 0.02 * torch.randn(3, g.num_vertices, 3, generator=torch.Generator().manual_seed(0))
+    image = target.encode(x)
+    assert image.shape == (3, 3, 64, 256)
+    full = tie_ops.render(x)
+    # the window is the full image's front rows 96..160, and nothing of the chart lies outside it
+    assert torch.equal(image, full[:, 0:3, 96:160])
+    assert full[:, 3:].abs().max() == 0 and full[:, :, :96].abs().max() == 0 and full[:, :, 160:].abs().max() == 0
+    # back to the vertices exactly (the operators' exact round trip survives the window)
+    assert (target.values(image) - x).abs().max() < 1e-5
+    assert torch.equal(target.values(image), tie_ops.sample(full))
+    # differentiable: the losses train through it
+    pred = image.clone().requires_grad_(True)
+    target.values(pred).square().sum().backward()
+    assert pred.grad is not None and pred.grad.abs().sum() > 0
+
+
+def test_an_image_window_that_cuts_the_chart_is_refused(tie, tie_ops):
+    from pbc.pixels.target import WindowTarget
+
+    rows = tie[0].vertex_uv[:, 1] * 256 - 0.5  # the pixel rows the vertices sample between
+    cut = int(rows.min()) + 3
+    with pytest.raises(ValueError, match=r"cuts the garment's charts.*rows \d+\.\.\d+\); widen image.whole_rows"):
+        WindowTarget(None, tie[0].faces, tie_ops, (0,), (cut, 160))
+    WindowTarget(None, tie[0].faces, tie_ops, (0,), (int(rows.min()), int(rows.max()) + 2))  # just fits
+    with pytest.raises(ValueError, match=r"add the side to image.whole_sides"):
+        WindowTarget(None, tie[0].faces, tie_ops, (1,), (96, 160))
+
+
+def test_the_net_reads_its_own_joints_of_the_full_pose():
+    from pbc.models.decoder import ConvDecoder
+
+    kw = {"out_channels": 3, "output_size": [16, 64], "start_size": [4, 16], "start_channels": 16,
+          "first_layer": "linear", "hidden": [8]}
+    ids = [0, 1, 3, 4]
+    torch.manual_seed(0)
+    net = ConvDecoder(36, input_joints=ids, num_joints=10, **kw).eval()
+    plain = ConvDecoder(36, **kw).eval()
+    plain.load_state_dict(net.state_dict())
+    pose = torch.linalg.matrix_exp(torch.randn(2, 10, 3, 3).triu(1) - torch.randn(2, 10, 3, 3).triu(1).mT)
+    with torch.no_grad():
+        assert torch.equal(net(pose), plain(pose[:, ids]))
+        moved = pose.clone()
+        moved[:, [2, 5, 7]] = torch.eye(3)  # joints it does not read
+        assert torch.equal(net(moved), net(pose))
+        assert torch.equal(net(pose.reshape(2, 90)), net(pose))
+    with pytest.raises(ValueError, match="4 joints .* 36 input numbers, but in_features=90"):
+        ConvDecoder(90, input_joints=ids, num_joints=10, **kw)
+    with pytest.raises(ValueError, match="a 10-joint pose has joints 0..9"):
+        ConvDecoder(18, input_joints=[3, 12], num_joints=10, **kw)
+
+
+def test_net_config_sizes_the_tie_net_from_the_target_and_the_skeleton(cfg, body):
+    from types import SimpleNamespace
+
+    from omegaconf import OmegaConf
+
+    from pbc.train import net_config
+
+    target = SimpleNamespace(image_size=(64, 256), channels=3, skinner=SimpleNamespace(skeleton=body.skeleton))
+    net = net_config(cfg, target)
+    assert net["input_joints"] == [0, 1, 3, 4] and net["num_joints"] == 10 and net["in_features"] == 36
+    assert net["output_size"] == [64, 256] and net["out_channels"] == 3
+    assert count_parameters(instantiate(net)) == 2_161_667
+    wrong = OmegaConf.merge(cfg, {"data": {"pose_joints": ["neck", "nek"]}})
+    with pytest.raises(ValueError, match=r"data.pose_joints: unknown joints \['nek'\]"):
+        net_config(wrong, target)
+
+
+def test_a_dataset_posing_joints_the_model_does_not_read_is_refused(body):
+    from pbc.validate import check_pose_joints, moving_joints
+
+    names = body.skeleton.names
+    poses = torch.eye(3).expand(5, len(names), 3, 3).clone()
+    assert moving_joints(poses.numpy(), names) == []
+    rot = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.0]]))
+    poses[2, names.index("neck")] = rot
+    poses[4, names.index("l_arm")] = rot
+    assert moving_joints(poses.numpy(), names) == ["neck", "l_arm"]  # skeleton order
+    check_pose_joints(poses.numpy(), names, None, "d")  # null reads every joint
+    with pytest.raises(ValueError, match=r"poses joints \['l_arm'\] that the model does not read"):
+        check_pose_joints(poses.numpy(), names, ["lower_back", "neck"], "d")
+
+
+TIE_DATA = ["+experiment=necktie", "garment.grid_spacing=0.015", "data.num_samples=4", "data.workers=1",
+            "body.mesh.voxel_size=0.03"]
+
+
+@pytest.mark.slow
+def test_the_necktie_trains_and_predicts_end_to_end(tmp_path):
+    """`python -m pbc.train +experiment=necktie` on a few real drapes of a coarse tie, then pbc.predict."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pbc.config import load_config
+    from pbc.data.dataset import load_dataset
+    from pbc.data.generate import generate
+    from pbc.predict import ClothPredictor
+
+    overrides = [*TIE_DATA, f"paths.data_dir={tmp_path}"]
+    data_dir = generate(load_config(overrides))
+    ds = load_dataset(data_dir)
+    assert ds.manifest["posed_joints"] == ["lower_back", "spine", "neck", "neck1"]  # recorded by generate
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PBC_ROOT=str(tmp_path))
+
+    def train(run, *extra):
+        return subprocess.run([sys.executable, "-m", "pbc.train", *overrides, "trainer=smoke", f"data.dir={data_dir}",
+                               f"hydra.run.dir={run}", *extra], cwd=root, env=env, capture_output=True, text=True,
+                              timeout=300)
+
+    r = train(tmp_path / "tie")
+    assert r.returncode == 0, r.stderr[-3000:]
+    metrics = json.loads((tmp_path / "tie" / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
+    assert metrics["identity"]["window"] == [[0], 96, 160] and metrics["identity"]["space"] == "root"
+    assert "edge_loss" in metrics["test"] and "normal_loss" in metrics["test"]  # appendix F's loss
+    # the predictor rebuilds the 36-input net and the window from the run alone, and takes full poses
+    pred = ClothPredictor.from_runs(tmp_path / "tie", None)
+    assert pred.whole_net.input_joints == (0, 1, 3, 4) and pred.whole_net.in_features == 36
+    pose = torch.from_numpy(np.array(ds.poses[:2])).float()
+    out = pred(pose)
+    assert out.shape == (2, ds.verts.shape[1], 3) and torch.isfinite(out).all()
+    assert torch.allclose(pred(pose[0]), out[0], atol=1e-6)  # one pose (J, 3, 3) -> (V, 3)
+    # ... and as far from the simulation as the run's own test says (same poses' scale: cm, not metres off)
+    assert (out - torch.from_numpy(np.array(ds.verts[:2]))).norm(dim=-1).mean() < 0.1
+    r = subprocess.run([sys.executable, "-m", "pbc.predict", str(tmp_path / "tie"), "--poses", "test", "--out",
+                        str(tmp_path / "pred")], cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert list((tmp_path / "pred" / "meshes").glob("*.obj")) and (tmp_path / "pred" / "contact_sheet.png").is_file()
+    # a model that would not see a joint the data moves is refused at the door, before training
+    r = train(tmp_path / "blind", "data.pose_joints=[lower_back,spine,neck]", "body.sampling.posed_joints="
+              "[lower_back,spine,neck,neck1]")
+    assert r.returncode != 0 and "poses joints ['neck1'] that the model does not read" in r.stderr

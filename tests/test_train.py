@@ -84,7 +84,6 @@ def test_every_config_composes_and_instantiates():
     from omegaconf import OmegaConf
 
     from pbc.config import load_config
-
     from pbc.validate import check_config
 
     for exp in _group_options("experiment"):
