@@ -110,11 +110,13 @@ def test_cli_pose_file_ply_and_bad_input(setup, tmp_path, capsys):
     np.save(tmp_path / "flat.npy", poses.reshape(5, 90))  # (N, 90) rows accepted as (N, 10, 3, 3)
     out = tmp_path / "ply"
     assert main([str(whole), "--poses", str(tmp_path / "flat.npy"), "--out", str(out), "--format", "ply",
-                 "--sheet", "0", "--batch-size", "2"]) == 0
+                 "--sheet", "0", "--batch-size", "2", "--body"]) == 0
     res = json.loads((out / "predict.json").read_text())
     assert res["names"] == [f"pose_{k:05d}" for k in range(5)] and not (out / "contact_sheet.png").exists()
     m = trimesh.load(out / "meshes" / "pose_00003.ply", process=False)
     np.testing.assert_allclose(m.vertices, np.load(out / "vertices.npy")[3], atol=1e-6)
+    body = out / "meshes" / "pose_00003_body.ply"  # the body in the asked format too
+    assert body.read_bytes().startswith(b"ply") and len(trimesh.load(body, process=False).faces) > 0
     # one clear error, exit status 2, nothing written: wrong shape, non-rotations, unknown split, no file
     np.save(tmp_path / "shape.npy", np.zeros((5, 9, 3, 3), np.float32))
     scaled = poses * 2
