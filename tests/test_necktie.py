@@ -264,6 +264,14 @@ def test_the_necktie_trains_and_predicts_end_to_end(tmp_path):
                         str(tmp_path / "pred")], cwd=root, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     assert list((tmp_path / "pred" / "meshes").glob("*.obj")) and (tmp_path / "pred" / "contact_sheet.png").is_file()
+    # the dataset preview shows the 64 x 256 window in the root frame, as training serves it
+    r = subprocess.run([sys.executable, "-m", "pbc.data.preview", str(data_dir), "--samples", "2", *overrides],
+                       cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    from PIL import Image
+
+    w, h = Image.open(data_dir / "preview_pixels" / "cloth_images.png").size
+    assert w > 2 * h  # 2 samples x 1 side of a 1:4 image, not 2 x 2 squares
     # a model that would not see a joint the data moves is refused at the door, before training
     r = train(tmp_path / "blind", "data.pose_joints=[lower_back,spine,neck]", "body.sampling.posed_joints="
               "[lower_back,spine,neck,neck1]")

@@ -191,3 +191,19 @@ def test_dataset_preview_meshes_carry_uvs_and_normals(setup, tmp_path):
     assert text.count("\nvt ") == len(ds.garment.uv) and text.count("\nvn ") == ds.garment.num_vertices
     assert "f " in text and all(len(c.split("/")) == 3 for c in text.split("\nf ", 1)[1].split()[:3])
     assert trimesh.load(body_obj, process=False).vertices.shape == tuple(ds.body.vertices.shape)
+
+
+def test_dataset_cloth_image_preview_shows_the_served_image(setup, tmp_path):
+    """`python -m pbc.data.preview`: the whole model's target as training serves it, per chart side."""
+    from PIL import Image
+
+    from pbc.data.dataset import load_dataset
+    from pbc.pixels.preview import preview
+
+    ds = load_dataset(setup[0])
+    paths = preview(ds, tmp_path / "both", IMAGE, samples=2)
+    assert [p.name for p in paths] == ["cloth_images.png", "crop_windows.png", "round_trip_error.png"]
+    assert Image.open(paths[0]).size[1] > Image.open(paths[0]).size[0]  # 2 samples x front/back rows
+    # the shirt has charts on both sides: a front-only image would lose the back's vertices
+    with pytest.raises(ValueError, match="vertices sample outside it .* add the side to image.whole_sides"):
+        preview(ds, tmp_path / "one", dict(IMAGE, whole_sides=[0], whole_rows=[0.0, 1.0]), samples=2)

@@ -152,7 +152,7 @@ def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_sample
         paths.append(out / "pose_angles.png")
     paths += export_objs(ds, indices, out)
     if cfg is not None:  # cloth images, crop windows, round-trip error: the pixels stage's figures
-        paths += cloth_image_preview(ds, out, cfg.image)
+        paths += cloth_image_preview(ds, out, cfg.image, space=str(OmegaConf.select(cfg, "model.space") or "local"))
     return paths
 
 
@@ -162,10 +162,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("dataset")
     ap.add_argument("out", nargs="?", default=None)
     ap.add_argument("--samples", type=int, default=3)
-    args = ap.parse_args(argv)
-    image_cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "conf/image/default.yaml")
+    ap.add_argument("overrides", nargs="*", help="config overrides giving the image and offset space the figures "
+                    "show, as a run's (e.g. +experiment=necktie: its 64 x 256 window in the root frame)")
+    args, extra = ap.parse_known_args(argv)
+    from pbc.config import load_config  # the run's config: image window, model.space
+
+    overrides = [*args.overrides, *extra]
+    if args.out and "=" in args.out:  # `preview DATASET +experiment=necktie`: an override, not OUT_DIR
+        overrides, args.out = [args.out, *overrides], None
+    cfg = load_config(overrides)
     out = args.out or Path(args.dataset) / "preview_pixels"
-    for p in cloth_image_preview(load_dataset(args.dataset), out, image_cfg, args.samples):
+    for p in cloth_image_preview(load_dataset(args.dataset), out, cfg.image, args.samples, str(cfg.model.space)):
         print(p)
 
 

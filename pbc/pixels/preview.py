@@ -5,7 +5,7 @@ per channel, symmetric about 0), the padded chart mask, the patch crop windows o
 the round-trip error map of plain bilinear sampling (per vertex, at its UV).
 
 Takes a loaded dataset (this stage never reads one from disk); the command is
-`python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3]`.
+`python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3] [config overrides, e.g. +experiment=necktie]`.
 """
 
 from __future__ import annotations
@@ -24,30 +24,35 @@ from pbc.io import save_figure  # noqa: E402
 from pbc.pixels.frames import to_offsets  # noqa: E402
 from pbc.pixels.operators import ImageOperators, image_sizes  # noqa: E402
 from pbc.pixels.reconstruct import Skinner  # noqa: E402
-from pbc.pixels.target import image_operators  # noqa: E402
+from pbc.pixels.target import image_operators, make_target  # noqa: E402
 
-CHANNELS = ("du", "dv", "dn")
+# channel names of the offsets in each space (pbc.pixels.frames)
+CHANNELS = {"local": ("du", "dv", "dn"), "root": ("dx", "dy", "dz"), "position": ("x", "y", "z")}
+SIDE_NAMES = ("front", "back")
 
 
-def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles: list[str]) -> None:
-    """images (N, 6, H, W), mask (2, H, W) -> rows = samples x side, columns = du, dv, dn (+ mask)."""
-    n = len(images)
-    fig, axes = plt.subplots(2 * n, 4, figsize=(12, 6 * n), squeeze=False)
+def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles: list[str],
+                       pieces: tuple[str, ...] = SIDE_NAMES, channels: tuple[str, ...] = CHANNELS["local"]) -> None:
+    """images (N, 3P, H, W) of P pieces (chart sides), mask (P, H, W) -> rows = samples x piece, columns = the
+    3 channels (+ mask)."""
+    n, p = len(images), len(pieces)
+    h, w = images.shape[-2:]
+    fig, axes = plt.subplots(p * n, 4, figsize=(12, max(1.2, 3 * p * n * h / w) + 1), squeeze=False)
     for c in range(3):  # one symmetric scale per channel across samples, so pose changes are visible
-        lim = max(float(np.abs(images[:, [c, c + 3]]).max()), 1e-9)
+        lim = max(float(np.abs(images[:, c::3]).max()), 1e-9)
         for i in range(n):
-            for s in range(2):
-                ax = axes[2 * i + s, c]
+            for s in range(p):
+                ax = axes[p * i + s, c]
                 im = np.where(mask[s], images[i, 3 * s + c], np.nan)
-                h = ax.imshow(im, cmap="RdBu_r", vmin=-lim, vmax=lim)
-                ax.set_title(f"{titles[i]} {'front' if s == 0 else 'back'} {CHANNELS[c]} (m)", fontsize=8)
+                hm = ax.imshow(im, cmap="RdBu_r", vmin=-lim, vmax=lim)
+                ax.set_title(f"{titles[i]} {pieces[s]} {channels[c]} (m)", fontsize=8)
                 ax.axis("off")
-        fig.colorbar(h, ax=axes[:, c].tolist(), shrink=0.3)
+        fig.colorbar(hm, ax=axes[:, c].tolist(), shrink=0.3)
     for i in range(n):
-        for s in range(2):
-            axes[2 * i + s, 3].imshow(mask[s], cmap="gray")
-            axes[2 * i + s, 3].set_title("padded chart mask", fontsize=8)
-            axes[2 * i + s, 3].axis("off")
+        for s in range(p):
+            axes[p * i + s, 3].imshow(mask[s], cmap="gray")
+            axes[p * i + s, 3].set_title("padded chart mask", fontsize=8)
+            axes[p * i + s, 3].axis("off")
     save_figure(fig, path, dpi=80)
 
 
@@ -89,23 +94,28 @@ def round_trip_figure(garment, plain: ImageOperators, x: torch.Tensor, path: Pat
     return float(err.mean())
 
 
-def preview(data, out_dir: str | Path, image_cfg, samples: int = 3) -> list[Path]:
+def preview(data, out_dir: str | Path, image_cfg, samples: int = 3, space: str = "local") -> list[Path]:
     """Write the PNGs for the first `samples` samples of a loaded dataset `data`; returns their paths.
 
-    The operators are the ones training uses (pbc.pixels.target.image_operators); the round-trip figure
-    also builds the plain (uncorrected) ones it compares against, uncached.
+    The cloth images are the whole model's target in offset space `space` (pbc.pixels.target: the square
+    image, or the window a garment's charts fill, as training serves it); the crop windows and the
+    round-trip error use local offsets, with the patch operators training uses and the plain (uncorrected)
+    ones the round trip compares against, uncached.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     sizes = image_sizes(image_cfg)
     idx = np.arange(min(samples, len(data)))
-    anchors, frames = Skinner(data.body, data.garment, data.embedding)(torch.from_numpy(np.array(data.poses[idx])))
-    x = to_offsets(torch.from_numpy(np.array(data.verts[idx])), anchors, frames, "local")
-    whole = image_operators(data, image_cfg, "whole")
+    skinner = Skinner(data.body, data.garment, data.embedding)
+    batch = {"pose": torch.from_numpy(np.array(data.poses[idx])), "verts": torch.from_numpy(np.array(data.verts[idx]))}
+    whole = make_target(data, image_cfg, "whole", space=space, skinner=skinner).render(batch)
+    x = to_offsets(batch["verts"], whole["anchors"], whole["frames"], "local")
     ops512 = image_operators(data, image_cfg, "patch")
     plain = ImageOperators.for_garment(data.garment, sizes["patch_resolution"], sizes["patch_pad"], exact=False)
     paths = [out / "cloth_images.png", out / "crop_windows.png", out / "round_trip_error.png"]
-    cloth_image_figure(whole.render(x).numpy(), whole.mask.numpy(), paths[0], [f"sample {i}" for i in idx])
+    cloth_image_figure(whole["image"].numpy(), whole["mask"][0, ::3].numpy() > 0, paths[0],
+                       [f"sample {i}" for i in idx], tuple(SIDE_NAMES[s] for s in sizes["whole_sides"]),
+                       CHANNELS[space])
     crop_windows_figure(ops512, ops512.render(x[:1]).numpy()[0], data.cage, sizes["crop_size"], paths[1])
     round_trip_figure(data.garment, plain, x, paths[2])
     return paths
