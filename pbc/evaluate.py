@@ -1,8 +1,8 @@
 """`python -m pbc.evaluate whole_run=... patch_runs=...`: whole-shirt model vs. stitched patch models.
 
-One job: score, on a split of the dataset (test by default), the whole-shirt model, the 28 patch
-models stitched under every seam method, the same stitcher fed ground-truth crops, and the
-representation floor S(R(x)) at both resolutions; then write into the Hydra run dir:
+One job: score, on a split of the dataset (test by default), the whole-garment model, the P patch
+models of the dataset's cage (28 on the T-shirt) stitched under every seam method, the same stitcher fed
+ground-truth crops, and the representation floor S(R(x)) at both resolutions; then write into the Hydra run dir:
 
     metrics.json    per entry: vertex error (cm), normal error (1 - cos), seam jump (cm), interior jump;
                     plus the patches' disagreement across seams before blending

@@ -1,12 +1,13 @@
-"""Fast inference: pose -> garment vertices, from the whole-shirt model or the 28 patch models + stitch.
+"""Fast inference: pose -> garment vertices, from the whole-shirt model or the P patch models + stitch.
 
-One job: load the 29 checkpoints once (`ClothPredictor.from_runs`) and answer `predictor(pose)` with
-`(V, 3)` (or `(B, V, 3)` for a batch) garment positions in metres.
+One job: load the checkpoints once (`ClothPredictor.from_runs`: the whole model and/or one patch model per
+patch of the dataset's cage, P = 28 on the T-shirt) and answer `predictor(pose)` with `(V, 3)` (or
+`(B, V, 3)` for a batch) garment positions in metres.
 
-The 28 patch decoders are identical networks, so they run as one stacked network
-(`StackedPatchNet`): BatchNorm folded into the transpose convolutions, the 28 first linear layers as
+The P patch decoders are identical networks, so they run as one stacked network
+(`StackedPatchNet`): BatchNorm folded into the transpose convolutions, the P first linear layers as
 one matmul, and per group either a batched matmul + `fold` (col2im; best for the weight-bound first
-groups at small batch) or one grouped transpose convolution holding all 28 models in channels-last
+groups at small batch) or one grouped transpose convolution holding all P models in channels-last
 layout (best for the large late groups). `bench/predict.py` measures the alternatives; the defaults
 here are what measured fastest on the 2-core CPU. The layout is chosen per device at forward time
 (`default_layer_modes`): the bmm+fold groups are a CPU tuning; on a GPU every group runs as one grouped
@@ -205,7 +206,7 @@ class LoopPatchNet(nn.Module):
 class ClothPredictor:
     """pose (J, 3, 3) -> (V, 3), or (B, J, 3, 3) -> (B, V, 3), garment positions in metres.
 
-    Built by `from_runs`. `model="patches"` (28 patch models + the seam method `method`) or "whole".
+    Built by `from_runs`. `model="patches"` (the P patch models + the seam method `method`) or "whole".
     precision: "float32" (exact) or "bfloat16" (the stacked patch net in bf16 on the CPU's AMX/AVX512-bf16
     units; the stitch, skinning and the whole model stay float32).
     device: where the networks, operators and stitch run ("cpu", "cuda", ...); poses are moved there and
@@ -227,7 +228,7 @@ class ClothPredictor:
         self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
         if whole_net is None and not patch_nets:
-            raise ValueError("no model to predict with: give a whole-shirt run and/or the 28 patch runs")
+            raise ValueError("no model to predict with: give a whole-shirt run and/or one patch run per cage patch")
         # whole-only (no patch nets): no patch operators, stitcher or patch net; model="whole" throughout
         patches = bool(patch_nets)
         # what the whole model predicts and how it goes back to offsets: the run's own cloth target
@@ -266,14 +267,16 @@ class ClothPredictor:
     @classmethod
     def from_runs(cls, whole_run, patch_runs=None, stitch_cfg=None, pca=None, data_dir=None,
                   **kw) -> ClothPredictor:
-        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (all 28 patches), or
+        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (or a stacked
+        `+experiment=patches` run dir), one run per patch of the dataset's cage, or
         None / [] for the whole-shirt model alone; stitch_cfg: the seam method's node (conf/stitch; None =
         conf/stitch/average.yaml), used with patch runs only; data_dir: where the runs' dataset is when it
         moved (default: where the runs recorded it)."""
         has_patches = patch_runs is not None and not (isinstance(patch_runs, Sequence) and not isinstance(
             patch_runs, str) and len(patch_runs) == 0)
         if not whole_run and not has_patches:
-            raise ValueError("from_runs needs a whole-shirt run dir, or the 28 patch run dirs / their sweep dir")
+            raise ValueError("from_runs needs a whole-shirt run dir, or the patch run dirs (one per cage patch) / "
+                             "their sweep dir")
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind != "whole":
             raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
@@ -330,7 +333,8 @@ class ClothPredictor:
         model = model or ("patches" if self.patch_net is not None else "whole")
         if model == "patches" and self.patch_net is None:
             raise ValueError("this predictor has no patch models (built from a whole-shirt run alone): use "
-                             "model='whole', or give from_runs the 28 patch runs")
+                             f"model='whole', or give from_runs the {len(self.dataset.cage.patches)} patch runs "
+                             "of its cage")
         pose = pose.to(self.device, torch.float32)
         if self.stitcher is not None:
             self.stitcher.to(self.device)  # a basis set after construction (pbc.evaluate's PCA) follows too
@@ -550,10 +554,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="pbc predict", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES,
         description="Garment meshes for body poses, from trained pbc models: the whole-shirt model alone, or "
-                    "the 28 patch models stitched by a seam method. Writes meshes/ (OBJ with the garment's UVs "
-                    "and normals, or PLY), vertices.npy, poses.npy, contact_sheet.png and predict.json.")
+                    "the patch models (one per patch of the garment's cage) stitched by a seam method. Writes "
+                    "meshes/ (OBJ with the garment's UVs and normals, or PLY), vertices.npy, poses.npy, "
+                    "contact_sheet.png and predict.json.")
     ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/whole)")
-    ap.add_argument("--patches", nargs="+", metavar="RUN", help="the 28 patch run dirs, or a sweep dir holding them")
+    ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
+                    "dir holding them, or a stacked +experiment=patches run dir")
     ap.add_argument("--method", default="pca", choices=METHODS, help="seam method for --patches (default pca)")
     ap.add_argument("--pca", metavar="FILE", help="PCA basis for --method pca (pbc.evaluate's pca.pt); "
                                                    "default: fitted on the training split")

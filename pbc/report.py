@@ -154,14 +154,28 @@ def _patch_id(run: Run) -> int | None:
     return pid if isinstance(pid, int) and run.cfg("model.kind") == "patch" else None
 
 
+def _expected_patch_ids(expected: dict[str, list[str]] | None) -> set[int]:
+    """The patch ids a sweep was launched with: its patch_NN experiments (the T-shirt) and/or its
+    model.patch_id values (`+experiment=patch 'model.patch_id=range(0,P)'`, any garment)."""
+    expected = expected or {}
+    ids = {int(e[6:]) for e in expected.get("experiment", []) if e[:6] == "patch_" and e[6:].isdigit()}
+    return ids | {int(v) for v in expected.get("model.patch_id", []) if str(v).isdigit()}
+
+
 def patch_rows(runs: list[Run], expected: dict[str, list[str]] | None = None) -> list[Row]:
-    """Each patch model's own test error (over the vertices inside its patch), by patch id; the patches
-    the sweep was launched with but that left no run dir are listed as missing."""
-    ids = {p for r in runs if (p := _patch_id(r)) is not None}
-    ids |= {int(e[6:]) for e in (expected or {}).get("experiment", []) if e[:6] == "patch_" and e[6:].isdigit()}
-    ids = sorted(ids)
+    """Each patch model's own test error (over the vertices inside its patch), by patch id, whether the run
+    was `+experiment=patch_NN` or `+experiment=patch model.patch_id=N`; the patches the sweep was launched
+    with but that left no run dir are listed as missing."""
+    ids = sorted({p for r in runs if (p := _patch_id(r)) is not None} | _expected_patch_ids(expected))
     keys = [f"{s}/{m}" for s in ("train", "test") for m in (PATCH_VERTEX, PATCH_NORMAL)] + [f"test/{PATCH_VERTEX}_std"]
-    return [make_row(f"patch_{i:02d}", runs, {"experiment": f"patch_{i:02d}"}, keys) for i in ids]
+    rows = []
+    for i in ids:
+        row = make_row(f"patch_{i:02d}", [r for r in runs if _patch_id(r) == i], {}, keys)
+        row.select = {"patch_id": str(i)}
+        if not row.runs:
+            row.error = f"no run with patch id {i}"
+        rows.append(row)
+    return rows
 
 
 def _is_eval(run: Run) -> bool:

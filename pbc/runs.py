@@ -4,7 +4,7 @@ job leaves behind, so sweeps, reports and the predictor never parse it themselve
 A run dir holds `.hydra/{config,hydra,overrides}.yaml`, `metrics.json` (numbers, or the job's error when
 it failed), `checkpoints/` (training) and TensorBoard event files. `load_runs(sweep_dir)` -> [`Run`]
 (what a report needs: choices, metrics, curves, status); `read_run(run_dir)` -> `RunInfo` and
-`select_patch_runs(paths, garment_hash)` (what the predictor needs: kind, patch id, best checkpoint).
+`select_patch_runs(paths, garment_hash, num_patches)` (what the predictor needs: kind, patch id, best checkpoint).
 Nothing here trains, plots or formats.
 """
 
@@ -20,6 +20,9 @@ import yaml
 
 from pbc.io import load_checkpoint, read_json
 
+# The hand-made T-shirt cage's patch count (patches/, conf/experiment/patch_00..27). Everything that
+# assembles or stitches patch runs takes the count from the dataset's cage instead: an imported garment's
+# automatic cage has its own.
 NUM_PATCHES = 28
 # Where a stacked all-patches run (`+experiment=patches`) exports its P single-patch run dirs
 # (`<run>/patches/patch_NN/`): `find_runs` given such a run dir answers those.
@@ -383,11 +386,13 @@ def find_runs(paths: Sequence[str | Path] | str | Path) -> list[Path]:
     return out
 
 
-def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) -> list[RunInfo]:
+def select_patch_runs(paths, garment_hash: str, num_patches: int) -> list[RunInfo]:
     """Exactly one patch run per patch id 0..num_patches-1 for this garment, in id order.
 
+    num_patches: the dataset's cage's patch count (no default: a garment's cage has its own, and a
+    default of the shirt's 28 would ask a 10-patch garment for 18 runs that cannot exist).
     Raises one ValueError listing every problem: unreadable runs, runs of another kind or garment,
-    unknown patch ids, patches claimed by two runs, and missing patches.
+    unknown patch ids, patches claimed by two runs, and missing patches (with how to train them).
     """
     problems: list[str] = []
     by_id: dict[int, list[RunInfo]] = {}
@@ -412,7 +417,11 @@ def select_patch_runs(paths, garment_hash: str, num_patches: int = NUM_PATCHES) 
             problems.append(f"patch {k} is claimed by {len(rs)} runs: " + ", ".join(str(r.dir) for r in rs))
     missing = [k for k in range(num_patches) if k not in by_id]
     if missing:
-        problems.append(f"missing patch runs for patch ids {missing}")
+        problems.append(f"missing patch runs for patch ids {missing}: the dataset's cage has {num_patches} "
+                        f"patches (ids 0..{num_patches - 1}) and {num_patches - len(missing)} have a run. Train "
+                        "each missing one with `python -m pbc.train +experiment=patch model.patch_id=ID`, or "
+                        "every patch in one job with `+experiment=patches` (pass that run dir), and give all "
+                        "the patch runs together")
     if problems:
         raise ValueError("cannot assemble the patch models:\n  - " + "\n  - ".join(problems))
     return [by_id[k][0] for k in range(num_patches)]

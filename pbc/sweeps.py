@@ -114,7 +114,10 @@ def evaluate_command(sweep_dir: Path, python: str = sys.executable) -> tuple[lis
     """`pbc.evaluate` on the sweep's successful whole run and patch runs -> (argv, None) or (None, why)."""
     runs = [r for r in load_runs(sweep_dir, events=False) if r.status == OK and r.job == "train"]
     whole = [r for r in runs if r.get("experiment") == "whole"]
-    patches = [r for r in runs if (r.get("experiment") or "").startswith("patch_")]
+    # by model kind, not experiment name: the T-shirt's patch_NN, `+experiment=patch model.patch_id=N` on any
+    # garment, or a stacked `+experiment=patches` run (pbc.evaluate reads the single-patch runs it exported)
+    patches = [r for r in runs if r.cfg("model.kind") in ("patch", "patches")
+               or (r.get("experiment") or "").startswith("patch")]
     if not whole or not patches:
         return None, f"nothing to evaluate: {len(whole)} successful whole runs, {len(patches)} patch runs"
     argv = [

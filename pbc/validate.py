@@ -258,12 +258,13 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     _, kind = _get(cfg, "model.kind")
     if kind == "patch":
         present, pid = _get(cfg, "model.patch_id")
-        top = f"0..{num_patches - 1}" if num_patches else ">= 0"
+        # the range is the dataset's cage's (28 on the T-shirt), known once the dataset is open
+        top = f"in 0..{num_patches - 1} (the cage's {num_patches} patches)" if num_patches else ">= 0"
+        example = "e.g. +experiment=patch model.patch_id=3 (the T-shirt also has +experiment=patch_03)"
         if not present or pid is None:
-            problems.append(f"model.patch_id is missing: model.kind=patch needs an integer in {top}")
+            problems.append(f"model.patch_id is missing: model.kind=patch needs an integer {top}, {example}")
         elif not (_is_int(pid) and pid >= 0 and (num_patches is None or pid < num_patches)):
-            problems.append(f"model.patch_id={pid!r} ({type(pid).__name__}): expected an integer in {top}, "
-                            "e.g. model.patch_id=3 or +experiment=patch_03")
+            problems.append(f"model.patch_id={pid!r} ({type(pid).__name__}): expected an integer {top}, {example}")
     if problems:
         raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
 

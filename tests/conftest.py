@@ -40,6 +40,15 @@ def tiny_dataset(tmp_path_factory) -> Path:
     return generate(load_config(tiny_overrides(tmp_path_factory.mktemp("tiny_data"))))
 
 
+@pytest.fixture(scope="session")
+def foreign(tmp_path_factory):
+    """A garment pbc did not make (tests/helpers/tube_top.py), made into a dataset once per session:
+    (root, its config overrides, the dataset dir)."""
+    from helpers.tube_top import tube_top_dataset
+
+    return tube_top_dataset(tmp_path_factory.mktemp("foreign"))
+
+
 # --- body and skeleton (conf/body/mannequin.yaml), meshed coarsely so the session pays well under a second
 BODY_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "body" / "mannequin.yaml"
 COARSE_VOXEL = 0.03  # m; the default mesh is ~0.014

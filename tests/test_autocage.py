@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from helpers.tube_top import CHARTS, tube_top_obj
 
 from pbc.geometry.autocage import _components, _edges, auto_cage
 from pbc.geometry.cage import load_cage, save_cage, validate_cage
@@ -12,52 +13,6 @@ from pbc.geometry.garment import load_garment_config, make_tshirt
 from pbc.geometry.garments import garment_from_config
 from pbc.geometry.obj_import import import_garment
 
-
-def tube_top_obj(cols: int = 16, rows: int = 6, band_rows: int = 2, rx: float = 0.16, rz: float = 0.115) -> str:
-    """A tube top round the torso as another tool would export it: quads, three UV islands (groups front,
-    back, band: the waistband, cut open at the back), v up, UVs in cm, `mtllib`/`o`/`usemtl`/`s` lines,
-    and relative indices in the band's faces."""
-    y_top, y_mid, y_bot = 0.30, 0.0, -0.06
-    ang = np.linspace(0, 2 * np.pi, cols, endpoint=False) + np.pi / cols
-    ys = np.concatenate([np.linspace(y_top, y_mid, rows + 1), np.linspace(y_mid, y_bot, band_rows + 1)[1:]])
-    pts = np.array([[rx * np.sin(a), y, -0.01 + rz * np.cos(a)] for y in ys for a in ang])
-    step = np.linalg.norm(np.roll(pts[:cols, [0, 2]], -1, 0) - pts[:cols, [0, 2]], axis=1).mean()
-    lines = ["# Exported from SomeCAD", "mtllib top.mtl", "o TubeTop"]
-    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts]
-    vt: dict = {}
-
-    def add(key, u, v):
-        vt[key] = len(vt) + 1
-        lines.append(f"vt {u * 100:.5f} {v * 100:.5f}")
-
-    h = cols // 2
-    front_cols = [c % cols for c in range(-h // 2, h // 2 + 1)]
-    back_cols = [c % cols for c in range(h // 2, h // 2 + h + 1)]
-    for name, cl, u0 in (("front", front_cols, 0.0), ("back", back_cols, (h + 2) * step)):
-        for r in range(rows + 1):
-            for k in range(len(cl)):
-                add((name, r, k), u0 + k * step, ys[r])
-    for r in range(rows, len(ys)):
-        for k in range(cols + 1):
-            add(("band", r, k), k * step, ys[r] - 0.08)
-    lines += ["usemtl Fabric", "s 1"]
-    for name, cl in (("front", front_cols), ("back", back_cols)):
-        lines.append(f"g {name}")
-        for r in range(rows):
-            for k in range(h):
-                q = [(r + 1, k), (r + 1, k + 1), (r, k + 1), (r, k)]
-                lines.append("f " + " ".join(f"{rr * cols + cl[kk] + 1}/{vt[(name, rr, kk)]}" for rr, kk in q))
-    lines.append("g band")
-    nv, nt = len(pts), len(vt)
-    for r in range(rows, len(ys) - 1):
-        for k in range(cols):
-            q = [(r + 1, k), (r + 1, k + 1), (r, k + 1), (r, k)]
-            lines.append("f " + " ".join(f"{rr * cols + kk % cols - nv}/{vt[('band', rr, kk)] - nt - 1}"
-                                         for rr, kk in q))
-    return "\n".join(lines) + "\n"
-
-
-CHARTS = {"front": 0, "back": 1, "band": 0}
 IMAGE = (512, 160, 16)
 
 
@@ -96,24 +51,6 @@ def test_a_chart_that_cannot_be_covered_is_refused(tmp_path):
         auto_cage(ok, 512, 30, 16)
     with pytest.raises(ValueError, match=r"past 3 patches"):
         auto_cage(ok, *IMAGE, chart_names=names, face_chart=chart, max_patches=3)
-
-
-OVERRIDES = ["data=tshirt_tiny", "garment=obj", "garment.charts={front:0,back:1,band:0}", "garment.uv_unit=cm",
-             "data.num_samples=3", "data.workers=1", "body.mesh.voxel_size=0.03"]
-
-
-@pytest.fixture(scope="module")
-def foreign(tmp_path_factory):
-    """A tube top of quads with three UV islands (not made by pbc): its OBJ, config overrides and dataset
-    (import -> automatic cage -> shrink-wrap -> three drapes on the coarse body)."""
-    from pbc.config import load_config
-    from pbc.data.generate import generate
-
-    root = tmp_path_factory.mktemp("foreign")
-    path = root / "top.obj"
-    path.write_text(tube_top_obj())
-    overrides = [*OVERRIDES, f"garment.obj={path}", f"paths.data_dir={root}"]
-    return root, overrides, generate(load_config(overrides))
 
 
 def test_a_garment_pbc_did_not_make_goes_through(foreign):

@@ -127,16 +127,16 @@ def test_select_patch_runs_reports_every_problem(world, tmp_path):
 
     root, ds, whole = world
     runs = [root / "runs" / "patches" / f"{k}_patch_{k:02d}" for k in range(28)]
-    assert [r.patch_id for r in select_patch_runs(runs, GARMENT_HASH)] == list(range(28))
+    assert [r.patch_id for r in select_patch_runs(runs, GARMENT_HASH, 28)] == list(range(28))
     # a sweep dir holding the whole run and an evaluate output too: only the patch runs are taken
     (root / "runs" / "evaluate").mkdir(exist_ok=True)
     (root / "runs" / "evaluate" / "metrics.json").write_text("{}")
-    assert len(select_patch_runs(root / "runs", GARMENT_HASH)) == 28
+    assert len(select_patch_runs(root / "runs", GARMENT_HASH, 28)) == 28
     dup = save_run(tmp_path / "dup", ds.dir, "patch", 3)
     other = save_run(tmp_path / "other", ds.dir, "patch", 4, garment_hash="another")
     bad_id = save_run(tmp_path / "bad", ds.dir, "patch", 31)
     with pytest.raises(ValueError) as e:
-        select_patch_runs(runs[:4] + runs[5:] + [dup, other, bad_id, whole], GARMENT_HASH)
+        select_patch_runs(runs[:4] + runs[5:] + [dup, other, bad_id, whole], GARMENT_HASH, 28)
     msg = str(e.value)
     for part in ("patch 3 is claimed by 2 runs", "another", "patch id 31", "not a patch run",
                  "missing patch runs for patch ids [4]"):

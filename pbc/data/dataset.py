@@ -2,7 +2,7 @@
 
 Layout (see docs/interfaces.md):
     manifest.json   format version, seed, hashes, counts, splits
-    garment.obj     garment with UV charts;  cage.json  its 28 patches
+    garment.obj     garment with UV charts;  cage.json  its cage (28 patches on the T-shirt)
     body.npz        body mesh, skinning weights, parts, skeleton
     embedding.npz   body triangle + barycentric weights + collision part of every garment vertex
     poses.npy       (N, J, 3, 3) float32 joint rotations of the kept samples

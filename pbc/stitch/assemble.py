@@ -1,4 +1,4 @@
-"""Place the 28 patch crops back into the full cloth images, with feathered blending.
+"""Place the P patch crops (one per cage patch) back into the full cloth images, with feathered blending.
 
 One job: turn per-patch crops `(B, P, 3, h, w)` into the two-sided cloth image `(B, 6, H, W)` (or
 straight into per-vertex values with a sampling operator folded in). Every covered pixel gets exactly

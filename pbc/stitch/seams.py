@@ -358,7 +358,7 @@ class Stitcher:
 def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) -> Stitcher:
     """A `Stitcher` for one garment at the patch resolution.
 
-    ops: `ImageOperators` at the patch resolution; crops: its 28 `PatchCrop`s (id order);
+    ops: `ImageOperators` at the patch resolution; crops: its P `PatchCrop`s, one per cage patch (id order);
     cfg: a `conf/stitch/*.yaml` node (feather_ramp, band_width, pca_components, pca_band_only,
     detail_sigma).
     """
