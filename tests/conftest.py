@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 # fixtures that drape real data: any test using them (directly or through another fixture) is `slow`
-SLOW_FIXTURES = {"tiny_dataset", "draped"}
+SLOW_FIXTURES = {"tiny_dataset", "draped", "foreign"}
 # and tests that take tens of seconds on the 2-core CPU without such a fixture (measured with --durations):
 # node-id prefixes, kept here so the tiers are one list
 SLOW_TESTS = (
