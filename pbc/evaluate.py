@@ -168,14 +168,21 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
     gt = keep["gt"]
     names = [n for n in keep if n != "gt" and not n.startswith("gt_crops")]
     ops = pred.ops_patch
-    fig, axes = plt.subplots(len(names), 2, figsize=(6, 3 * len(names)), squeeze=False)
+    mask = ops.mask.numpy()
+    # the sides with charts, cut to the charts' bounding box (a necktie fills a thin band of one side)
+    sides = [s for s in range(2) if mask[s].any()]
+    rows, cols = np.nonzero(mask[sides].any(0))
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    aspect = (rows.max() - rows.min() + 1) / (cols.max() - cols.min() + 1)
+    fig, axes = plt.subplots(len(names), len(sides), figsize=(3 * len(sides), max(0.6, 3 * aspect) * len(names) + 0.8),
+                             squeeze=False)
     vmax = max(float((keep[n][0] - gt[0]).norm(dim=-1).max()) * CM for n in names) or 1.0
     for r, n in enumerate(names):
         err = (keep[n][:1] - gt[:1]).norm(dim=-1, keepdim=True).expand(-1, -1, 3) * CM
         img = ops.render(err)[0]
-        for s in range(2):
-            ax = axes[r, s]
-            im = ax.imshow(np.ma.masked_where(~ops.mask[s].numpy(), img[3 * s].numpy()), cmap="magma",
+        for k, s in enumerate(sides):
+            ax = axes[r, k]
+            im = ax.imshow(np.ma.masked_where(~mask[s][box], img[3 * s].numpy()[box]), cmap="magma",
                            vmin=0, vmax=vmax)
             ax.set_title(f"{n} {'front' if s == 0 else 'back'}", fontsize=7)
             ax.axis("off")
