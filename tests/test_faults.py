@@ -279,6 +279,12 @@ def test_training_identity_names_every_difference():
     # a longer schedule is what resuming is for: not part of the identity
     c = load_config(["+experiment=whole", "trainer.max_epochs=500"])
     assert identity_diff(training_identity(a, fp), training_identity(c, fp)) == []
+    # the square two-sided image is what runs made before image.whole_sides/whole_rows existed had: such a
+    # checkpoint (no window keys) still resumes; another window does not
+    old = training_identity(a, fp)
+    assert "whole_rows" not in old["image"] and "whole_sides" not in old["image"]
+    d = load_config(["+experiment=whole", "image.whole_rows=[0.25,0.75]"])
+    assert any(line.startswith("image.whole_rows") for line in identity_diff(old, training_identity(d, fp)))
 
 
 # ============================================================================ corrupt files are named
