@@ -88,6 +88,10 @@ def test_every_config_composes_and_instantiates():
 
     for exp in _group_options("experiment"):
         cfg = load_config([f"+experiment={exp}", "paths.output_dir=/tmp/x"])
+        if exp == "patch":  # any garment's patch model: the id is the user's to give, and refused when missing
+            with pytest.raises(ValueError, match="model.patch_id is missing"):
+                check_config(cfg)
+            cfg = load_config([f"+experiment={exp}", "model.patch_id=0", "paths.output_dir=/tmp/x"])
         check_config(cfg)  # what pbc.train checks first (it once refused model.kind=patches)
         OmegaConf.resolve(cfg.model)
         net = dict(OmegaConf.to_container(cfg.model.net))
