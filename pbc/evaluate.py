@@ -61,26 +61,34 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
     if unknown:
         raise ValueError(f"unknown seam methods {unknown}; choose from {METHODS}")
     patch_runs = OmegaConf.to_container(cfg.patch_runs) if OmegaConf.is_list(cfg.patch_runs) else cfg.patch_runs
+    if patch_runs in ("", []):
+        patch_runs = None
+    if patch_runs is None and not cfg.whole_run:
+        raise ValueError("nothing to evaluate: give whole_run=<run dir> and/or patch_runs=<run dirs>")
     # the dataset the runs recorded (resolved dir + fingerprint); data_dir only to point at a moved copy
     pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch, data_dir=cfg.get("data_dir"))
     ds = pred.dataset
+    patches = pred.stitcher is not None  # else the whole model alone: no stitch, no patch floor
     if cfg.pca_path:
         basis = load_pca(cfg.pca_path, dataset_hash(ds.dir))
-    else:
+    else:  # its mean is the no-model baseline even without patches
         basis = fit_training_pca(pred, int(cfg.stitch.pca_components), int(cfg.pca_fit_max))
         save_pca(basis, out / "pca.pt")
-    pred.use_pca(basis)
+    if patches:
+        pred.use_pca(basis)
 
     faces = pred.faces
-    vp = pred.stitcher.vertex_patch
+    # the cage's seams: where a stitch would show; scored for the whole model too, for comparison
+    vp = pred.stitcher.vertex_patch if patches else torch.from_numpy(ds.cage.vertex_patch(len(ds.garment.vertices)))
     seam = seam_edges(faces, vp)
     all_e = mesh_edges(faces)
     is_seam = (vp[all_e[:, 0]] != vp[all_e[:, 1]])
     interior = all_e[~is_seam]
-    sides = torch.tensor([p.side for p in ds.cage.patches])
-    same_side = sides[vp[seam[:, 0]]] == sides[vp[seam[:, 1]]]
-    vpix = uv_to_pixel(torch.as_tensor(ds.garment.vertex_uv).float(), (pred.ops_patch.res,) * 2)
-    origins = torch.tensor([c.window[:2] for c in pred.crops]).float()
+    if patches:
+        sides = torch.tensor([p.side for p in ds.cage.patches])
+        same_side = sides[vp[seam[:, 0]]] == sides[vp[seam[:, 1]]]
+        vpix = uv_to_pixel(torch.as_tensor(ds.garment.vertex_uv).float(), (pred.ops_patch.res,) * 2)
+        origins = torch.tensor([c.window[:2] for c in pred.crops]).float()
 
     idx = ds.split(cfg.split)
     if cfg.max_samples:
@@ -106,37 +114,41 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
                 return from_offsets(off, anchors, frames, pred.space)
 
             batch = {"gt": gt}
-            batch["floor_256"] = pos_of(pred.whole_target.values(pred.whole_target.encode(gt_off)))
-            batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
+            gt_whole = pred.whole_target.values(pred.whole_target.encode(gt_off))
+            # the representation floors of the whole (floor_256) and patch (floor_512) images, by their default
+            # resolutions' names whatever the run's image sizes
+            batch["floor_256"] = pos_of(gt_whole)
+            if patches:
+                batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
             # the no-model baseline: every pose gets the training split's mean offsets
             batch["train_mean"] = pos_of(basis.mean.view(1, -1, 3).expand(len(j), -1, -1).to(gt_off))
             whole_off = pred.whole_offsets(poses) if pred.whole_net is not None else None
             if whole_off is not None:
                 batch["whole"] = pos_of(whole_off)
-            crops = pred.patch_crops(poses)
-            gt_crops = torch.stack([c.render(gt_off) for c in pred.crops], 1)
-            gt_whole = pred.whole_target.values(pred.whole_target.encode(gt_off))
-            for m in cfg.methods:
-                if m in NEEDS_WHOLE and whole_off is None:
-                    continue
-                batch[f"patches_{m}"] = pos_of(pred.stitcher(crops, m, whole_off))
-                batch[f"gt_crops_{m}"] = pos_of(pred.stitcher(gt_crops, m, gt_whole))
+            if patches:
+                crops = pred.patch_crops(poses)
+                gt_crops = torch.stack([c.render(gt_off) for c in pred.crops], 1)
+                for m in cfg.methods:
+                    if m in NEEDS_WHOLE and whole_off is None:
+                        continue
+                    batch[f"patches_{m}"] = pos_of(pred.stitcher(crops, m, whole_off))
+                    batch[f"gt_crops_{m}"] = pos_of(pred.stitcher(gt_crops, m, gt_whole))
+                disagreement.append(patch_disagreement(crops, origins, vpix, seam[same_side], vp) * CM)
             for name, pos in batch.items():
                 if name != "gt":
                     add(name, pos, gt)
-            disagreement.append(patch_disagreement(crops, origins, vpix, seam[same_side], vp) * CM)
             if not keep:
                 keep = {k: v[: int(cfg.num_previews)] for k, v in batch.items()}
 
     entries = {name: {k: float(torch.cat(v).mean()) for k, v in d.items()} for name, d in acc.items()}
     metrics = {
         "split": cfg.split, "num_samples": len(idx), "dataset": str(ds.dir), "data": run_data_record(ds),
-        "whole_run": str(cfg.whole_run), "patch_runs": patch_runs if isinstance(patch_runs, list)
+        "whole_run": str(cfg.whole_run), "patch_runs": patch_runs if isinstance(patch_runs, list) or patch_runs is None
         else str(patch_runs),
         "stitch": OmegaConf.to_container(cfg.stitch), "pca": {"components": basis.num_components,
                                                                "dataset_hash": basis.dataset_hash},
         "seam_edges": int(seam.shape[0]),
-        "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()),
+        "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()) if disagreement else None,
         "entries": entries, "seconds": round(time.time() - t0, 2),
     }
     write_text(out / "metrics.json", json.dumps(metrics, indent=1))
@@ -147,12 +159,15 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
 
 def markdown_table(metrics: dict) -> str:
     cols = ["vertex_error_cm", "normal_error", "seam_jump_cm", "interior_jump_cm"]
-    lines = [f"# Whole vs. stitched patches ({metrics['split']}, {metrics['num_samples']} samples)", "",
+    what = "Whole vs. stitched patches" if metrics["patch_runs"] is not None else "The whole model"
+    lines = [f"# {what} ({metrics['split']}, {metrics['num_samples']} samples)", "",
              "| entry | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, d in metrics["entries"].items():
         lines.append(f"| {name} | " + " | ".join(f"{d[c]:.4f}" for c in cols) + " |")
-    lines += ["", f"Patch disagreement across seams before blending: "
-              f"{metrics['patch_disagreement_before_blend_cm']:.4f} cm over {metrics['seam_edges']} seam edges.", ""]
+    if metrics["patch_disagreement_before_blend_cm"] is not None:
+        lines += ["", f"Patch disagreement across seams before blending: "
+                  f"{metrics['patch_disagreement_before_blend_cm']:.4f} cm over {metrics['seam_edges']} seam edges."]
+    lines.append("")
     return "\n".join(lines)
 
 
@@ -167,7 +182,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
 
     gt = keep["gt"]
     names = [n for n in keep if n != "gt" and not n.startswith("gt_crops")]
-    ops = pred.ops_patch
+    ops = pred.ops_patch if pred.ops_patch is not None else pred.whole_target.ops
     mask = ops.mask.numpy()
     # the sides with charts, cut to the charts' bounding box (a necktie fills a thin band of one side)
     sides = [s for s in range(2) if mask[s].any()]
@@ -217,7 +232,8 @@ def main(cfg: DictConfig) -> float:
     check_config(cfg)
     metrics = evaluate(cfg, out)
     log.info("\n%s", markdown_table(metrics))
-    return metrics["entries"].get(f"patches_{cfg.stitch.method}", {}).get("vertex_error_cm", float("nan"))
+    best = f"patches_{cfg.stitch.method}" if metrics["patch_runs"] is not None else "whole"
+    return metrics["entries"].get(best, {}).get("vertex_error_cm", float("nan"))
 
 
 if __name__ == "__main__":

@@ -206,6 +206,28 @@ def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
         evaluate(cfg, tmp_path / "again")
 
 
+def test_evaluate_the_whole_model_alone(world, patched_load, tmp_path):
+    """patch_runs=null: the whole model against the training mean shape and its image floor, no stitch."""
+    import json
+
+    from pbc.evaluate import evaluate
+
+    root, ds, whole = world
+    cfg = OmegaConf.create({"whole_run": str(whole), "patch_runs": None, "methods": ["average"], "split": "test",
+                            "max_samples": None, "batch_size": 8, "num_previews": 1, "pca_path": None,
+                            "pca_fit_max": 100, "stitch": _stitch_cfg("pca")})
+    m = evaluate(cfg, tmp_path)
+    assert set(m["entries"]) == {"floor_256", "train_mean", "whole"} and m["patch_runs"] is None
+    e = m["entries"]
+    assert e["floor_256"]["vertex_error_cm"] < e["train_mean"]["vertex_error_cm"]
+    assert m["patch_disagreement_before_blend_cm"] is None and m["seam_edges"] > 0  # the cage's seams, scored
+    assert json.loads((tmp_path / "metrics.json").read_text())["entries"]["whole"] == e["whole"]
+    assert "The whole model" in (tmp_path / "metrics.md").read_text() and (tmp_path / "error_maps.png").is_file()
+    cfg.whole_run = None
+    with pytest.raises(ValueError, match="nothing to evaluate"):
+        evaluate(cfg, tmp_path / "none")
+
+
 def test_stacked_patch_net_carries_each_mean_image():
     """The stacked 28-model form adds every decoder's own output_mean, as the loop does."""
     from pbc.models.decoder import ConvDecoder
