@@ -92,16 +92,13 @@ def net_config(cfg: DictConfig, target: VertexTarget) -> dict:
     net = OmegaConf.to_container(cfg.model.net, resolve=True)
     fit = ({"output_size": list(target.image_size), "out_channels": target.channels} if target.image_size
            else {"num_vertices": target.num_vertices})
-    joints = list(target.skinner.skeleton.names)
+    skeleton = target.skinner.skeleton
     wanted = OmegaConf.select(cfg, "data.pose_joints")
     if wanted is None:
-        fit["in_features"] = 9 * len(joints)
+        fit["in_features"] = 9 * skeleton.num_joints
     else:
-        unknown = [n for n in wanted if n not in joints]
-        if unknown:
-            raise ValueError(f"data.pose_joints: unknown joints {unknown}; the body's joints are {joints}")
-        fit.update(in_features=9 * len(wanted), input_joints=[joints.index(n) for n in wanted],
-                   num_joints=len(joints))
+        fit.update(in_features=9 * len(wanted), input_joints=skeleton.indices(wanted, "data.pose_joints"),
+                   num_joints=skeleton.num_joints)
     if getattr(target, "num_patches", None):  # a stacked all-patches net: the cage's patch count
         fit["num_patches"] = int(target.num_patches)
     for k, v in fit.items():

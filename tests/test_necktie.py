@@ -170,7 +170,8 @@ def test_the_net_reads_its_own_joints_of_the_full_pose():
     net = ConvDecoder(36, input_joints=ids, num_joints=10, **kw).eval()
     plain = ConvDecoder(36, **kw).eval()
     plain.load_state_dict(net.state_dict())
-    pose = torch.linalg.matrix_exp(torch.randn(2, 10, 3, 3).triu(1) - torch.randn(2, 10, 3, 3).triu(1).mT)
+    upper = torch.randn(2, 10, 3, 3).triu(1)
+    pose = torch.linalg.matrix_exp(upper - upper.mT)  # exp of a skew-symmetric matrix: a rotation
     with torch.no_grad():
         assert torch.equal(net(pose), plain(pose[:, ids]))
         moved = pose.clone()

@@ -38,6 +38,14 @@ class Skeleton:
             return self.rest_frames
         return torch.eye(3, dtype=self.rest_heads.dtype).expand(self.num_joints, 3, 3).clone()
 
+    def indices(self, names, key: str) -> list[int]:
+        """Indices of joint `names` in the model-input order; one ValueError naming config `key`, every
+        unknown name and the skeleton's joints."""
+        unknown = [n for n in names if n not in self.names]
+        if unknown:
+            raise ValueError(f"{key}: unknown joints {unknown}; the body's joints are {list(self.names)}")
+        return [self.names.index(n) for n in names]
+
     def index(self, name: str) -> int:
         """Index of a joint name in the model-input order."""
         try:

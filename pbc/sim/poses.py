@@ -107,10 +107,8 @@ def sample_angles(skel: Skeleton, n: int, rng: np.random.Generator, settings: Sa
     sphere[..., Z] = np.clip(altitude, lo[:, Z], hi[:, Z])  # arcsin round-off must not leave the limits
     out = np.where(centre[None, :, None], half, sphere)
     if settings.posed_joints:  # a garment's own joint set (the necktie: 4 centre-line joints)
-        unknown = [name for name in settings.posed_joints if name not in skel.names]
-        if unknown:
-            raise ValueError(f"sampling.posed_joints: unknown joints {unknown}; joints: {list(skel.names)}")
-        out[:, [name not in settings.posed_joints for name in skel.names]] = 0.0
+        posed = set(skel.indices(settings.posed_joints, "sampling.posed_joints"))
+        out[:, [j not in posed for j in range(skel.num_joints)]] = 0.0
     return out
 
 
