@@ -285,9 +285,10 @@ IDENTITY_PATHS = {
 }
 
 
-# image.whole_sides / whole_rows at these values are the square two-sided image every run had before the
-# keys existed: left out of the training identity, so those runs still resume
-IMAGE_WINDOW_DEFAULTS = {"whole_sides": [0.0, 1.0], "whole_rows": [0.0, 1.0]}
+# image.whole_sides / whole_rows of the full square image, both sides: what a config without the keys means
+# (pbc.pixels.operators.image_sizes), and what every run had before they existed, so left out of the training
+# identity and those runs still resume
+FULL_IMAGE_WINDOW = {"whole_sides": (0, 1), "whole_rows": (0.0, 1.0)}
 
 
 def _plain(v: Any) -> Any:
@@ -315,8 +316,8 @@ def training_identity(cfg: Any, data_fingerprint: Mapping | None) -> dict:
         (out.setdefault(head, {}) if head else out)[leaf] = _plain(v) if present else None
     image = out.get("image")
     if isinstance(image, dict):  # the full square image, both sides: what every run before the window had
-        for key, full in IMAGE_WINDOW_DEFAULTS.items():
-            if key in image and [float(v) for v in image[key]] == full:
+        for key, full in FULL_IMAGE_WINDOW.items():
+            if key in image and [float(v) for v in image[key]] == list(full):
                 del image[key]
     out["data"] = dict(data_fingerprint) if data_fingerprint is not None else None
     return out

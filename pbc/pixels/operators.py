@@ -34,6 +34,7 @@ from scipy import ndimage
 from torch import Tensor
 
 from pbc.io import atomic_path
+from pbc.validate import FULL_IMAGE_WINDOW
 
 OPERATOR_VERSION = 1
 BOX_RESOLUTION = 512  # Patch.box_512 is a pixel box in a 512 image: the cage's contract (docs/interfaces.md)
@@ -55,9 +56,9 @@ def image_sizes(image_cfg) -> dict:
     ref = int(image_cfg["reference_resolution"])
     whole, patch = int(image_cfg["whole_resolution"]), int(image_cfg["patch_resolution"])
     pad = int(image_cfg["pad"])
-    rows = image_cfg.get("whole_rows", None) or (0.0, 1.0)
+    rows = image_cfg.get("whole_rows", None) or FULL_IMAGE_WINDOW["whole_rows"]
     return {
-        "whole_sides": tuple(int(s) for s in (image_cfg.get("whole_sides", None) or (0, 1))),
+        "whole_sides": tuple(int(s) for s in (image_cfg.get("whole_sides", None) or FULL_IMAGE_WINDOW["whole_sides"])),
         "whole_rows": (int(round(float(rows[0]) * whole)), int(round(float(rows[1]) * whole))),
         "whole_resolution": whole,
         "patch_resolution": patch,
