@@ -99,6 +99,16 @@ def _world_sum(
     out[row, w] = s
 
 
+@wp.func
+def _safe_ratio(num: wp.float32, denom: wp.float32):
+    """A per-world CG coefficient num / denom, or 0 where the division is undefined (denom ~0, or either
+    NaN): a degenerate world's update is then zero instead of inf/NaN."""
+    r = wp.float32(0.0)
+    if (wp.abs(denom) > 1.0e-30) and (not wp.isnan(denom)) and (not wp.isnan(num)):
+        r = num / denom
+    return r
+
+
 @wp.kernel
 def _cg_direction(
     it: int,
@@ -111,12 +121,7 @@ def _cg_direction(
     new_p = z[i]
     if it > 0:
         w = world[i]
-        num = rTz[it, w]
-        denom = rTz[it - 1, w]
-        beta = wp.float32(0.0)
-        if (wp.abs(denom) > 1.0e-30) and (not wp.isnan(denom)) and (not wp.isnan(num)):
-            beta = num / denom
-        new_p += beta * p[i]
+        new_p += _safe_ratio(rTz[it, w], rTz[it - 1, w]) * p[i]
     p[i] = new_p
 
 
@@ -133,11 +138,7 @@ def _cg_step(
 ):
     i = wp.tid()
     w = world[i]
-    num = rTz[it, w]
-    denom = pTAp[it, w]
-    alpha = wp.float32(0.0)
-    if (wp.abs(denom) > 1.0e-30) and (not wp.isnan(denom)) and (not wp.isnan(num)):
-        alpha = num / denom
+    alpha = _safe_ratio(rTz[it, w], pTAp[it, w])
     r[i] = r[i] - alpha * Ap[i]
     x[i] = x[i] + alpha * p[i]
 
