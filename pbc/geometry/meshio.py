@@ -1,4 +1,5 @@
-"""The one mesh writer: garment meshes (OBJ with UVs and normals, or PLY) and plain meshes (the body).
+"""The one mesh writer: garment meshes (OBJ with UVs and normals, or PLY) and plain meshes (the body);
+and :func:`read_obj`, the reader that gives a textured OBJ back as written.
 
 Every mesh pbc writes for people to open (dataset previews, the training run's ``meshes/``, pbc.evaluate,
 pbc.predict) goes through :func:`write_garment_mesh` or :func:`write_mesh`, atomically. The dataset's own
@@ -16,17 +17,21 @@ The garment OBJ, what a viewer (Blender, MeshLab, ``trimesh.load(path, process=F
     g front / back   the two charts
     f v/vt/vn        triangles, counter-clockwise seen from outside
 
-In trimesh: ``trimesh.load(path, process=False, maintain_order=True)`` gives the garment's V vertices in
-order (vertex i is garment vertex i; one UV per vertex, so a seam vertex keeps one chart's UV);
-``process=False`` alone splits the seams (one vertex per (v, vt) pair, as a renderer needs); without
-``process=False`` trimesh also merges and reorders vertices. A PLY holds positions, normals and faces
-(binary; no UVs: PLY has one UV per vertex and the charts are cut at the seams).
+To read one back in Python: :func:`read_obj` gives the V vertices in the file's order and the face-indexed
+UVs (``uv`` (T, 2), ``face_uv`` (F, 3)), so a seam vertex keeps both its charts' UVs. trimesh cannot give
+both at once: ``trimesh.load(path, process=False, maintain_order=True)`` keeps the order but holds one UV
+per vertex, so a seam vertex keeps one chart's UV and the faces at the seams get a corner UV from the other
+chart (234 of the full shirt's 6,160 faces straddle the two charts); ``process=False`` alone splits the
+seams (one vertex per (v, vt) pair, as a renderer needs); without ``process=False`` trimesh also merges
+and reorders vertices. A PLY holds positions, normals and faces (binary; no UVs: PLY has one UV per
+vertex and the charts are cut at the seams).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -172,3 +177,62 @@ def write_mesh(path: str | Path, vertices, faces, header: Sequence[str] = ()) ->
     else:
         write_text(path, obj_text(v, f, normals=normals, header=header))
     return path
+
+
+class UVMesh(NamedTuple):
+    """A triangle mesh with face-indexed UVs, as an OBJ stores it: nothing merged, split or reordered."""
+
+    vertices: np.ndarray  # (V, 3) float64, the file's `v` lines in order
+    faces: np.ndarray  # (F, 3) int64 0-based vertex ids
+    uv: np.ndarray  # (T, 2) float64, the file's `vt` lines in order (OBJ convention: v up)
+    face_uv: np.ndarray  # (F, 3) int64 0-based ids into uv: corner k of face f sits at uv[face_uv[f, k]]
+
+
+def _obj_index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
+    """A 1-based (or negative, relative) OBJ index -> 0-based; ValueError naming the line otherwise."""
+    try:
+        k = int(token)
+    except ValueError:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {token!r} is not an integer") from None
+    if k == 0 or not -count <= k <= count:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {k} refers to no {kind} ({count} defined so far)")
+    return k - 1 if k > 0 else count + k
+
+
+def read_obj(path: str | Path) -> UVMesh:
+    """Read an OBJ with v, vt and ``f v/vt[/vn]`` lines (any pbc garment mesh, any tool's textured OBJ).
+
+    Vertices stay in the file's order, one per ``v`` line, and every face corner keeps its own ``vt``: a
+    vertex on a UV seam has one UV in each chart's faces. Polygons are fanned into triangles (each corner
+    keeps its vt); normals, groups, materials and other statements are skipped. Raises ValueError naming
+    the file and line for a face corner without a vt index, or an index that refers to nothing."""
+    path = Path(path)
+    where = str(path)
+    verts, uvs, faces, fuvs = [], [], [], []
+    with open(path) as fh:
+        for lineno, line in enumerate(fh, 1):
+            parts = line.split("#", 1)[0].split()
+            if not parts:
+                continue
+            if parts[0] == "v":
+                verts.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "vt":
+                uvs.append([float(x) for x in parts[1:3]])
+            elif parts[0] == "f":
+                fv, ft = [], []
+                for corner in parts[1:]:
+                    idx = corner.split("/")
+                    if len(idx) < 2 or not idx[1]:
+                        raise ValueError(f"{where}: line {lineno}: face corner {corner!r} has no vt index "
+                                         "(read_obj reads textured meshes: export with UVs)")
+                    fv.append(_obj_index(idx[0], len(verts), "vertex", lineno, where))
+                    ft.append(_obj_index(idx[1], len(uvs), "texture coordinate", lineno, where))
+                if len(fv) < 3:
+                    raise ValueError(f"{where}: line {lineno}: a face needs at least 3 corners, got {len(fv)}")
+                for k in range(1, len(fv) - 1):
+                    faces.append((fv[0], fv[k], fv[k + 1]))
+                    fuvs.append((ft[0], ft[k], ft[k + 1]))
+    if not faces:
+        raise ValueError(f"{where}: no faces (f lines)")
+    return UVMesh(np.asarray(verts, np.float64).reshape(-1, 3), np.asarray(faces, np.int64),
+                  np.asarray(uvs, np.float64).reshape(-1, 2), np.asarray(fuvs, np.int64))
