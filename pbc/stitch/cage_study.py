@@ -57,20 +57,24 @@ def figure4(path, basis_iso: PatchBasis, basis_aniso: PatchBasis, label: str) ->
                 for x in cage[:, 0].min() + np.array([0.35, 0.65]) * np.ptp(cage[:, 0]))
     sine = np.sin(6 * ang)
     rows = [("two bumps on the boundary (Fig. 5)", 0.02 * bumps), ("sine wave on the boundary (Fig. 6)", 0.01 * sine)]
-    fig = plt.figure(figsize=(11, 6.6))
+    fig = plt.figure(figsize=(11, 7.2))
+    # one subfigure per row, its perturbation named once above it: the row name no longer sits in a
+    # two-line axes title that ran into the tick labels of the row above
+    subs = fig.subfigures(2, 1, hspace=0.04)
     for r, (name, vals) in enumerate(rows):
+        subs[r].suptitle(name, fontsize=9, fontweight="bold")
         v = torch.from_numpy(vals)[:, None]
         fills = [np.r_[vals, np.zeros(len(pts) - c)],
                  np.r_[vals, basis_iso.fill(v)[:, 0].numpy()],
                  np.r_[vals, basis_aniso.fill(v)[:, 0].numpy()]]
-        titles = ["(a) boundary perturbation", "(b) isotropic basis", f"(c) anisotropic basis ({label})"]
+        titles = ["(a) boundary perturbation", "(b) isotropic basis", f"(c) anisotropic basis\n({label})"]
         for k, (h, t) in enumerate(zip(fills, titles, strict=True)):
-            ax = fig.add_subplot(2, 3, 3 * r + k + 1, projection="3d")
+            ax = subs[r].add_subplot(1, 3, k + 1, projection="3d")
             ax.plot_trisurf(pts[:, 0], -pts[:, 1], h * 100, triangles=faces, cmap="viridis", linewidth=0.1,
                             edgecolor=(0, 0, 0, 0.15), vmin=float(vals.min()) * 100, vmax=float(vals.max()) * 100)
             if k == 0:
                 ax.scatter(cage[:, 0], -cage[:, 1], vals * 100, c="r", s=4)
-            ax.set_title(f"{t}\n{name}" if k == 0 else t, fontsize=8)
+            ax.set_title(t, fontsize=8)
             ax.set_zlabel("dn (cm)", fontsize=7)
             ax.tick_params(labelsize=5)
             ax.view_init(elev=35, azim=-60)
