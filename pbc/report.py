@@ -353,6 +353,45 @@ def _legend_below(fig, ax) -> None:
     fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=7, frameon=False)
 
 
+def curve_styles(labels: list[str], family_min: int = 5) -> tuple[list[dict], dict[str, tuple[int, int]]]:
+    """Colour and legend label of each learning curve, so a 29-run sweep reads: labels that differ only by
+    a trailing number (patch_00 ... patch_27) and number at least ``family_min`` form a family drawn in one
+    colormap over that number (one colorbar, no legend entries); every other run gets a distinct colour and
+    its own legend entry. A single varying choice loses its ``key=`` (``experiment=whole`` -> ``whole``).
+
+    -> ([{"color", "label" (None: no legend entry), "family" (prefix or None), "lw"}] per label,
+    {family prefix: (smallest, largest number)})."""
+    import matplotlib as mpl
+    import numpy as np
+
+    keys = {lb.split("=", 1)[0] for lb in labels if "=" in lb and "," not in lb}
+    short = [lb.split("=", 1)[1] if len(keys) == 1 and "," not in lb and "=" in lb else lb for lb in labels]
+    numbered = [re.fullmatch(r"(.*?)(\d+)", lb) for lb in short]
+    count: dict[str, int] = {}
+    for m in numbered:
+        if m:
+            count[m.group(1)] = count.get(m.group(1), 0) + 1
+    families = {f: (min(int(m.group(2)) for m in numbered if m and m.group(1) == f),
+                    max(int(m.group(2)) for m in numbered if m and m.group(1) == f))
+                for f, n in count.items() if n >= family_min}
+    singles = [i for i, m in enumerate(numbered) if not (m and m.group(1) in families)]
+    # distinct colours for the runs with their own legend entry: tab10, then tab20, then a sampled colormap
+    palette = (mpl.colormaps["tab10"].colors if len(singles) <= 10 else mpl.colormaps["tab20"].colors
+               if len(singles) <= 20 else mpl.colormaps["turbo"](np.linspace(0, 1, len(singles))))
+    styles: list[dict] = [{} for _ in labels]
+    for k, i in enumerate(singles):
+        # the one run outside a family (the whole model beside 28 patches) is drawn black and thicker
+        color = "k" if families and len(singles) == 1 else palette[k]
+        styles[i] = {"color": color, "label": short[i], "family": None, "lw": 1.6 if families else 1.0}
+    cmap = mpl.colormaps["viridis"]
+    for i, m in enumerate(numbered):
+        if m and m.group(1) in families:
+            lo, hi = families[m.group(1)]
+            styles[i] = {"color": cmap((int(m.group(2)) - lo) / max(hi - lo, 1)), "label": None,
+                         "family": m.group(1), "lw": 0.8}
+    return styles, families
+
+
 def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
     """Write the PNGs that have data; returns {name: file name} for the markdown."""
     import matplotlib
@@ -412,30 +451,44 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         ax.set_xlabel("patch id")
         ax.set_ylabel("test vertex error (cm)")
         drawn_std = any(errs)
-        ax.set_title("Hierarchy: per-patch error (bars" + (", ±std over test poses" if drawn_std else "")
-                     + ") vs whole / stitched", fontsize=9)
+        # the error bars are drawn only from a recorded per-pose spread; without one the title says so
+        ax.set_title("Hierarchy: per-patch test error (bars" + (", ±std over test poses" if drawn_std else
+                                                                 "; no per-pose spread recorded, no error bars")
+                     + ") vs whole / stitched (lines)", fontsize=9)
         _legend_below(fig, ax)
         save_figure(fig, out / "hierarchy.png")
         plt.close(fig)
         made["hierarchy"] = "hierarchy.png"
     curved = [r for r in runs if r.curves]
     if curved:
+        import numpy as np
+
+        styles, families = curve_styles([label_of(r, runs) for r in curved])
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), layout="constrained")
         for ax, tags, title in (
             (axes[0], TRAIN_CURVES, "training loss"),
             (axes[1], VAL_CURVES, "validation"),
         ):
             drawn = None
-            for r in curved:
+            # families first, so the runs with their own legend entry are drawn on top of them
+            for r, st in sorted(zip(curved, styles, strict=True), key=lambda x: x[1]["family"] is None):
                 tag = next((t for t in tags if t in r.curves), None)
                 if tag:
                     steps, vals = zip(*r.curves[tag], strict=True)
-                    ax.plot(steps, vals, lw=1, label=label_of(r, runs))
+                    ax.plot(steps, vals, lw=st["lw"], color=st["color"], label=st["label"],
+                            zorder=3 if st["family"] is None else 2)
                     drawn = tag
             ax.set_title(f"{title} ({drawn or 'not logged'})", fontsize=9)
             ax.set_xlabel("step")
             if drawn and all(v > 0 for r in curved for t in [drawn] if t in r.curves for _, v in r.curves[t]):
                 ax.set_yscale("log")
+        for fam, (lo, hi) in families.items():
+            # one colorbar per family of numbered runs instead of one legend entry (and reused colour) each
+            sm = matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(lo, hi), matplotlib.colormaps["viridis"])
+            bar = fig.colorbar(sm, ax=list(axes), shrink=0.9, pad=0.01, aspect=30)
+            bar.set_label(f"{fam.rstrip('_')} number ({fam}{lo:02d} ... {fam}{hi:02d})", fontsize=8)
+            bar.set_ticks(np.unique(np.linspace(lo, hi, min(hi - lo + 1, 8)).round().astype(int)))
+            bar.ax.tick_params(labelsize=7)
         _legend_below(fig, axes[1] if axes[1].get_legend_handles_labels()[0] else axes[0])
         save_figure(fig, out / "learning_curves.png")
         plt.close(fig)
