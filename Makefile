@@ -21,9 +21,9 @@ main: venv
 test: venv
 	$(BIN)/python -m pytest -x
 
-# the quick tier: synthetic data only (no drape, no subprocess jobs); `test` runs everything
+# the quick tier: tests/unit (synthetic data, no drape, no subprocess); `test` runs every tier
 test-fast: venv
-	$(BIN)/python -m pytest -x -m "not slow"
+	$(BIN)/python -m pytest -x tests/unit
 
 lint: venv
 	$(BIN)/ruff check pbc tests bench

@@ -1,28 +1,27 @@
 """Shared fixtures: one real tiny dataset per test session (coarse shirt, a few poses, the real drape),
 the coarse mannequin, and the test tiers. Synthetic garments for fast tests live in tests/helpers/.
 
-Tiers (markers registered in pyproject.toml, --strict-markers): a test that needs the real tiny dataset is
-marked `slow` here automatically; `pytest -m "not slow"` is the quick tier, `make test` runs everything.
+Tiers are folders: tests/unit (synthetic data, no drape, no subprocess; `make test-fast`), tests/integration
+(drapes real data, runs whole jobs), tests/gpu (needs CUDA; skipped elsewhere). (the fixture `unit_tier_rules` here) refuses a unit test that drapes or starts a process, so the quick
+tier stays quick.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import multiprocessing.context
+import subprocess
+
 import pytest
 
-# fixtures that drape real data: any test using them (directly or through another fixture) is `slow`
-SLOW_FIXTURES = {"tiny_dataset", "draped", "foreign"}
-# and tests that take tens of seconds on the 2-core CPU without such a fixture (measured with --durations):
-# node-id prefixes, kept here so the tiers are one list
-SLOW_TESTS = (
-    "tests/test_drape.py::",                                         # the physics engine itself
-    "tests/test_evaluate.py::test_evaluate_writes_all_outputs",      # every seam method on 28 crops
-    "tests/test_evaluate.py::test_stacked_patch_net_matches_loop",
-    "tests/test_stitch.py::test_ground_truth_crops_on_the_real_garment",
-    "tests/test_train.py::test_every_config_composes_and_instantiates",  # builds every experiment's net
-    "tests/test_sweeps.py::test_every_sweep_composes_for_every_value",
-)
+import pbc.sim.batched
+import pbc.sim.drape
+
+# session fixtures that drape real cloth: a unit test may not use them
+DRAPE_FIXTURES = frozenset({"tiny_dataset", "draped", "foreign"})
+UNIT_DIR = Path(__file__).resolve().parent / "unit"
+MOVE = "belongs in tests/integration: the unit tier drapes no cloth and starts no process"
 TINY_SAMPLES = 10  # poses requested; the distortion check discards some (see the manifest)
 
 
@@ -80,6 +79,30 @@ def body(body_cfg):
 
 
 def pytest_collection_modifyitems(config, items):
+    """The folder is the tier; the marker lets `-m "not integration"` select the same set."""
     for item in items:
-        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())) or item.nodeid.startswith(SLOW_TESTS):
-            item.add_marker(pytest.mark.slow)
+        tier = Path(str(item.path)).relative_to(Path(__file__).parent).parts[0]
+        if tier in ("integration", "gpu"):
+            item.add_marker(getattr(pytest.mark, tier))
+
+
+def _refuse(what: str):
+    def refuse(*args, **kwargs):
+        raise RuntimeError(f"this test {what}: it {MOVE}")
+
+    return refuse
+
+
+@pytest.fixture(autouse=True)
+def unit_tier_rules(request, monkeypatch):
+    """The quick tier's rule, enforced: a test in tests/unit drapes no cloth and starts no process; one that
+    needs either fails here with the advice to move it, instead of making the quick tier slow."""
+    if UNIT_DIR not in Path(str(request.node.path)).resolve().parents:
+        return
+    used = DRAPE_FIXTURES & set(request.fixturenames)
+    if used:
+        pytest.fail(f"{request.node.nodeid} uses {sorted(used)} (real drapes): it {MOVE}", pytrace=False)
+    monkeypatch.setattr(subprocess.Popen, "__init__", _refuse("starts a subprocess"))
+    monkeypatch.setattr(multiprocessing.context.BaseContext, "Pool", _refuse("starts a process pool"))
+    monkeypatch.setattr(pbc.sim.drape, "build_drape_sim", _refuse("drapes cloth"))
+    monkeypatch.setattr(pbc.sim.batched.BatchedDrape, "__init__", _refuse("drapes cloth"))

@@ -15,7 +15,7 @@ import pbc.data.datamodule as dmmod
 from pbc.data.dataset import ClothDataset, load_dataset
 from pbc.pixels.reconstruct import images_to_positions
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 IMAGE = OmegaConf.load(ROOT / "conf/image/default.yaml")
 
 

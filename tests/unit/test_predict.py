@@ -16,8 +16,9 @@ from test_robustness import stand_in_dataset
 
 from pbc import cli
 from pbc.predict import ClothPredictor, load_decoder, main, stitch_config
+from pbc.runs import RunRecord, monitor
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 160,
          "margin": 16, "pad": 8, "exact_sample": True, "method": "sparse"}
 
@@ -44,8 +45,8 @@ def fake_run(d: Path, data_dir: Path, kind: str = "whole", patch_id: int | None 
     torch.save({"hyper_parameters": {"net": net_cfg, "identity": identity, "space": space, "kind": kind},
                 "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ck)
     cfg = {"data": {"dir": str(data_dir)}, "image": IMAGE, "model": {"kind": kind, "patch_id": patch_id}}
-    (d / "metrics.json").write_text(json.dumps({"status": "ok", "identity": identity, "config": cfg,
-                                                "best_checkpoint": str(ck)}))
+    RunRecord(kind=kind, optimized_metric=monitor(kind), identity=identity, config=cfg,
+              best_checkpoint=str(ck)).write(d)
     return d
 
 

@@ -8,7 +8,7 @@ import torch
 from pbc.models.decoder import ConvDecoder, count_parameters, group_strides
 from pbc.models.fc import FCNet, fit_pca
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 
 
 def test_whole_preset_parameter_count():

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import pytest
 import torch
-from helpers.run_if import run_if
 
 from pbc.models.decoder import ConvDecoder
 from pbc.predict import DEFAULT_LAYER_MODES, GPU_LAYER_MODES, LoopPatchNet, StackedPatchNet, default_layer_modes
@@ -64,15 +63,3 @@ def test_layout_is_chosen_per_device():
             assert torch.allclose(StackedPatchNet(decoders(), modes).eval()(pose), ref, atol=1e-5), modes
 
 
-@run_if(cuda=True)
-def test_stacked_net_runs_on_the_gpu():
-    pose = torch.randn(4, 90)
-    ref = LoopPatchNet(decoders()).eval()(pose)
-    with torch.inference_mode():
-        for modes in (None, ("bmm",), ("grouped",)):
-            net = StackedPatchNet(decoders(), modes).eval().to("cuda")
-            assert all(t.is_cuda for _, t in every_tensor(net))
-            out = net(pose.cuda())
-            assert out.is_cuda and torch.allclose(out.cpu(), ref, atol=1e-4), modes
-        bf16 = StackedPatchNet(decoders(), dtype=torch.bfloat16).eval().to("cuda")
-        assert (bf16(pose.cuda()).float().cpu() - ref).abs().max() < 0.05

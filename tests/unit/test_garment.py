@@ -12,7 +12,7 @@ import torch
 from pbc.geometry.cage import Cage, boundary_loops, cage_to_json, crop_origin, load_cage, save_cage, validate_cage
 from pbc.geometry.garment import load_garment_config, load_garment_obj, make_tshirt, save_garment_obj
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _cfg(name: str):

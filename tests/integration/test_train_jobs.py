@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 import torch
 from conftest import TINY_SAMPLES
-from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
+from helpers.synthetic import FakeSkinner, two_chart_garment
 
 from pbc.models.module import ClothModule
 from pbc.pixels.operators import ImageOperators
 from pbc.pixels.target import WholeTarget
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "conf"
 
 
@@ -40,39 +40,10 @@ def whole_module(norm="l1", normal_weight=0.01, res=32):
     return m.attach(WholeTarget(FakeSkinner(g.vertices), g.faces, ops, "local")), g
 
 
-def test_one_optimisation_step_lowers_the_loss():
-    torch.manual_seed(0)
-    m, g = whole_module()
-    batch = batch_for(g)
-    opt = m.configure_optimizers()
-    m.train()
-    losses = []
-    for _ in range(3):
-        loss, _ = m.step(batch, "train", 0)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        losses.append(loss.item())
-    m.eval()  # BatchNorm in eval mode: compare on the same footing as training-mode loss is noisy
-    with torch.no_grad():
-        after, _ = m.step(batch, "val", 0)
-    assert losses[1] < losses[0] and np.isfinite(after.item())
 
 
-def test_nan_loss_names_step_and_batch():
-    m, g = whole_module()
-    batch = batch_for(g)
-    batch["verts"][0, 0, 0] = float("nan")
-    with pytest.raises(FloatingPointError, match=r"global step 0.*batch 3.*sample ids"):
-        m.step(batch, "train", 3)
 
 
-def test_checkpoint_of_other_patch_is_refused():
-    m, _ = whole_module()
-    other = dict(m.hparams.identity, resolution=64, patch_id=5)
-    with pytest.raises(ValueError, match=r"resolution: checkpoint 64 vs this run 32"):
-        m.on_load_checkpoint({"hyper_parameters": {"identity": other}})
-    m.on_load_checkpoint({"hyper_parameters": {"identity": dict(m.hparams.identity)}})
 
 
 def _group_options(group: str) -> list[str]:
@@ -110,7 +81,6 @@ def test_every_config_composes_and_instantiates():
                     assert "_target_" in node
 
 
-@pytest.mark.slow
 def test_unknown_experiment_lists_choices():
     r = subprocess.run([sys.executable, "-m", "pbc.train", "+experiment=nope"], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
@@ -194,17 +164,3 @@ def test_resume_from_last(e2e_root, tiny_dataset):
     assert json.loads((run / "metrics.json").read_text())["epochs"] == 3
 
 
-def test_module_optimiser_and_scheduler_come_from_the_config():
-    from hydra.utils import instantiate
-
-    from pbc.config import load_config
-
-    cfg = load_config(["model=patch", "model.lr=0.005", "image.crop_size=80", "paths.output_dir=/tmp/x"])
-    m = instantiate(cfg.model, identity={}, summary={})
-    opt = m.configure_optimizers()  # the default: Adam at model.lr, no scheduler (the paper's schedule)
-    assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["lr"] == 0.005
-    cfg = load_config(["model=patch", "image.crop_size=80", "paths.output_dir=/tmp/x",
-                       "model.scheduler={_target_: torch.optim.lr_scheduler.StepLR, _partial_: true, step_size: 3}"])
-    out = instantiate(cfg.model, identity={}, summary={}).configure_optimizers()
-    assert isinstance(out["lr_scheduler"]["scheduler"], torch.optim.lr_scheduler.StepLR)
-    assert out["lr_scheduler"]["scheduler"].step_size == 3

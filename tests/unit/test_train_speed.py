@@ -12,7 +12,6 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from helpers.run_if import run_if
 from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
 
 from pbc.data.datamodule import ClothDataModule
@@ -192,40 +191,5 @@ def test_bf16_autocast_runs_only_the_network_in_bf16(world):
     assert (out["positions"] - ref["positions"]).abs().max() < 0.05 and torch.isfinite(loss)
 
 
-@run_if(cuda=True)
-def test_cache_on_cuda_equals_cpu_render(world):
-    ds, sk, b = world
-    for t in targets(ds, sk):
-        dm = datamodule(ds, t)
-        batch = next(iter(dm.train_dataloader()))
-        got = dm.on_after_batch_transfer({k: v.cuda() for k, v in batch.items()}, 0)
-        assert t.cache.device.type == "cuda"
-        want = t.render(dict(batch))
-        for k, v in want.items():
-            torch.testing.assert_close(got[k].cpu(), v, rtol=1e-5, atol=1e-6)
 
 
-@run_if(cuda=True)
-@pytest.mark.parametrize("trainer", ["gpu", "ddp", "gpu_bf16"])
-def test_gpu_trainers_run_end_to_end(tiny_dataset, tmp_path, trainer):
-    """`trainer=gpu`, `trainer=ddp` (one device here: the DDP strategy and synced BatchNorm) and bf16-mixed
-    train, test and write metrics on the session's tiny dataset, with the target cache on the GPU."""
-    import json
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from conftest import tiny_overrides
-
-    over = {"gpu": ["trainer=gpu"], "ddp": ["trainer=ddp", "trainer.devices=1"],
-            "gpu_bf16": ["trainer=gpu", "trainer.precision=bf16-mixed"]}[trainer]
-    run = tmp_path / "run"
-    r = subprocess.run([sys.executable, "-m", "pbc.train", *tiny_overrides(tiny_dataset.parent), "+experiment=whole",
-                        "+scale=smoke", *over, "trainer.max_epochs=2", f"hydra.run.dir={run}"],
-                       cwd=Path(__file__).resolve().parents[1], env=dict(os.environ, PBC_ROOT=str(tmp_path)),
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["status"] == "ok" and np.isfinite(metrics["test"]["vertex_error_cm"])
-    assert "target cache" in r.stdout + r.stderr and "on cuda" in r.stdout + r.stderr

@@ -6,7 +6,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PKG = Path(__file__).resolve().parents[1] / "pbc"
+PKG = Path(__file__).resolve().parents[2] / "pbc"
 
 # The data flow, lowest first; a module may import its own stage or an earlier one. The longest matching
 # prefix names a module's stage. The ground floor (io, config, runs) reads and writes files only.

@@ -13,7 +13,7 @@ from pbc.geometry.body import body_sdf, build_body
 from pbc.geometry.garment import load_garment_config, make_tshirt
 from pbc.geometry.shrinkwrap import embed_points, embedded_points, vertex_parts, wrap_positions
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 COARSE_VOXEL = 0.025  # a coarse body mesh keeps the test in seconds
 
 

@@ -21,7 +21,7 @@ from pbc.sim.poses import (
     sampling_settings_from_config,
 )
 
-BODY_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "body" / "mannequin.yaml"
+BODY_CONFIG = Path(__file__).resolve().parents[2] / "conf" / "body" / "mannequin.yaml"
 SMALL = SamplingSettings(block_size=64)  # small blocks keep these tests to a fraction of a second
 
 

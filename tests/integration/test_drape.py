@@ -23,7 +23,7 @@ from pbc.sim.drape import (
     triangle_area_ratios,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RADIUS = 0.08
 
 

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from pbc.edit import EditSpec, apply_edit, patch_mask, place_feature, png_mask, reconstruct, rect_mask
+from pbc.runs import RunRecord, monitor
 
 RES = 64
 
@@ -99,8 +100,6 @@ def test_bad_region_is_one_clear_error(scene):
 def _whole_run(run, res: int = 64):
     """A run dir as pbc.train leaves it (metrics.json + checkpoint of a ClothModule's `net.*`), written
     without Lightning: a narrow untrained decoder whose mean image is random."""
-    import json
-
     from pbc.models.decoder import ConvDecoder
 
     net_cfg = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": 6,
@@ -115,8 +114,8 @@ def _whole_run(run, res: int = 64):
     ck.parent.mkdir(parents=True)
     torch.save({"hyper_parameters": {"net": net_cfg, "space": "local", "identity": identity},
                 "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ck)
-    (run / "metrics.json").write_text(json.dumps({"status": "ok", "best_checkpoint": str(ck), "identity": identity,
-                                                  "config": {"image": image}}))
+    RunRecord(kind="whole", optimized_metric=monitor("whole"), best_checkpoint=str(ck), identity=identity,
+              config={"image": image}).write(run)
     return run
 
 

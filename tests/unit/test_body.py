@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 from pbc.geometry.body import body_sdf, build_body, load_body, pose_body, save_body
 from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
 
-BODY_CONFIG = Path(__file__).resolve().parents[1] / "conf" / "body" / "mannequin.yaml"
+BODY_CONFIG = Path(__file__).resolve().parents[2] / "conf" / "body" / "mannequin.yaml"
 TRIANGLES_DEFAULT = (5_000, 20_000)  # the range conf/body/mannequin.yaml promises at its default voxel
 
 

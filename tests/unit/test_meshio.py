@@ -12,7 +12,7 @@ import trimesh
 from pbc.geometry.garment import load_garment_config, load_garment_obj, make_tshirt, save_garment_obj
 from pbc.geometry.meshio import submesh, vertex_normals, write_garment_mesh, write_mesh
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import tomllib
 
 from pbc import cli
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_every_script_and_command_resolves():
