@@ -17,6 +17,7 @@ convolution unless `layer_modes` says otherwise. Every weight is a parameter or 
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -43,6 +44,46 @@ DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
 # --device cuda prints every layout side by side)
 GPU_LAYER_MODES = ("grouped", "grouped", "grouped", "grouped", "grouped")
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
+# x86 CPU flags (/proc/cpuinfo) of native bf16 arithmetic; without them torch emulates bf16 in software
+# (issue 22: the stacked patch net 30x slower than float32)
+CPU_BF16_FLAGS = ("avx512_bf16", "amx_bf16")
+
+
+def cpu_flags() -> set[str]:
+    """The CPU's feature flags from /proc/cpuinfo (Linux); elsewhere what torch's own probe reports."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    probes = {"avx512_bf16": "_is_avx512_bf16_supported", "amx_bf16": "_is_amx_tile_supported"}
+    return {flag for flag, fn in probes.items() if getattr(torch.cpu, fn, lambda: False)()}
+
+
+def bf16_is_fast(device: str | torch.device) -> bool:
+    """Whether ``device`` runs bfloat16 in hardware: a CUDA GPU with native bf16 (Ampere on; older ones
+    emulate it), a CPU with AVX512-BF16 or AMX. Any other device counts as slow until measured."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported(including_emulation=False)
+    if device.type == "cpu":
+        return bool(cpu_flags() & set(CPU_BF16_FLAGS))
+    return False
+
+
+def predictor_precision(precision: str, device: str | torch.device) -> str:
+    """The precision a predictor runs at: ``precision``, except bfloat16 on a device that emulates it,
+    which runs float32 with a warning. Why fall back rather than only warn: bf16 is here purely for speed
+    (it costs ~0.015 cm), so where it is slower there is nothing to gain from it, and a script written on
+    a bf16 machine (the README's snippet) should not become 30x slower on another."""
+    if precision == "bfloat16" and not bf16_is_fast(device):
+        warnings.warn(f"precision='bfloat16' on {torch.device(device)}: no native bf16 units (CPU flags "
+                      f"{'/'.join(CPU_BF16_FLAGS)} or a bf16 GPU), where it runs many times slower than "
+                      "float32; using float32", UserWarning, stacklevel=3)
+        return "float32"
+    return precision
 
 
 # ----------------------------------------------------------------------------- runs
@@ -208,7 +249,8 @@ class ClothPredictor:
 
     Built by `from_runs`. `model="patches"` (the P patch models + the seam method `method`) or "whole".
     precision: "float32" (exact) or "bfloat16" (the stacked patch net in bf16 on the CPU's AMX/AVX512-bf16
-    units; the stitch, skinning and the whole model stay float32).
+    units; the stitch, skinning and the whole model stay float32). bfloat16 on a device without native bf16
+    runs float32 with a warning (`predictor_precision`); ``self.precision`` is the one used.
     device: where the networks, operators and stitch run ("cpu", "cuda", ...); poses are moved there and
     meshes come back on it. layer_modes: None = the device's default layout (`default_layer_modes`).
     """
@@ -221,6 +263,7 @@ class ClothPredictor:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         if precision != "float32" and backend != "stacked":
             raise ValueError(f"precision={precision!r} needs backend='stacked' (the loop runs the float32 decoders)")
+        precision = predictor_precision(precision, device)
         if threads:
             torch.set_num_threads(int(threads))
         self.dataset, self.space = dataset, space

@@ -50,6 +50,7 @@ from pbc.data.datamodule import ClothDataModule
 from pbc.data.dataset import dataset_fingerprint, run_data_record
 from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write_json
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
+from pbc.models.progress import metric_table, silence_training_noise
 from pbc.pixels.target import VertexTarget
 from pbc.runs import monitor
 from pbc.validate import check_config, check_pose_joints, check_resume, identity_diff, training_identity
@@ -172,6 +173,7 @@ def train(cfg: DictConfig) -> dict:
     training = training_identity(cfg, dataset_fingerprint(dm.data))
     module: ClothModule = instantiate(cfg.model, net=net_config(cfg, dm.target), identity=identity,
                                       summary=summary, training_identity=training).attach(dm.target)
+    silence_training_noise()  # before the Trainer: its constructor logs a tip
     callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
     trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
@@ -229,9 +231,13 @@ def recorded_config(cfg: DictConfig, dm: ClothDataModule) -> dict:
 
 def score(trainer: L.Trainer, module: ClothModule, dm: ClothDataModule, ckpt: str) -> dict[str, dict]:
     """{prefix: {metric: value}} of the best checkpoint on each of ``dm.scoring_dataloaders()``."""
-    res = trainer.test(module, dataloaders=dm.scoring_dataloaders(), ckpt_path=ckpt or None)
+    # verbose=False: Lightning's Rich table cuts metric names and wraps at 80 columns in a log file
+    res = trainer.test(module, dataloaders=dm.scoring_dataloaders(), ckpt_path=ckpt or None, verbose=False)
     merged = {k: float(v) for r in res for k, v in r.items()}
-    return {p: {k.split("/", 1)[1]: v for k, v in merged.items() if k.startswith(p + "/")} for p in TEST_SPLITS}
+    scores = {p: {k.split("/", 1)[1]: v for k, v in merged.items() if k.startswith(p + "/")} for p in TEST_SPLITS}
+    if trainer.is_global_zero:
+        log.info("scores of %s:\n%s", ckpt or "the final weights", metric_table(scores))
+    return scores
 
 
 def log_final(trainer: L.Trainer, summary: dict, metrics: dict) -> None:

@@ -376,9 +376,9 @@ def _tensorboard(trainer):
 
 
 class ImagePanel(L.Callback):
-    """Every ``every_n_epochs`` validation epochs, log pred | truth | |error| for ``num_poses`` fixed val
-    poses (:func:`panel_figure`, fixed scales; tag :func:`panel_tag`); at the end of fit, log one predicted
-    mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
+    """Every ``every_n_epochs`` validation epochs and at the end of fit, log pred | truth | |error| for
+    ``num_poses`` fixed val poses (:func:`panel_figure`, fixed scales; tag :func:`panel_tag`); at the end of
+    fit also log one predicted mesh (``add_mesh``) and write it as OBJ under ``mesh_dir``."""
 
     def __init__(self, every_n_epochs: int = 5, num_poses: int = 4, mesh_dir: str | None = None,
                  error_scale_cm: float = 5.0, offset_scale_cm: float = 10.0) -> None:
@@ -388,6 +388,7 @@ class ImagePanel(L.Callback):
         self.offset_scale_cm = float(offset_scale_cm)
         self.mesh_dir = Path(mesh_dir) if mesh_dir else None
         self._batch: dict | None = None
+        self._panel_step: int | None = None  # global step of the last panel written
 
     def _fixed_batch(self, trainer, pl_module) -> dict | None:
         if self._batch is None:
@@ -423,11 +424,16 @@ class ImagePanel(L.Callback):
         if (epoch + 1) % self.every:
             return
         out = self._predict(trainer, pl_module)
-        if out is None:
+        if out is not None:
+            self._log_panel(tb, trainer, pl_module, out)
+
+    def _log_panel(self, tb, trainer, pl_module, out) -> None:
+        if tb is None or pl_module.target.image_size is None or self._panel_step == trainer.global_step:
             return
         _, t, pred, _ = out
         fig = panel_figure(pred, t["image"], t["mask"], self.error_scale_cm, self.offset_scale_cm)
         tb.add_figure(panel_tag(self.error_scale_cm), fig, global_step=trainer.global_step, close=True)
+        self._panel_step = trainer.global_step
 
     def on_fit_end(self, trainer, pl_module) -> None:
         if not trainer.is_global_zero:
@@ -435,6 +441,9 @@ class ImagePanel(L.Callback):
         out = self._predict(trainer, pl_module)
         if out is None:
             return
+        # a run shorter than every_n_epochs (trainer=smoke) still gets its panel: the final weights', unless
+        # the last validation epoch just wrote it
+        self._log_panel(_tensorboard(trainer), trainer, pl_module, out)
         pos, gt = out[3][0].float().cpu(), out[1]["verts"][0].float().cpu()
         target = pl_module.target
         faces, ids = target.faces.cpu(), target.vertices
