@@ -7,9 +7,11 @@ Every writer in pbc goes through `atomic_path`: a temporary file in the target's
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 import zipfile
 from collections.abc import Iterator
@@ -179,6 +181,78 @@ def require_writable_dir(path: str | os.PathLike, what: str = "output directory"
     return p
 
 
+# ----------------------------------------------------------------------------------------- full disks
+class DiskFull(OSError):
+    """A write failed for want of space (ENOSPC / EDQUOT), named: the path, the bytes needed when known, the fix.
+
+    Raised with its one message (`DiskFull(message)`), so it pickles across worker processes as it is."""
+
+
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT)
+
+
+def out_of_space(err: BaseException | None) -> bool:
+    """Whether ENOSPC / EDQUOT is `err` or anywhere in its chain (a full disk in np.save surfaces as the
+    zip writer's or the file close's error, with the OSError two links down)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, OSError) and err.errno in _NO_SPACE:
+            return True
+        err = err.__cause__ or err.__context__
+    return False
+
+
+def _human(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(n) < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return str(n)
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Bytes free to this user on the file system that holds `path` (or its nearest existing parent)."""
+    p = Path(path).absolute()
+    while not p.exists() and p.parent != p:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def _disk_full_message(path, what: str, fix: str, needed: int | None, free: int | None) -> str:
+    amount = ""
+    if needed is not None:
+        amount = f": {_human(needed)} needed" + (f", {_human(free)} free" if free is not None else "")
+    return f"no space left on the device holding {what} {path}{amount}; {fix or 'free space there'}"
+
+
+def require_free_space(path: str | os.PathLike, needed: int, what: str = "output", fix: str = "") -> None:
+    """Refuse up front (DiskFull naming `path`, `needed` and the free bytes) when `needed` bytes will not fit
+    at `path`, so nothing is half-written; a little headroom (1 MiB) is kept for metadata."""
+    free = free_bytes(path)
+    if needed + 2**20 > free:
+        raise DiskFull(_disk_full_message(path, what, fix, int(needed), int(free)))
+
+
+@contextlib.contextmanager
+def naming_full_disk(path: str | os.PathLike, what: str = "output", fix: str = "",
+                     needed: int | None = None) -> Iterator[None]:
+    """Turn an ENOSPC / EDQUOT `OSError` raised in the block (numpy, zipfile, json...: often chained two or
+    three deep) into one DiskFull naming `path`, the bytes needed if known and `fix`. Writers inside should
+    use `atomic_path`, which removes its temporary file, so nothing is left half-written."""
+    try:
+        yield
+    except DiskFull:
+        raise
+    except Exception as err:
+        if not out_of_space(err):
+            raise
+        free = None
+        with contextlib.suppress(OSError):
+            free = free_bytes(path)
+        raise DiskFull(_disk_full_message(path, what, fix, needed, free)) from None
+
+
 # ----------------------------------------------------------------------------------------- locks
 class LockHeld(RuntimeError):
     """Another process holds a pbc lock file (see `dir_lock`)."""
@@ -248,3 +322,11 @@ def dir_lock(path: str | os.PathLike, what: str = "this directory", shared: bool
             with contextlib.suppress(OSError):
                 path.unlink()
         os.close(fd)
+
+
+def lock_holder(path: str | os.PathLike) -> str:
+    """Who holds the lock file `path` as `dir_lock` wrote it ("pid N on HOST since TIME"), "" when unknown."""
+    try:
+        return Path(path).read_text().strip()
+    except (OSError, UnicodeDecodeError):
+        return ""

@@ -16,6 +16,7 @@ manifest is byte-identical too.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -23,6 +24,8 @@ import multiprocessing as mp
 import shutil
 import sys
 import time
+from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +40,19 @@ from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
 from pbc.geometry.garments import garment_from_config
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.io import atomic_path, dir_lock, hash_arrays, load_npz, read_json, save_npy, write_json
+from pbc.io import (
+    DiskFull,
+    LockHeld,
+    atomic_path,
+    dir_lock,
+    hash_arrays,
+    load_npz,
+    naming_full_disk,
+    read_json,
+    require_free_space,
+    save_npy,
+    write_json,
+)
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 from pbc.validate import check_config, identity_diff, moving_joints
@@ -189,35 +204,112 @@ def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
 
 
 _SCENE: Scene | None = None
+_INIT_ERROR: BaseException | None = None  # a worker's failed start, raised by its first job (see _init_worker)
+_SAMPLE_FIX = "free space there or set paths.data_dir to a disk with room, then run the same command again"
 
 
 def _init_worker(cfg_yaml: str, threads: int) -> None:
-    global _SCENE
-    torch.set_num_threads(threads)
-    cfg = OmegaConf.create(cfg_yaml)
-    _SCENE, _ = build_scene(cfg)
+    """A drape worker's start: its scene, once. An error is kept and raised by the worker's first job, so the
+    parent gets the exception itself (a failing initializer would only print it and break the pool)."""
+    global _SCENE, _INIT_ERROR
+    try:
+        torch.set_num_threads(threads)
+        cfg = OmegaConf.create(cfg_yaml)
+        _SCENE, _ = build_scene(cfg)
+    except Exception as err:  # re-raised in _scene() by the first job, then the parent stops every worker
+        _INIT_ERROR = err
+
+
+def _scene() -> Scene:
+    if _INIT_ERROR is not None:
+        raise _INIT_ERROR
+    return _SCENE
+
+
+def _write_sample(path: str, rec: dict) -> None:
+    with naming_full_disk(path, "sample file", _SAMPLE_FIX), atomic_path(path, suffix=".npz") as tmp:
+        np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
 
 
 def _work(args: tuple[int, np.ndarray, str]) -> tuple[int, bool, str]:
     i, pose, path = args
-    rec = drape_pose(_SCENE, pose)
-    t0 = time.perf_counter()
-    with atomic_path(path, suffix=".npz") as tmp:
-        np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
-    rec["t_write"] = time.perf_counter() - t0
+    rec = drape_pose(_scene(), pose)
+    _write_sample(path, rec)
     return i, rec["ok"], rec["reason"]
 
 
 def _work_batch(jobs: list[tuple[int, np.ndarray, str]]) -> list[tuple[int, bool, str]]:
     """Drape one batch and write its samples (each atomically): a kill loses at most this batch."""
-    recs = drape_batch(_SCENE, np.stack([pose for _, pose, _ in jobs]))
+    recs = drape_batch(_scene(), np.stack([pose for _, pose, _ in jobs]))
     out = []
     for (i, _, path), rec in zip(jobs, recs, strict=True):
         if not Path(path).is_file():  # left by a batch killed while writing: the same bytes, keep it
-            with atomic_path(path, suffix=".npz") as tmp:
-                np.savez(tmp, positions=rec.pop("positions"), meta=np.array(json.dumps(rec, sort_keys=True)))
+            _write_sample(path, rec)
         out.append((i, rec["ok"], rec["reason"]))
     return out
+
+
+@contextlib.contextmanager
+def _standard_start_method(method: str = "spawn"):
+    """Make multiprocessing's global start method a standard one for the block.
+
+    A spawned child re-applies its parent's *global* start method (multiprocessing.spawn's preparation
+    data), whatever context started it. Inside a joblib (loky) worker -- a Hydra joblib launcher's job --
+    that method is 'loky', which a fresh child cannot find: every drape worker died at start with
+    "ValueError: cannot find context for 'loky'" and multiprocessing.Pool respawned it forever."""
+    current = mp.get_start_method(allow_none=True)
+    if current is None or current in mp.get_all_start_methods():
+        yield
+        return
+    mp.set_start_method(method, force=True)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(ValueError):
+            mp.set_start_method(current, force=True)
+
+
+def map_in_workers(fn, jobs: list, workers: int, initializer=None, initargs: tuple = ()):
+    """Yield `fn(job)` for every job (in completion order) from `workers` fresh processes.
+
+    Spawned explicitly (spawn, not fork: warp and torch threads do not survive a fork; and never the
+    inherited default, which a launcher may have set to its own method, see _standard_start_method). Fails
+    fast: the first job that raises (or a worker whose `initializer` raised) stops every worker and the
+    exception is re-raised here; a worker killed from outside (out of memory) is a RuntimeError saying so.
+    """
+    ctx = mp.get_context("spawn")
+    with _standard_start_method("spawn"):
+        ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=initializer, initargs=initargs)
+        try:
+            pending = {ex.submit(fn, job) for job in jobs}
+            while pending:
+                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                for fut in done:
+                    try:
+                        yield fut.result()
+                    except BrokenProcessPool as err:
+                        raise RuntimeError(
+                            "a drape worker process died without an error (killed from outside, e.g. by the "
+                            "out-of-memory killer); run again with fewer data.workers (data.workers=1 drapes "
+                            "in this process and shows any error here)"
+                        ) from err
+        finally:
+            _stop(ex)
+
+
+def _stop(ex: ProcessPoolExecutor) -> None:
+    """Shut a pool down now: queued jobs cancelled, running workers terminated (a drape can take minutes)."""
+    ex.shutdown(wait=False, cancel_futures=True)
+    terminate = getattr(ex, "terminate_workers", None)  # Python 3.14+
+    if terminate is not None:
+        terminate()
+        return
+    for p in list((getattr(ex, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            p.terminate()
+    for p in list((getattr(ex, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            p.join(5)
 
 
 def _sample_path(work: Path, i: int) -> Path:
@@ -249,23 +341,49 @@ def _check_or_write_fingerprint(out: Path, fp: dict) -> None:
     write_json(path, fp)
 
 
-def generate(cfg: DictConfig) -> Path:
+def generate(cfg: DictConfig, wait_s: float = 0.0) -> Path:
     """Generate (or resume, or merge) the dataset configured by `cfg.data`. Returns its directory.
 
     A second generator on the same directory is refused (pbc.io.LockHeld names the holder): a whole run
     or merge holds `.generate.lock` exclusively; shard runs share it and each holds its own shard lock,
     so shards of one dataset run side by side but never beside a merge (which removes work/).
+    `wait_s` > 0 waits that long for the holder instead, with a log line (training's `ensure_dataset`:
+    the jobs of a multirun started from nothing wait for the one making the data, then find it finished).
     """
     check_config(cfg)  # typed values before any work: data.shard=1.0 is not shard 1
     out = dataset_dir(cfg)
     if (out / "manifest.json").is_file() and cfg.data.shard is None:
         return _generate(cfg)  # finished: only reads (the directory may be read-only)
     shard = cfg.data.shard
-    with dir_lock(out / ".generate.lock", f"dataset {out}", shared=shard is not None):
+    with _lock_or_wait(out / ".generate.lock", f"dataset {out}", shard is not None, wait_s):
         if shard is None:
             return _generate(cfg)
-        with dir_lock(out / f".generate-shard{shard}.lock", f"shard {shard} of dataset {out}"):
+        with _lock_or_wait(out / f".generate-shard{shard}.lock", f"shard {shard} of dataset {out}", False, wait_s):
             return _generate(cfg)
+
+
+def _lock_or_wait(path: Path, what: str, shared: bool, wait_s: float) -> contextlib.ExitStack:
+    """`dir_lock`, held by the returned stack; when another process holds it and `wait_s` > 0, one log line
+    naming the holder, then up to `wait_s` seconds of waiting (LockHeld after that, naming the setting)."""
+    stack = contextlib.ExitStack()
+    try:
+        stack.enter_context(dir_lock(path, what, shared=shared))
+        return stack
+    except LockHeld as err:
+        if not wait_s or wait_s <= 0:
+            raise
+        log.warning("%s: waiting for it to finish (at most %.0f s, data.lock_wait_s)",
+                    str(err).split("; wait for it", 1)[0], wait_s)
+    t0 = time.monotonic()
+    try:
+        stack.enter_context(dir_lock(path, what, shared=shared, timeout=wait_s))
+    except LockHeld as err:
+        raise LockHeld(
+            f"{str(err).split('; wait for it', 1)[0]}, still after waiting {wait_s:.0f} s (data.lock_wait_s); "
+            "wait for it to finish and run again, or raise data.lock_wait_s"
+        ) from None
+    log.info("%s is free after %.0f s of waiting: going on", what, time.monotonic() - t0)
+    return stack
 
 
 def _generate(cfg: DictConfig) -> Path:
@@ -311,7 +429,7 @@ def _generate(cfg: DictConfig) -> Path:
     timings["drape_wall"] = time.perf_counter() - t0
     if data.shard is not None:
         return out
-    merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings)
+    merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings, batch=k, num_shards=n_shards)
     return out
 
 
@@ -332,15 +450,12 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
                  "later runs reuse them)", cfg.sim.get("kernel_cache_dir"))
     discarded = 0
     if workers == 1:
-        global _SCENE
-        _SCENE = scene
+        global _SCENE, _INIT_ERROR
+        _SCENE, _INIT_ERROR = scene, None
         results = map(work_fn, jobs)
     else:
-        # spawn, not fork: warp and torch threads do not survive a fork
-        ctx = mp.get_context("spawn")
         # unresolved: run-dir keys (${hydra:...}) exist only in the parent; workers never read them
-        pool = ctx.Pool(workers, _init_worker, (OmegaConf.to_yaml(cfg), 1))
-        results = pool.imap(work_fn, jobs)
+        results = map_in_workers(work_fn, jobs, workers, _init_worker, (OmegaConf.to_yaml(cfg), 1))
     try:
         for result in results:
             for _, ok, _reason in result if batched else [result]:
@@ -350,7 +465,7 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
     finally:
         bar.close()
         if workers > 1:
-            pool.terminate()
+            results.close()  # stops the workers when the loop ended early (an error, ctrl-C)
 
 
 class _LogLines:
@@ -383,14 +498,41 @@ def _warp_cache_filled(sim: DictConfig) -> bool:
     return bool(d) and Path(d).is_dir() and any(Path(d).iterdir())
 
 
-def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings) -> None:
-    """Collect all sample files into the final arrays and write the manifest last."""
+# what a merge writes, the manifest last (its presence marks a finished dataset)
+MERGED_FILES = ("garment.obj", "cage.json", "body.npz", "embedding.npz", "poses.npy", "verts.npy", "angles.npy",
+                "timings.json", "manifest.json")
+
+
+def missing_shards(work: Path, num_poses: int, batch: int = 1, num_shards: int = 1) -> dict[int, list[int]]:
+    """{shard: its pose indices without a sample file} for the shards not finished (batch b of `batch`
+    consecutive poses belongs to shard b % num_shards, as `_generate` deals them)."""
+    out: dict[int, list[int]] = {}
+    for i in range(num_poses):
+        if not _sample_path(work, i).is_file():
+            out.setdefault((i // max(1, batch)) % max(1, num_shards), []).append(i)
+    return out
+
+
+def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings,
+          batch: int = 1, num_shards: int = 1) -> None:
+    """Collect all sample files into the final arrays and write the manifest last.
+
+    An unfinished shard is named (a killed shard job: run it again, it resumes). The space the arrays
+    need is checked before anything is written, and a disk that fills up anyway is one DiskFull naming
+    the dataset, the bytes and the fix; the files this merge wrote are then removed (work/ is kept), so
+    the directory never looks finished or half-merged.
+    """
     work = out / "work"
-    missing = [i for i in range(len(poses)) if not _sample_path(work, i).is_file()]
+    missing = missing_shards(work, len(poses), batch, num_shards)
     if missing:
+        n = sum(map(len, missing.values()))
+        which = "; ".join(f"shard {s} of {num_shards}: {len(ids)} missing (first {ids[:5]})"
+                          for s, ids in sorted(missing.items())) if num_shards > 1 else f"first {missing[0][:5]}"
+        shards = ",".join(str(s) for s in sorted(missing))
         raise RuntimeError(
-            f"cannot merge {out}: {len(missing)} of {len(poses)} samples are missing (first: {missing[:5]}); "
-            "run the remaining shards first"
+            f"cannot merge {out}: {n} of {len(poses)} samples are missing ({which}); "
+            + (f"run the unfinished shard(s) again (data.shard={shards} with the same overrides; they resume "
+               "where they stopped), then merge" if num_shards > 1 else "run the same command again to finish them")
         )
     kept, reasons, residuals, stage = [], {}, [], {"skin": 0.0, "drape": 0.0}
     positions = []
@@ -414,13 +556,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         "val": sorted(order[n_train : n_train + n_val].tolist()),
         "test": sorted(order[n_train + n_val :].tolist()),
     }
-    save_garment_obj(scene.garment, out / "garment.obj")
-    save_cage(scene.cage, out / "cage.json")
-    save_body(scene.body, out / "body.npz")
-    save_embedding(scene.embedding, out / "embedding.npz")
-    save_npy(out / "poses.npy", poses[kept])
-    save_npy(out / "verts.npy", np.stack(positions).astype(np.float32))
-    save_npy(out / "angles.npy", angles[kept].astype(np.float32))
+    verts = np.stack(positions).astype(np.float32)
     # wall times differ between runs: they go to timings.json so the manifest stays byte-identical
     timed = {f"{name}_{k}": v for name, st in (("shrinkwrap", wrap_stats), ("poses", pose_stats))
              for k, v in st.items() if "seconds" in k}
@@ -441,9 +577,40 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         drape_residual={"mean": float(np.mean(residuals)), "max": float(np.max(residuals))},
     )
     timings = dict(timings, **timed, **{f"{k}_cpu_total": v for k, v in stage.items()})
-    write_json(out / "timings.json", _plain(timings))
-    write_json(out / "manifest.json", manifest)  # last: its presence marks a finished dataset
+    arrays = {"poses.npy": poses[kept], "verts.npy": verts, "angles.npy": angles[kept].astype(np.float32)}
+
+    fix = (f"free space there (or move {out} to a disk with room and point paths.data_dir at it), then run the "
+           "same command again: the drapes in work/ are kept and only the merge is redone")
+    needed = sum(a.nbytes for a in arrays.values()) + _scene_bytes(scene)
+    require_free_space(out, needed, "dataset", fix)
+    try:
+        with naming_full_disk(out, "dataset", fix, needed):
+            _write_merged(out, scene, arrays, manifest, timings)
+    except DiskFull:
+        for name in MERGED_FILES:  # each was written whole (atomic_path), but together they are half a dataset
+            with contextlib.suppress(OSError):
+                (out / name).unlink()
+        raise
     shutil.rmtree(work, ignore_errors=True)
+
+
+def _scene_bytes(scene: Scene) -> int:
+    """About what the scene's files take (body, embedding, garment): arrays' bytes, text formats x4."""
+    arrays = [scene.body.vertices, scene.body.faces, scene.body.weights, scene.embedding.face, scene.embedding.bary]
+    arrays += [scene.garment.vertices, scene.garment.faces, scene.garment.uv]
+    return 4 * sum(int(a.nbytes) if hasattr(a, "nbytes") else a.numel() * a.element_size() for a in arrays)
+
+
+def _write_merged(out: Path, scene: Scene, arrays: dict[str, np.ndarray], manifest: dict, timings: dict) -> None:
+    """The dataset's files, each atomically, the manifest last (its presence marks a finished dataset)."""
+    save_garment_obj(scene.garment, out / "garment.obj")
+    save_cage(scene.cage, out / "cage.json")
+    save_body(scene.body, out / "body.npz")
+    save_embedding(scene.embedding, out / "embedding.npz")
+    for name, a in arrays.items():
+        save_npy(out / name, a)
+    write_json(out / "timings.json", _plain(timings))
+    write_json(out / "manifest.json", manifest)
 
 
 def split_sizes(n: int) -> tuple[int, int]:

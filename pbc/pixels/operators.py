@@ -233,16 +233,18 @@ def _read_cache(path: Path, resolution: int) -> dict[str, np.ndarray] | None:
 
 
 def cache_dirs(cache_dir: str | Path | None) -> list[Path]:
-    """Where operators are looked for, in order: `cache_dir` (e.g. `<dataset>/operators`), then, only when
-    `cache_dir` is not writable (a dataset on read-only shared storage), the user cache dir
-    (pbc.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators)."""
-    from pbc.io import is_writable_dir, user_cache_dir
+    """Where operators are looked for, in order: `cache_dir` (e.g. `<dataset>/operators`), then the user
+    cache dir (pbc.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators),
+    which also takes them when `cache_dir` cannot (read-only, or a full disk that still looks writable)."""
+    from pbc.io import user_cache_dir
 
     if cache_dir is None:
         return []
-    if is_writable_dir(cache_dir):
-        return [Path(cache_dir)]
-    return [Path(cache_dir), user_cache_dir("operators")]
+    user = user_cache_dir("operators")
+    return [Path(cache_dir)] if Path(cache_dir).absolute() == user.absolute() else [Path(cache_dir), user]
+
+
+_CACHE_WARNED: set[str] = set()  # cache targets already warned about in this process: one warning each
 
 
 def load_or_build(
@@ -250,26 +252,39 @@ def load_or_build(
 ):
     """`build_operators`, cached as `operators_<hash>.npz` in `cache_dir` (atomic write).
 
-    A corrupt or incomplete cache file is rebuilt and overwritten. When `cache_dir` is not writable (a
-    dataset on shared read-only storage) the operators are cached in the user cache dir instead
-    (`$PBC_CACHE_DIR/operators`, else ~/.cache/pbc/operators); when neither is writable they are built
-    in memory, with a warning.
+    A corrupt or incomplete cache file is rebuilt and overwritten. When `cache_dir` cannot take the file
+    (a dataset on read-only shared storage, or a full disk) the operators are cached in the user cache dir
+    instead (`$PBC_CACHE_DIR/operators`, else ~/.cache/pbc/operators) and found there by later runs; when
+    neither can, they are built in memory, with one warning per process.
     """
+    from pbc.io import is_writable_dir, out_of_space
+
     dirs = cache_dirs(cache_dir)
     name = f"operators_{operator_key(garment, resolution, pad, exact)}.npz"
     for d in dirs:
         arrays = _read_cache(d / name, resolution)
         if arrays is not None:
             return arrays
+        if (d / name).is_file() and is_writable_dir(d):
+            break  # a corrupt file where it belongs: rebuilt and overwritten there, not shadowed by another copy
     arrays = build_operators(garment, resolution, pad, exact)
-    if dirs:
-        target = dirs[-1] / name  # the dataset's dir when writable, else the user cache
+    failed = []
+    for d in dirs:  # the dataset's dir first, then the user cache
+        if not is_writable_dir(d):
+            failed.append(f"{d} is not writable")
+            continue
         try:
-            with atomic_path(target, suffix=".npz") as tmp:
+            with atomic_path(d / name, suffix=".npz") as tmp:
                 np.savez(tmp, **arrays)
-        except OSError as err:
-            warnings.warn(f"cannot cache operators at {target} ({err}); they are rebuilt on every run: "
-                          "set PBC_CACHE_DIR to a writable directory", stacklevel=2)
+            return arrays
+        except Exception as err:  # a full disk passes the writable test and fails here, maybe chained
+            if not (isinstance(err, OSError) or out_of_space(err)):
+                raise
+            failed.append(f"{d}: {getattr(err, 'strerror', None) or err}")
+    if failed and str(dirs[-1]) not in _CACHE_WARNED:
+        _CACHE_WARNED.add(str(dirs[-1]))
+        warnings.warn(f"cannot cache operators ({'; '.join(failed)}); they are rebuilt on every run: free space "
+                      "there or set PBC_CACHE_DIR to a writable directory with room", stacklevel=2)
     return arrays
 
 
