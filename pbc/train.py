@@ -68,13 +68,17 @@ def output_dir(cfg: DictConfig) -> Path:
 
 
 def ensure_dataset(cfg: DictConfig) -> Path:
-    """Make the configured dataset when it is missing (the entry point's job, not the DataModule's)."""
+    """Make the configured dataset when it is missing (the entry point's job, not the DataModule's).
+
+    When another process is making it already (the first job of a multirun started from nothing holds
+    its generation lock), wait for that one, at most ``data.lock_wait_s`` seconds with a log line, and
+    train on what it made, instead of failing with LockHeld."""
     data_dir = Path(cfg.data.dir)
     if not (data_dir / "manifest.json").is_file():
         from pbc.data.generate import generate  # heavy (newton/warp): only when data must be made
 
         log.info("no dataset at %s: making it first (python -m pbc.generate)", data_dir)
-        generate(cfg)
+        generate(cfg, wait_s=float(OmegaConf.select(cfg, "data.lock_wait_s", default=0) or 0))
     return data_dir
 
 
