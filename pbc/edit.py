@@ -40,11 +40,6 @@ from pbc.io import save_figure, save_npy, write_json
 CM = 100.0
 
 
-# EditSpec's numeric fields and the pbc.edit flags that set them (named in its error)
-EDIT_FLAGS = {"shift_u": "--shift-u", "shift_v": "--shift-v", "normal": "--normal", "normal_gain": "--normal-gain",
-              "feature_amplitude": "--feature-amplitude"}
-
-
 @dataclass(frozen=True)
 class EditSpec:
     """An image edit; every field at its default is the identity. Lengths in metres."""
@@ -55,19 +50,6 @@ class EditSpec:
     normal_gain: float = 0.0  # dn *= (1 + gain) inside the mask
     feature: np.ndarray | None = None  # (2, H, W) painted field in [0, 1] (see `place_feature`)
     feature_amplitude: float = 0.0  # metres added to dn where the feature is 1
-
-    def __post_init__(self) -> None:
-        # checked here, when the edit is made and before anything is written: a NaN (--normal nan) would
-        # otherwise flow through every pixel and vertex into edited.npy and after.obj
-        bad = []
-        for name, flag in EDIT_FLAGS.items():
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) \
-                    or not np.isfinite(float(v)):
-                bad.append(f"{name}={v!r} ({flag})")
-        if bad:
-            raise ValueError(f"edit values must be finite numbers (metres; normal_gain a factor): got "
-                             f"{', '.join(bad)}; pass e.g. --normal 0.01")
 
     def is_identity(self) -> bool:
         return (self.shift_u == 0 and self.shift_v == 0 and self.normal == 0 and self.normal_gain == 0
@@ -229,12 +211,13 @@ def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> So
         image, anchors, frames = t["image"], t["anchors"], t["frames"]
         what = f"dataset sample {index}"
     else:
-        from pbc.predict import load_decoder, read_run
-        from pbc.runs import run_image_config
+        from pbc.predict import load_decoder
+        from pbc.runs import read_run, run_image_config
 
         info = read_run(run)
         if info.kind != "whole":
-            raise ValueError(f"{run}: a {info.kind!r} run; image editing needs a whole-shirt run (6-channel image)")
+            raise ValueError(f"{run}: a {info.kind.value!r} run; image editing needs a whole-shirt run "
+                             "(6-channel image)")
         net, hp = load_decoder(info.checkpoint)
         target = make_target(ds, run_image_config(info, image_cfg), "whole", space=hp.get("space", "local"))
         with torch.inference_mode():
@@ -244,7 +227,7 @@ def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> So
                              f"says {target.image_size}; pass the run's image.whole_resolution as an override")
         image = image * target.ops.image_mask()
         anchors, frames = target.skinner(pose)
-        what = f"prediction of {info.dir} for the pose of sample {index}"
+        what = f"prediction of {info.path} for the pose of sample {index}"
     return Source(image.contiguous(), anchors, frames, target.ops, target.space, ds.garment, ds.cage, what)
 
 
@@ -337,8 +320,6 @@ def run_edit(args) -> dict:
     from pbc.data.dataset import load_dataset
     from pbc.geometry.garment import save_garment_obj
 
-    # the numbers first (EditSpec checks them), before the dataset is opened or anything written
-    EditSpec(args.shift_u, args.shift_v, args.normal, args.normal_gain, None, args.feature_amplitude)
     cfg = load_config(args.overrides + ([f"image.whole_resolution={args.resolution}"] if args.resolution else []))
     ds = load_dataset(args.data_dir or cfg.data.dir)
     src = source_from_dataset(ds, args.sample, cfg.image, run=args.run)

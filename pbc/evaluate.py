@@ -4,7 +4,7 @@ One job: score, on a split of the dataset (test by default), the whole-garment m
 models of the dataset's cage (28 on the T-shirt) stitched under every seam method, the same stitcher fed
 ground-truth crops, and the representation floor S(R(x)) at both resolutions; then write into the Hydra run dir:
 
-    metrics.json    per entry: vertex error (cm), normal error (1 - cos), seam jump (cm), interior jump;
+    metrics.json    per entry: vertex error (cm), normal distance (1 - cos), seam jump (cm), interior jump;
                     plus the patches' disagreement across seams before blending
     metrics.md      the same as a markdown table
     error_maps.png  per-vertex error rendered on the front/back cloth images, one row per entry
@@ -18,7 +18,6 @@ ground truth does not); "interior jump" is the same over all other edges, for sc
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ from pbc.data.dataset import run_data_record
 from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
 from pbc.pixels.frames import from_offsets
+from pbc.runs import INTERIOR_JUMP, NORMAL_DISTANCE, SEAM_JUMP, VERTEX_ERROR, RunRecord
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
 from pbc.predict import ClothPredictor, fit_training_pca
 from pbc.stitch.pca import dataset_hash, load_pca, save_pca
@@ -47,10 +47,10 @@ def _scores(pos, gt, faces, seam, interior) -> dict[str, torch.Tensor]:
     """Per-sample scores (B,) of positions pos against gt (B, V, 3)."""
     n_p, n_g = vertex_normals(pos, faces), vertex_normals(gt, faces)
     return {
-        "vertex_error_cm": (pos - gt).norm(dim=-1).mean(1) * CM,
-        "normal_error": (1 - (n_p * n_g).sum(-1)).mean(1),
-        "seam_jump_cm": edge_jump(pos, gt, seam) * CM,
-        "interior_jump_cm": edge_jump(pos, gt, interior) * CM,
+        VERTEX_ERROR: (pos - gt).norm(dim=-1).mean(1) * CM,
+        NORMAL_DISTANCE: (1 - (n_p * n_g).sum(-1)).mean(1),
+        SEAM_JUMP: edge_jump(pos, gt, seam) * CM,
+        INTERIOR_JUMP: edge_jump(pos, gt, interior) * CM,
     }
 
 
@@ -151,14 +151,16 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
         "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()) if disagreement else None,
         "entries": entries, "seconds": round(time.time() - t0, 2),
     }
-    write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    # the run's record: what it measured (the entries, at the top level) and what it was configured with
+    RunRecord(config=OmegaConf.to_container(cfg, resolve=False), data=metrics["data"], seconds=metrics["seconds"],
+              extra={k: v for k, v in metrics.items() if k not in ("data", "seconds")}).write(out)
     write_text(out / "metrics.md", markdown_table(metrics))
     write_figures(out, pred, keep, faces, cfg.stitch.method)
     return metrics
 
 
 def markdown_table(metrics: dict) -> str:
-    cols = ["vertex_error_cm", "normal_error", "seam_jump_cm", "interior_jump_cm"]
+    cols = [VERTEX_ERROR, NORMAL_DISTANCE, SEAM_JUMP, INTERIOR_JUMP]
     what = "Whole vs. stitched patches" if metrics["patch_runs"] is not None else "The whole model"
     lines = [f"# {what} ({metrics['split']}, {metrics['num_samples']} samples)", "",
              "| entry | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]

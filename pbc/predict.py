@@ -33,7 +33,7 @@ from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import image_operators, make_target, patch_crops
-from pbc.runs import NUM_PATCHES, RunInfo, find_runs, read_run, select_patch_runs  # noqa: F401  (re-exported)
+from pbc.runs import ModelKind, Run, find_runs, read_run, select_patch_runs
 from pbc.stitch.pca import check_pca_matches
 from pbc.stitch.seams import NEEDS_WHOLE, build_stitcher
 from pbc.validate import as_poses
@@ -100,7 +100,7 @@ def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
     return net.eval(), hp
 
 
-def open_run_dataset(run: RunInfo, directory: str | Path | None = None) -> datasets.ClothDataset:
+def open_run_dataset(run: Run, directory: str | Path | None = None) -> datasets.ClothDataset:
     """The dataset `run` was trained on: its recorded resolved dir and fingerprint (metrics.json "data"),
     or `directory` (a moved copy), refused with both fingerprints' differences when it is other data.
     Runs written before the record existed fall back to their config's data.dir (or `directory`)."""
@@ -321,14 +321,14 @@ class ClothPredictor:
             raise ValueError("from_runs needs a whole-shirt run dir, or the patch run dirs (one per cage patch) / "
                              "their sweep dir")
         whole = read_run(whole_run) if whole_run else None
-        if whole is not None and whole.kind != "whole":
-            raise ValueError(f"{whole.dir}: a {whole.kind!r} run, not a whole-shirt run")
+        if whole is not None and whole.kind is not ModelKind.WHOLE:
+            raise ValueError(f"{whole.path}: a {whole.kind.value!r} run, not a whole-shirt run")
         first = whole or read_run(find_runs(patch_runs)[0])
         cfg = OmegaConf.create(first.config)
         dataset = open_run_dataset(first, data_dir)
         ghash = str(dataset.manifest.get("garment_hash", ""))
         if whole is not None and whole.garment_hash != ghash:
-            raise ValueError(f"{whole.dir}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
+            raise ValueError(f"{whole.path}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
         runs = select_patch_runs(patch_runs, ghash, len(dataset.cage.patches)) if has_patches else []
         if has_patches and stitch_cfg is None:
             stitch_cfg = stitch_config("average")

@@ -24,25 +24,40 @@ from pathlib import Path
 import yaml
 
 from pbc.io import save_figure, write_text
-from pbc.runs import ALIASES, FAILED, INCOMPLETE, OK, SWEEP_RECORD, Run, expected_jobs, load_runs, scoped_name
+from pbc.runs import (
+    FAILED,
+    INCOMPLETE,
+    INTERIOR_JUMP,
+    NORMAL_DISTANCE,
+    OK,
+    SEAM_JUMP,
+    SWEEP_RECORD,
+    VERTEX_ERROR,
+    ModelKind,
+    Run,
+    expected_jobs,
+    load_runs,
+    monitor,
+    scoped_name,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_FILE = REPO / "sweeps" / "paper.yaml"
 
-# Metric names as pbc.train logs them, per split.
-VERTEX, NORMAL = "vertex_error_cm", "normal_distance"
-# ...and a patch model's, over its patch's vertices only (pbc.runs.scoped_name; older runs read back so)
-PATCH_VERTEX, PATCH_NORMAL = scoped_name(VERTEX, "patch"), scoped_name(NORMAL, "patch")
+# Metric names as pbc.train logs them, per split (pbc.runs defines them)...
+VERTEX, NORMAL = VERTEX_ERROR, NORMAL_DISTANCE
+# ...and a patch model's, over its patch's vertices only (pbc.runs.scoped_name)
+PATCH_VERTEX, PATCH_NORMAL = scoped_name(VERTEX, ModelKind.PATCH), scoped_name(NORMAL, ModelKind.PATCH)
 TABLE1_LOSSES = ("l1", "l2", "l2_normal", "l1_normal")
 LOSS_LABEL = {"l1": "L1", "l2": "L2", "l2_normal": "L2 + N", "l1_normal": "L1 + N"}
 FC_SPACES = (("local", "Off. Loc."), ("root", "Off. Root."), ("position", "Pos. Root."))
 FC_EXPERIMENTS = tuple(f"fc_{m}_{s}" for s, _ in FC_SPACES for m in ("direct", "pca"))
 # Columns of the hierarchy table, in this order, with their headers (pbc.evaluate's entry keys).
-HIERARCHY_COLUMNS = {"vertex_error_cm": "vertex (cm)", "normal_error": "normal (1 - cos)",
-                     "seam_jump_cm": "seam jump (cm)", "interior_jump_cm": "interior jump (cm)"}
+HIERARCHY_COLUMNS = {VERTEX_ERROR: "vertex (cm)", NORMAL_DISTANCE: "normal (1 - cos)",
+                     SEAM_JUMP: "seam jump (cm)", INTERIOR_JUMP: "interior jump (cm)"}
 # Scalar series plotted as learning curves, first found wins.
 TRAIN_CURVES = ("train/loss_step", "train/loss", "train/loss_epoch", "train/image_loss_step")
-VAL_CURVES = ("val/vertex_error_cm", "val/patch_vertex_error_cm", "val/loss")
+VAL_CURVES = (monitor(ModelKind.WHOLE), monitor(ModelKind.PATCH), "val/loss")
 HELD, NOT_HELD, NOT_MEASURED = "held", "did not hold", "not measured"
 TIE = "tie (within 1%)"
 # Two numbers closer than this (relative) neither support nor refute an ordering: with one run per
@@ -113,7 +128,7 @@ def cell(row: Row, key: str, paper_key: str | None = None) -> str:
 
 def _scoped_cell(run: Run, metric: str) -> str:
     """A run's test metric, marked "(patch)" when it is a patch model's (its patch's vertices only)."""
-    whole, patch = run.metrics.get(f"test/{metric}"), run.metrics.get(f"test/{scoped_name(metric, 'patch')}")
+    whole, patch = run.metrics.get(f"test/{metric}"), run.metrics.get(f"test/{scoped_name(metric, ModelKind.PATCH)}")
     return fmt(whole) if patch is None else f"{fmt(patch)} (patch)"
 
 
@@ -146,14 +161,6 @@ def table2(runs: list[Run], paper: dict) -> list[Row]:
     return rows
 
 
-def _patch_id(run: Run) -> int | None:
-    exp = run.get("experiment") or ""
-    if exp.startswith("patch_") and exp[6:].isdigit():
-        return int(exp[6:])
-    pid = run.cfg("model.patch_id")
-    return pid if isinstance(pid, int) and run.cfg("model.kind") == "patch" else None
-
-
 def _expected_patch_ids(expected: dict[str, list[str]] | None) -> set[int]:
     """The patch ids a sweep was launched with: its patch_NN experiments (the T-shirt) and/or its
     model.patch_id values (`+experiment=patch 'model.patch_id=range(0,P)'`, any garment)."""
@@ -166,11 +173,11 @@ def patch_rows(runs: list[Run], expected: dict[str, list[str]] | None = None) ->
     """Each patch model's own test error (over the vertices inside its patch), by patch id, whether the run
     was `+experiment=patch_NN` or `+experiment=patch model.patch_id=N`; the patches the sweep was launched
     with but that left no run dir are listed as missing."""
-    ids = sorted({p for r in runs if (p := _patch_id(r)) is not None} | _expected_patch_ids(expected))
+    ids = sorted({p for r in runs if (p := r.patch_id) is not None} | _expected_patch_ids(expected))
     keys = [f"{s}/{m}" for s in ("train", "test") for m in (PATCH_VERTEX, PATCH_NORMAL)] + [f"test/{PATCH_VERTEX}_std"]
     rows = []
     for i in ids:
-        row = make_row(f"patch_{i:02d}", [r for r in runs if _patch_id(r) == i], {}, keys)
+        row = make_row(f"patch_{i:02d}", [r for r in runs if r.patch_id == i], {}, keys)
         row.select = {"patch_id": str(i)}
         if not row.runs:
             row.error = f"no run with patch id {i}"
@@ -197,7 +204,7 @@ def _entry_label(name: str) -> str:
 def hierarchy_rows(runs: list[Run]) -> list[Row]:
     """Whole vs. stitched per seam method, from the newest `pbc.evaluate` run in the sweep.
 
-    pbc.evaluate's metrics.json holds "entries": {name: {vertex_error_cm, normal_error, seam_jump_cm,
+    pbc.evaluate's metrics.json holds "entries": {name: {vertex_error_cm, normal_distance, seam_jump_cm,
     interior_jump_cm}} for "whole", "patches_<method>", "gt_crops_<method>" and "floor_<res>".
     """
     evals = [r for r in runs if _is_eval(r)]
@@ -647,7 +654,7 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
 
     md += ["", "## Hierarchy: whole vs. stitched patches", ""]
     if hier:
-        present = {k for r in hier for k in r.values} - set(ALIASES.values())  # an alias repeats a column
+        present = {k for r in hier for k in r.values}
         keys = [k for k in HIERARCHY_COLUMNS if k in present] + sorted(present - set(HIERARCHY_COLUMNS))
         md.append(
             _md_table(

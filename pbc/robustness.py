@@ -1,17 +1,21 @@
 """The wrong-body study (paper sec. 1, appendix D.2, Figs. 9-10): does the CNN learn the right cloth when the
 body it skins and embeds with is wrong?
 
-One job: keep the simulated cloth (the base dataset's poses and draped vertices) and change only the body:
-the sculpted shapes t in `robustness.shapes` (t = 0 true, 1 = a thicker chest and belly, see
-pbc/geometry/sculpt.py) and the two painted skinning artifacts. Each body gets a dataset dir that links
-the base arrays and replaces body.npz (same mesh connectivity, so the embedding stays valid), then one
-whole-shirt model is trained on it with the scale's schedule. The report plots train and test vertex error
-against t (Fig. 9), says whether the error stays roughly constant (within `constant_factor` of the true
-body's), and draws a prediction on the too-thick body and on the artifact body with the body drawn through
-the cloth (Fig. 10), with how much of the predicted cloth sits below the wrong body's surface (dn < 0).
+A sweep of the runner (`python -m pbc.sweeps robustness scale=...`, conf/sweep/robustness.yaml): keep the
+simulated cloth (the base dataset's poses and draped vertices) and change only the body: the sculpted
+shapes t in `robustness.shapes` (t = 0 true, 1 = a thicker chest and belly, see pbc/geometry/sculpt.py) and
+the two painted skinning artifacts. The runner's steps:
 
-    python -m pbc.robustness scale=smoke [--dir D] [--trials shape_0.0,shape_2.0] [--report-only]
-    python -m pbc.sweeps robustness scale=cpu
+1. data: the scale's dataset (pbc.generate), as in every sweep;
+2. bodies: `prepare_bodies` gives each trial a dataset dir that links the base arrays and replaces
+   body.npz (same mesh connectivity, so the embedding stays valid);
+3. train: the Hydra multirun over `robustness.trial` (one whole-shirt model per body, the scale's
+   schedule; `robustness.trial=shape_0.0,shape_2.0` runs a subset);
+4. report: `build_report` reads the trial runs back (pbc.runs) and plots train and test vertex error
+   against t (Fig. 9), says whether the error stays roughly constant (within `constant_factor` of the true
+   body's), and draws a prediction on the too-thick body and on the artifact body with the body drawn
+   through the cloth (Fig. 10), with how much of the predicted cloth sits below the wrong body's surface
+   (dn < 0).
 
 Writes under the sweep dir: bodies/<trial>/ (datasets), <trial>/ (run dirs: metrics.json, checkpoints,
 TensorBoard), robustness.json, robustness.md, fig9_error_vs_shape.png, fig10_wrong_body.png.
@@ -22,8 +26,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
-import time
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +35,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.io import read_json, save_figure, write_json, write_text
+from pbc.runs import OK, SWEEP_RECORD, VERTEX_ERROR, Run, default_sweep_dir, expected_jobs, load_runs, sweep_values
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP_CONFIG = ROOT / "conf" / "sweep" / "robustness.yaml"
@@ -104,41 +109,52 @@ def make_bodies(base_dir: Path, sweep_dir: Path, rob: DictConfig, trials: list[s
     return dirs
 
 
-def train_trial(data_dir: Path, run_dir: Path, scale: str, overrides: list[str]) -> dict:
-    """Train the whole-shirt model on one trial's dataset (in this process); returns its metrics."""
-    from pbc.config import load_config
-    from pbc.train import train, write_metrics
+def selected_trials(rob: DictConfig, overrides: list[str] = ()) -> list[str]:
+    """The trials a sweep runs: a `robustness.trial=a,b` override (Hydra's sweep grammar) replaces the
+    sweep's list of every trial."""
+    picked = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("robustness.trial=")]
+    return sweep_values("robustness.trial", picked[-1]) if picked else trial_names(rob)
 
-    keep = [o for o in overrides if not o.lstrip("+").startswith(("data.dir=", "paths.output_dir="))]
-    cfg = load_config(["+experiment=whole", f"+scale={scale}", *keep, f"data.dir={data_dir}",
-                       f"paths.output_dir={run_dir}"])
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg))
-    try:
-        return train(cfg)
-    except Exception as e:  # one failed trial must not lose the others; the report lists it
-        write_metrics(run_dir, {"status": "failed", "error": f"{type(e).__name__}: {e}"})
-        return {"status": "failed", "error": str(e)}
+
+def prepare_bodies(sweep_dir: Path, base_overrides: list[str], overrides: list[str] = ()) -> dict[str, Path]:
+    """The runner's `bodies` step: one dataset dir per selected trial under <sweep_dir>/bodies/, from the base
+    dataset that `base_overrides` (`+scale=...` and the data keys) select, which the `data` step made.
+
+    overrides: the sweep's own (`robustness.*=...`, `robustness.trial=a,b`)."""
+    from pbc.config import load_config
+
+    rob = load_settings(overrides)
+    base_dir = Path(load_config(["+experiment=whole", *base_overrides]).data.dir)
+    if not (base_dir / "manifest.json").is_file():
+        raise FileNotFoundError(f"no base dataset at {base_dir}: the sweep's data step (python -m pbc.generate) "
+                                "makes it")
+    return make_bodies(base_dir, Path(sweep_dir), rob, selected_trials(rob, overrides))
 
 
 # ----------------------------------------------------------------------------- report
-def collect(sweep_dir: Path, trials: list[str]) -> list[dict]:
-    """Per trial: shape, train/test vertex error (cm) from its metrics.json, or its error."""
+def trial_runs(sweep_dir: Path) -> dict[str, Run]:
+    """The sweep's trial runs by trial name (the newest when a trial ran twice)."""
+    runs = [r for r in load_runs(sweep_dir, events=False) if r.get("robustness.trial") or r.cfg("robustness.trial")]
+    return {str(r.get("robustness.trial") or r.cfg("robustness.trial")): r for r in runs}
+
+
+def collect(sweep_dir: Path, runs: dict[str, Run], trials: list[str]) -> list[dict]:
+    """Per trial: shape, train/test vertex error (cm) from its run record, or why there is none."""
     rows = []
     for name in trials:
-        m_path = sweep_dir / name / "metrics.json"
+        run = runs.get(name)
         row = {"trial": name, "shape": shape_of(name)}
-        if not m_path.is_file():
+        if run is None:
             row["status"] = "missing"
         else:
-            m = json.loads(m_path.read_text())
-            row["status"] = m.get("status", "ok")
-            if row["status"] == "ok":
-                row["train_cm"] = float(m.get("train", {}).get("vertex_error_cm", float("nan")))
-                row["test_cm"] = float(m.get("test", {}).get("vertex_error_cm", float("nan")))
-                row["seconds"] = m.get("seconds")
+            row["status"] = run.status
+            if run.status == OK:
+                for split in ("train", "test"):
+                    value = run.record.metric(split, VERTEX_ERROR)
+                    row[f"{split}_cm"] = float("nan") if value is None else value
+                row["seconds"] = run.record.seconds
             else:
-                row["error"] = m.get("error")
+                row["error"] = run.error
         body_m = sweep_dir / "bodies" / name / "manifest.json"
         if body_m.is_file():
             row["mean_baseline"] = mean_baseline(body_m.parent)
@@ -233,8 +249,8 @@ def predict_on(run_dir: Path, data_dir: Path, index: int):
     from pbc.geometry.body import pose_body
     from pbc.pixels.frames import to_offsets
     from pbc.pixels.target import make_target
-    from pbc.predict import load_decoder, read_run
-    from pbc.runs import run_image_config
+    from pbc.predict import load_decoder
+    from pbc.runs import read_run, run_image_config
 
     ds = load_dataset(data_dir)
     info = read_run(run_dir)
@@ -322,21 +338,39 @@ def fig10(path: Path, sweep_dir: Path, trials: list[str], index: int) -> dict:
     return out
 
 
-def report(sweep_dir: Path, rob: DictConfig, trials: list[str], scale: str, seconds: float | None = None) -> dict:
-    """robustness.json / .md and the two figures from the trial run dirs."""
-    rows = collect(sweep_dir, trials)
+def report(sweep_dir: Path, out_dir: Path | None = None) -> dict:
+    """robustness.json / .md and Figs. 9-10 of a sweep dir, from its trial runs' records and body datasets;
+    the settings are those the runs were configured with (their recorded `robustness` node)."""
+    sweep_dir = Path(sweep_dir)
+    out = Path(out_dir) if out_dir else sweep_dir
+    runs = trial_runs(sweep_dir)
+    recorded = next((r.cfg("robustness") for r in runs.values() if isinstance(r.cfg("robustness"), dict)), None)
+    rob = OmegaConf.create(recorded) if recorded else load_settings()
+    # the trials the multirun was launched with (a killed one is listed as missing), then any other run
+    trials = expected_jobs(sweep_dir).get("robustness.trial") or trial_names(rob)
+    trials = list(trials) + sorted(set(runs) - set(trials))
+    rows = collect(sweep_dir, runs, trials)
     v = verdict(rows, float(rob.constant_factor))
-    fig9(sweep_dir / "fig9_error_vs_shape.png", rows)
-    thick = max((r for r in rows if r["shape"] is not None and r.get("status") == "ok"),
+    fig9(out / "fig9_error_vs_shape.png", rows)
+    thick = max((r for r in rows if r["shape"] is not None and r.get("status") == OK),
                 key=lambda r: r["shape"], default=None)
     shown = ([thick["trial"]] if thick else []) + [r["trial"] for r in rows
-                                                    if r["shape"] is None and r.get("status") == "ok"][-1:]
-    pen = fig10(sweep_dir / "fig10_wrong_body.png", sweep_dir, shown, _test_sample(sweep_dir, shown, rob))
-    result = {"scale": scale, "rows": rows, "verdict": v, "penetration": pen, "seconds": seconds,
+                                                    if r["shape"] is None and r.get("status") == OK][-1:]
+    pen = fig10(out / "fig10_wrong_body.png", sweep_dir, shown, _test_sample(sweep_dir, shown, rob))
+    scales = {r.get("scale") for r in runs.values()} - {None}
+    record = sweep_dir / SWEEP_RECORD
+    result = {"scale": ",".join(sorted(scales)) or None, "rows": rows, "verdict": v, "penetration": pen,
+              "seconds": read_json(record).get("seconds") if record.is_file() else None,
               "settings": OmegaConf.to_container(rob, resolve=True)}
-    write_json(sweep_dir / "robustness.json", result)
-    write_text(sweep_dir / "robustness.md", markdown(result))
+    write_json(out / "robustness.json", result)
+    write_text(out / "robustness.md", markdown(result))
     return result
+
+
+def build_report(sweep_dir: Path, out_dir: Path | None = None) -> Path:
+    """The runner's report step for this sweep (what pbc.report.build_report is for the others)."""
+    report(sweep_dir, out_dir)
+    return Path(out_dir or sweep_dir) / "robustness.md"
 
 
 def _test_sample(sweep_dir: Path, shown: list[str], rob: DictConfig) -> int:
@@ -394,33 +428,16 @@ def markdown(res: dict) -> str:
 # ----------------------------------------------------------------------------- entry point
 def run(overrides: list[str], sweep_dir: Path | None = None, trials: list[str] | None = None,
         report_only: bool = False) -> tuple[Path, dict]:
-    """Data, bodies, one training per trial, report. `overrides`: scale=..., robustness.*=..., and any
-    Hydra override of the training runs (trainer.max_epochs=..., datamodule.batch_size=...)."""
-    from pbc.config import load_config
-    from pbc.data.generate import generate
-
+    """`python -m pbc.robustness` is the sweep runner's `python -m pbc.sweeps robustness` (run as that
+    command: the runner imports this module), then the report; report_only: the report of a finished
+    sweep dir alone."""
     scale = next((o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("scale=")), "cpu")
-    rest = [o for o in overrides if not o.lstrip("+").startswith(("scale=", "robustness."))]
-    rob = load_settings(overrides)
-    trials = trials or trial_names(rob)
-    if sweep_dir is None:
-        sweep_dir = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "sweeps" / "robustness" / \
-            f"{scale}_{time.strftime('%Y-%m-%d_%H-%M-%S')}"
-    sweep_dir = Path(sweep_dir).resolve()
-    sweep_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.time()
+    sweep_dir = Path(sweep_dir) if sweep_dir is not None else default_sweep_dir("robustness", scale)
     if not report_only:
-        base_cfg = load_config(["+experiment=whole", f"+scale={scale}", *rest])
-        base_dir = Path(base_cfg.data.dir)
-        if not (base_dir / "manifest.json").is_file():
-            base_dir = generate(base_cfg)
-        dirs = make_bodies(Path(base_dir), sweep_dir, rob, trials)
-        for name, d in dirs.items():
-            run_dir = sweep_dir / name
-            if run_dir.exists():
-                shutil.rmtree(run_dir)  # a trial is re-run whole: stale checkpoints must not be picked
-            train_trial(d, run_dir, scale, rest)
-    return sweep_dir, report(sweep_dir, rob, trials, scale, round(time.time() - t0, 1) if not report_only else None)
+        pick = [f"robustness.trial={','.join(trials)}"] if trials else []
+        subprocess.run([sys.executable, "-m", "pbc.sweeps", "robustness", *overrides, *pick, "--dir", str(sweep_dir),
+                        "--no-report"], check=False)
+    return sweep_dir, report(sweep_dir)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,42 +1,26 @@
-"""Sweeps: run a named sweep end to end.
+"""Sweeps: run a named sweep end to end (the one sweep runner).
 
-`python -m pbc.sweeps NAME [overrides]` makes the data once, runs the training multirun of
-`conf/sweep/NAME.yaml`, then (for `hierarchy`) the stitched evaluation, then `pbc.report`; it records
-the exact commands and wall time in `<sweep dir>/sweep.json`. Reading run dirs back (`Run`,
-`load_runs`) lives in `pbc.runs`, which this module and `pbc.report` both import (names re-exported here).
-Nothing here plots or formats.
+`python -m pbc.sweeps NAME [overrides]` makes the data once, (for `robustness`) one dataset per body
+(`pbc.robustness.prepare_bodies`), runs the training multirun of `conf/sweep/NAME.yaml`, then (for
+`hierarchy`) the stitched evaluation, then the report (`pbc.report.build_report`; the wrong-body study's
+own: `pbc.robustness.build_report`); it records the exact commands and wall time in
+`<sweep dir>/sweep.json`. Run dirs are read back through `pbc.runs`. Nothing here plots or formats.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import shlex
 import subprocess
 import sys
+import traceback
 import time
 from pathlib import Path
 
 from pbc.io import write_text
 from pbc.report import build_report
-from pbc.runs import (  # noqa: F401  (re-exported: the run-dir reader's names, as before)
-    ALIASES,
-    FAILED,
-    INCOMPLETE,
-    METRICS_FILE,
-    OK,
-    SWEEP_RECORD,
-    Run,
-    _read_yaml,
-    expected_jobs,
-    find_run_dirs,
-    flatten,
-    load_run,
-    load_runs,
-    read_events,
-    sweep_values,
-)
+from pbc.runs import OK, SWEEP_RECORD, ModelKind, _read_yaml, default_sweep_dir, load_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 # the sweep group lives with the other config groups: `python -m pbc.train -m +sweep=NAME`
@@ -44,6 +28,8 @@ SWEEP_NAMES = tuple(sorted(p.stem for p in (ROOT / "conf" / "sweep").glob("*.yam
 DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every conf/sweep/*.yaml
 # Overrides that decide the data set: the data step gets these and no others (launcher keys, losses...
 # are not in a single run's config).
+# Steps run in this process (library functions, not commands): the wrong-body study's per-body datasets.
+IN_PROCESS_STEPS = {"bodies": "pbc.robustness.prepare_bodies"}
 _DATA_KEYS = ("data", "garment", "body", "sim", "paths", "seed")
 
 
@@ -62,13 +48,19 @@ def scale_data(scale: str, conf_dir: Path = ROOT / "conf") -> str:
             return str(entry["override /data"])
     raise ValueError(f"conf/scale/{scale}.yaml selects no data set (`- override /data: NAME`)")
 
+def data_overrides(overrides: list[str]) -> list[str]:
+    """The overrides that decide the data set (`_DATA_KEYS`)."""
+    return [o for o in overrides if o.lstrip("+").split("=", 1)[0].split(".")[0] in _DATA_KEYS]
+
+
 
 def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable):
-    """The commands of one sweep, in order: [(step, argv)]."""
+    """The commands of one sweep, in order: [(step, argv)]; argv None: a step made or run at its turn
+    (`evaluate`: its argv names the trained runs; an `IN_PROCESS_STEPS` step: a library call)."""
     if name not in SWEEP_NAMES:
         raise ValueError(f"unknown sweep {name!r}; choose one of {', '.join(SWEEP_NAMES)}")
     scale = _scale_of(overrides)
-    data_ovr = [o for o in overrides if o.lstrip("+").split("=", 1)[0].split(".")[0] in _DATA_KEYS]
+    data_ovr = data_overrides(overrides)
     cmds = [
         # Made once before the parallel jobs, which would otherwise all generate the same data at once.
         (
@@ -96,9 +88,12 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
             ],
         ),
     ]
-    if name == "robustness":  # one body per trial, then one training each and Figs. 9-10 (pbc.robustness)
-        rest = [o for o in overrides if not o.lstrip("+").startswith("scale=")]
-        cmds[1] = ("robustness", [python, "-m", "pbc.robustness", f"scale={scale}", *rest, "--dir", str(sweep_dir)])
+    if name == "robustness":
+        # one dataset per body before the multirun over robustness.trial; each trial's data.dir is its body's
+        # (conf/sweep/robustness.yaml), so a data.dir override names the base data and stays out of training
+        train = cmds[1][1]
+        cmds[1] = ("train", [a for a in train if not a.lstrip("+").startswith("data.dir=")])
+        cmds.insert(1, ("bodies", None))
     if name == "hierarchy":
         # Its argv names the runs, known only once training is over: see evaluate_command.
         cmds.append(("evaluate", None))
@@ -116,8 +111,7 @@ def evaluate_command(sweep_dir: Path, python: str = sys.executable) -> tuple[lis
     whole = [r for r in runs if r.get("experiment") == "whole"]
     # by model kind, not experiment name: the T-shirt's patch_NN, `+experiment=patch model.patch_id=N` on any
     # garment, or a stacked `+experiment=patches` run (pbc.evaluate reads the single-patch runs it exported)
-    patches = [r for r in runs if r.cfg("model.kind") in ("patch", "patches")
-               or (r.get("experiment") or "").startswith("patch")]
+    patches = [r for r in runs if r.kind in (ModelKind.PATCH, ModelKind.PATCHES)]
     if not whole or not patches:
         return None, f"nothing to evaluate: {len(whole)} successful whole runs, {len(patches)} patch runs"
     argv = [
@@ -146,6 +140,31 @@ def _run_logged(argv: list[str], log: Path) -> tuple[int, str | None]:
         code = proc.wait()
     return code, (last_err or f"exit {code}, see {log.name}") if code else None
 
+def _run_in_process(step: str, overrides: list[str], sweep_dir: Path) -> tuple[int, str | None]:
+    """An `IN_PROCESS_STEPS` step; -> (0, None) or (1, its error), the traceback printed."""
+    try:
+        if step == "bodies":
+            from pbc.robustness import prepare_bodies
+
+            prepare_bodies(sweep_dir, [f"+scale={_scale_of(overrides)}", *data_overrides(overrides)], overrides)
+        else:
+            raise ValueError(f"no in-process step {step!r}")
+    except Exception as e:  # recorded like a failed command: the sweep record says which step and why
+        traceback.print_exc()
+        return 1, f"{type(e).__name__}: {e}"
+    return 0, None
+
+
+def build_sweep_report(name: str, sweep_dir: Path, report_dir: Path | None = None) -> Path:
+    """The report of a sweep dir: the wrong-body study's (robustness.md, Figs. 9-10) or the tables and
+    claims of pbc.report (report.md)."""
+    if name == "robustness":
+        from pbc.robustness import build_report as robustness_report
+
+        return robustness_report(sweep_dir, report_dir)
+    return build_report(sweep_dir, report_dir)
+
+
 
 def run_sweep(
     name: str,
@@ -157,8 +176,7 @@ def run_sweep(
 ) -> tuple[Path, int]:
     """Run every step (a failed step is recorded and the rest still run); returns (sweep dir, rc)."""
     if sweep_dir is None:
-        base = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "sweeps" / name
-        sweep_dir = base / f"{_scale_of(overrides)}_{time.strftime('%Y-%m-%d_%H-%M-%S')}"
+        sweep_dir = default_sweep_dir(name, _scale_of(overrides))
     sweep_dir = Path(sweep_dir).resolve()
     sweep_dir.mkdir(parents=True, exist_ok=True)
     record = {
@@ -172,23 +190,28 @@ def run_sweep(
     for step, argv in sweep_commands(name, overrides, sweep_dir, python):
         ts = time.time()
         error = None
-        if argv is None:
-            argv, error = evaluate_command(sweep_dir, python)
-        if argv is None:
-            code = 1
+        entry = {"step": step}
+        if step in IN_PROCESS_STEPS:
+            print(f"[pbc.sweeps] {step}: {IN_PROCESS_STEPS[step]}", flush=True)
+            entry["call"] = IN_PROCESS_STEPS[step]
+            code, error = _run_in_process(step, overrides, sweep_dir)
         else:
-            print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
-            code, error = _run_logged(argv, sweep_dir / f"{step}.log")
-        record["steps"].append(
-            {"step": step, "argv": argv, "returncode": code, "error": error, "seconds": round(time.time() - ts, 1)}
-        )
+            if argv is None:
+                argv, error = evaluate_command(sweep_dir, python)
+            if argv is None:
+                code = 1
+            else:
+                print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
+                code, error = _run_logged(argv, sweep_dir / f"{step}.log")
+        entry.update(argv=argv, returncode=code, error=error, seconds=round(time.time() - ts, 1))
+        record["steps"].append(entry)
         rc = rc or code
-        if step == "data" and code != 0:
+        if step in ("data", "bodies") and code != 0:
             break  # no data, no runs: the train step would fail the same way in every job
     record["seconds"] = round(time.time() - t0, 1)
     write_text(sweep_dir / SWEEP_RECORD, json.dumps(record, indent=1))
     if report:
-        print(f"[pbc.sweeps] report: {build_report(sweep_dir, report_dir)}", flush=True)
+        print(f"[pbc.sweeps] report: {build_sweep_report(name, sweep_dir, report_dir)}", flush=True)
     return sweep_dir, rc
 
 

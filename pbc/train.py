@@ -52,7 +52,7 @@ from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.models.progress import metric_table, silence_training_noise
 from pbc.pixels.target import VertexTarget
-from pbc.runs import monitor
+from pbc.runs import RunRecord, monitor
 from pbc.validate import check_config, check_pose_joints, check_resume, identity_diff, training_identity
 
 log = logging.getLogger(__name__)
@@ -193,17 +193,19 @@ def train(cfg: DictConfig) -> dict:
     # the test split, then the training split (Table 1's training error), each under its own prefix
     scores = score(trainer, module, dm, best_path) if cfg.get("test", True) else {}
     mon = monitor(cfg.model.kind)  # val/patch_vertex_error_cm for a patch model: its patch's vertices only
-    metrics = {
-        "status": "ok", "optimized_metric": mon, "val_best": {mon.split("/", 1)[1]: best_val},
-        "test": scores.get("test", {}), "train": scores.get("train_final", {}), "best_checkpoint": best_path,
-        "epochs": trainer.current_epoch, "seconds": round(time.time() - t0, 2), "summary": summary,
-        "identity": identity, "training_identity": training, "data": run_data_record(dm.data),
-        "config": recorded_config(cfg, dm),
-    }
+    record = RunRecord(
+        kind=cfg.model.kind, optimized_metric=mon, val_best={mon.split("/", 1)[1]: best_val},
+        test=scores.get("test", {}), train=scores.get("train_final", {}), best_checkpoint=best_path or None,
+        epochs=trainer.current_epoch, seconds=round(time.time() - t0, 2), summary=summary, identity=identity,
+        training_identity=training, data=run_data_record(dm.data), config=recorded_config(cfg, dm),
+        # best_checkpoint may lie in the resumed run's dir (KeepBestOfResumedRun)
+        extra={"resumed_from": ckpt} if ckpt else {},
+    )
     if hasattr(module, "export_runs") and best_path:  # all patches in one job -> P single-patch run dirs
-        metrics["patch_runs"] = module.export_runs(best_path, out, metrics, dm.data)
+        record.exported_runs = module.export_runs(best_path, out, record, dm.data)
+    metrics = record.to_dict()
     log_final(trainer, summary, metrics)
-    write_metrics(out, metrics)
+    write_metrics(out, record)
     return metrics
 
 
@@ -254,10 +256,12 @@ def log_final(trainer: L.Trainer, summary: dict, metrics: dict) -> None:
             lg.finalize("success")
 
 
-def write_metrics(out: Path, metrics: dict) -> Path:
-    """metrics.json of a run (what pbc.evaluate, pbc.report and the main job read), atomically."""
-    write_json(out / "metrics.json", metrics)
-    return out / "metrics.json"
+def write_metrics(out: Path, record: RunRecord | dict) -> Path:
+    """metrics.json of a run (what pbc.evaluate, pbc.report and the main job read), atomically, through
+    the run record (a dict is read as one, so it is checked the same way: ``RunRecord.failure(...)`` makes
+    a failed run's)."""
+    record = record if isinstance(record, RunRecord) else RunRecord.from_dict(record, str(out / "metrics.json"))
+    return record.write(out)
 
 
 @hydra.main(config_path="../conf", config_name="config", version_base="1.3")

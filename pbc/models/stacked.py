@@ -24,13 +24,13 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from pbc.io import atomic_path, write_json
+from pbc.io import atomic_path
 from pbc.losses import edge_loss, image_loss, normal_loss
 from pbc.metrics import normal_cosine_distance, vertex_error_cm
 from pbc.models.decoder import ConvDecoder, add_buffer_defaults, group_strides, pose_features, set_pose_joints
-from pbc.models.module import MONITOR, ClothModule
+from pbc.models.module import ClothModule
 from pbc.pixels.reconstruct import edge_lengths, vertex_normals
-from pbc.runs import PATCH_EXPORT_DIR
+from pbc.runs import PATCH_EXPORT_DIR, ModelKind, RunRecord, scoped_name
 
 log = logging.getLogger(__name__)
 DECODER = "pbc.models.decoder.ConvDecoder"
@@ -235,16 +235,17 @@ class StackedPatchModule(ClothModule):
                        "positions": self.target.positions(pred.detach(), t)}
 
     # ------------------------------------------------------------------ export
-    def export_runs(self, checkpoint: str | Path, out_dir: str | Path, metrics: dict, dataset) -> list[str]:
+    def export_runs(self, checkpoint: str | Path, out_dir: str | Path, record: RunRecord, dataset) -> list[str]:
         """Write one single-patch run dir per patch under ``<out_dir>/patches/patch_NN/`` from the stacked
         ``checkpoint``: ``checkpoints/<same name>.ckpt`` (a ClothModule checkpoint of kind ``patch``:
-        hparams with the patch's decoder node and identity, ``net.*`` state) and ``metrics.json`` (the
-        patch's test/train scores, identity, config, best_checkpoint). Returns the run dirs."""
-        return export_patch_runs(checkpoint, out_dir, metrics, self.target, dataset)
+        hparams with the patch's decoder node and identity, ``net.*`` state) and ``metrics.json`` (a patch
+        run's record: the patch's test/train scores, identity, config, best checkpoint). Returns the run dirs."""
+        return export_patch_runs(checkpoint, out_dir, record, self.target, dataset)
 
 
-def export_patch_runs(checkpoint: str | Path, out_dir: str | Path, metrics: dict, target, dataset) -> list[str]:
-    """See :meth:`StackedPatchModule.export_runs`; target: the run's ``PatchesTarget``."""
+def export_patch_runs(checkpoint: str | Path, out_dir: str | Path, record: RunRecord, target,
+                      dataset) -> list[str]:
+    """See :meth:`StackedPatchModule.export_runs`; record: the stacked run's; target: its ``PatchesTarget``."""
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
     if not checkpoint.is_file():
         raise FileNotFoundError(f"cannot export the patch runs: no checkpoint at {checkpoint}")
@@ -257,25 +258,27 @@ def export_patch_runs(checkpoint: str | Path, out_dir: str | Path, metrics: dict
         pid = sub.patch_id
         run = out_dir / PATCH_EXPORT_DIR / f"patch_{pid:02d}"
         ident = target.patch_identity(dataset, p)
-        single = dict(hp, net=net.decoder_config(), kind="patch", patch_id=pid, identity=ident,
-                      summary=dict(hp.get("summary") or {}, kind="patch", patch_id=pid))
+        single = dict(hp, net=net.decoder_config(), kind=ModelKind.PATCH.value, patch_id=pid, identity=ident,
+                      summary=dict(hp.get("summary") or {}, kind=ModelKind.PATCH.value, patch_id=pid))
         state = {f"net.{k}": v for k, v in net.patch_state(p).items()}
         ckpt = run / "checkpoints" / checkpoint.name
         payload = {k: v for k, v in ck.items() if k in ("epoch", "global_step", "pytorch-lightning_version")}
         payload.update(hyper_parameters=single, state_dict=state, exported_from=str(checkpoint))
         with atomic_path(ckpt) as tmp:
             torch.save(payload, tmp)
-        key = f"patch_{pid:02d}/"
-        config = copy.deepcopy(metrics.get("config") or {})
-        config["model"] = dict(config.get("model") or {}, kind="patch", patch_id=pid,
+        config = copy.deepcopy(record.config)
+        config["model"] = dict(config.get("model") or {}, kind=ModelKind.PATCH.value, patch_id=pid,
                                _target_="pbc.models.module.ClothModule", net=net.decoder_config())
-        write_json(run / "metrics.json", {
-            "status": "ok", "optimized_metric": MONITOR,
-            "test": {k[len(key):]: v for k, v in (metrics.get("test") or {}).items() if k.startswith(key)},
-            "train": {k[len(key):]: v for k, v in (metrics.get("train") or {}).items() if k.startswith(key)},
-            "best_checkpoint": str(ckpt), "epochs": metrics.get("epochs"), "identity": ident,
-            "summary": single["summary"], "config": config, "exported_from": str(out_dir),
-        })
+
+        def own(block: dict, key=f"patch_{pid:02d}/") -> dict:
+            # the stacked run logs patch p's metrics as patch_NN/<name>; a patch run's are its scoped names
+            return {scoped_name(k[len(key):], ModelKind.PATCH): v for k, v in block.items() if k.startswith(key)}
+
+        # no optimized_metric: the checkpoint was chosen by the stacked run's mean over patches, not by this
+        # patch's own validation error (exported_from names that run)
+        RunRecord(kind=ModelKind.PATCH, test=own(record.test), train=own(record.train), best_checkpoint=str(ckpt),
+                  epochs=record.epochs, identity=ident, summary=single["summary"], config=config,
+                  data=record.data, exported_from=str(out_dir)).write(run)
         dirs.append(str(run))
     log.info("exported %d single-patch runs under %s", len(dirs), out_dir / PATCH_EXPORT_DIR)
     return dirs

@@ -15,7 +15,7 @@ from conftest import TINY_SAMPLES
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from pbc import sweeps
+from pbc.runs import OK, load_runs, sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "conf"
@@ -44,7 +44,7 @@ def test_every_sweep_composes_for_every_value(name):
     assert params and base.hydra.launcher._target_.endswith("JoblibLauncher")
     jobs = [{}]
     for key, value in params.items():
-        values = sweeps.sweep_values(key, str(value), CONF)
+        values = sweep_values(key, str(value), CONF)
         assert values, f"{name}: {key}={value} selects nothing"
         jobs = [{**j, key: v} for j in jobs for v in values]
     # A glob sweep's options all come from the same files: compose its ends and a middle one.
@@ -100,9 +100,9 @@ def test_smoke_losses_multirun_with_joblib(tmp_path, tiny_data):
     )
     out = r.stdout + r.stderr
     assert r.returncode == 0, out[-4000:]
-    runs = sweeps.load_runs(tmp_path / "sweep")
+    runs = load_runs(tmp_path / "sweep")
     assert sorted(x.get("loss") for x in runs) == ["l1", "l1_normal", "l2", "l2_normal"], out[-2000:]
-    assert all(x.status == sweeps.OK for x in runs), [(x.name, x.error) for x in runs]
+    assert all(x.status == OK for x in runs), [(x.name, x.error) for x in runs]
     assert all(x.get("experiment") == "whole" and x.cfg("data.name") == "tshirt_tiny" for x in runs)
     assert all(x.curves for x in runs)  # TensorBoard events were read back
     data = json.loads((tmp_path / "sweep" / "report.json").read_text())

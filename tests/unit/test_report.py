@@ -1,6 +1,7 @@
 """pbc.report on synthetic sweep dirs laid out exactly as pbc.train / pbc.evaluate leave them.
 
-No training here: each run dir gets `.hydra/*.yaml`, a `metrics.json` in pbc.train's format and a
+No training here: each run dir gets `.hydra/*.yaml`, a `metrics.json` written as pbc.train writes it
+(`pbc.runs.RunRecord`) and a
 TensorBoard events file, so the report's reading, tables, claims and failure handling are checked in
 a second.
 """
@@ -15,7 +16,7 @@ import pytest
 import yaml
 
 from pbc import report, sweeps
-from pbc.sweeps import FAILED, INCOMPLETE, OK, load_runs
+from pbc.runs import FAILED, INCOMPLETE, OK, RunRecord, load_runs
 
 
 def make_run(
@@ -38,7 +39,7 @@ def make_run(
         yaml.safe_dump({"data": {"name": "tshirt_tiny", "num_samples": 16}, "trainer": {"max_epochs": 2}})
     )
     if metrics is not None:
-        (d / "metrics.json").write_text(json.dumps(metrics))
+        RunRecord.from_dict(metrics).write(d)  # validated as every record is
     if curves:
         from torch.utils.tensorboard import SummaryWriter
 
@@ -54,6 +55,7 @@ def ok_metrics(train_v, train_n, test_v, test_n) -> dict:
     # pbc.train's layout, plus the "train" block (best checkpoint over the training split).
     return {
         "status": "ok",
+        "kind": "whole",
         "optimized_metric": "val/vertex_error_cm",
         "val_best": {"vertex_error_cm": test_v},
         "train": {"vertex_error_cm": train_v, "normal_distance": train_n},
@@ -63,6 +65,14 @@ def ok_metrics(train_v, train_n, test_v, test_n) -> dict:
         "config": {"seed": 0},
         "summary": {"lr": 0.001},
     }
+
+
+def patch_metrics(patch_id, train_v, train_n, test_v, test_n) -> dict:
+    """A patch run's record: its metrics over its patch's vertices, under their scoped names."""
+    return {"status": "ok", "kind": "patch", "optimized_metric": "val/patch_vertex_error_cm",
+            "val_best": {"patch_vertex_error_cm": test_v}, "identity": {"kind": "patch", "patch_id": patch_id},
+            "train": {"patch_vertex_error_cm": train_v, "patch_normal_distance": train_n},
+            "test": {"patch_vertex_error_cm": test_v, "patch_normal_distance": test_n, "image_loss": 0.01}}
 
 
 @pytest.fixture(scope="module")
@@ -100,15 +110,16 @@ def sweep(tmp_path_factory) -> Path:
             root,
             f"{6 + i}_experiment=patch_{i:02d}",
             {"experiment": f"patch_{i:02d}", "loss": "l1"},
-            ok_metrics(v, 0.02, v + 0.1, 0.03) | {"test": {"vertex_error_cm": v + 0.1, "vertex_error_cm_std": 0.05}},
+            patch_metrics(i, v, 0.02, v + 0.1, 0.03) | {"test": {"patch_vertex_error_cm": v + 0.1,
+                                                                  "patch_vertex_error_cm_std": 0.05}},
         )
     # pbc.evaluate's layout
     entries = {
-        "whole": {"vertex_error_cm": 0.41, "normal_error": 0.026, "seam_jump_cm": 0.01},
-        "patches_average": {"vertex_error_cm": 0.45, "normal_error": 0.03, "seam_jump_cm": 0.2},
-        "patches_pca": {"vertex_error_cm": 0.38, "normal_error": 0.027, "seam_jump_cm": 0.05},
-        "gt_crops_pca": {"vertex_error_cm": 0.02, "normal_error": 0.001, "seam_jump_cm": 0.001},
-        "floor_256": {"vertex_error_cm": 0.01, "normal_error": 0.001, "seam_jump_cm": 0.0},
+        "whole": {"vertex_error_cm": 0.41, "normal_distance": 0.026, "seam_jump_cm": 0.01},
+        "patches_average": {"vertex_error_cm": 0.45, "normal_distance": 0.03, "seam_jump_cm": 0.2},
+        "patches_pca": {"vertex_error_cm": 0.38, "normal_distance": 0.027, "seam_jump_cm": 0.05},
+        "gt_crops_pca": {"vertex_error_cm": 0.02, "normal_distance": 0.001, "seam_jump_cm": 0.001},
+        "floor_256": {"vertex_error_cm": 0.01, "normal_distance": 0.001, "seam_jump_cm": 0.0},
     }
     make_run(
         root,
@@ -220,11 +231,10 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
     md = (built / "report.md").read_text()
     hier_md = md.split("## Hierarchy")[1]
     header = next(line for line in hier_md.splitlines() if line.startswith("| model |"))
-    # fixed column order, readable names, and normal_error's alias (normal_distance) not repeated
+    # fixed column order, readable names
     assert header == "| model | vertex (cm) | normal (1 - cos) | seam jump (cm) | status |"
     assert "| stitched (pca) | 0.38 | 0.027 | 0.05 | ok |" in md
     patches = {r["label"]: r for r in json.loads((built / "report.json").read_text())["patches"]}
-    # these patch runs predate scoped names (they logged vertex_error_cm): read back under the patch's name
     assert patches["patch_07"]["values"]["test/patch_vertex_error_cm"] == pytest.approx(0.35)
     assert patches["patch_07"]["values"]["test/patch_vertex_error_cm_std"] == pytest.approx(0.05)
     # The runner's evaluation step: the newest whole run and every successful patch run, quoted.
@@ -235,31 +245,25 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
 
 
 def test_patch_metrics_say_their_scope(tmp_path):
-    """A patch run's vertex metrics cover its patch only: read back (old or new names) as patch_*, shown
-    so in the report, never as a whole-garment number; a whole run's keep their names."""
+    """A patch run's vertex metrics cover its patch only: recorded and read back as patch_*, shown so in the
+    report, never as a whole-garment number; a whole run's keep their names."""
     from pbc.runs import monitor, scoped_name
 
     assert monitor("whole") == "val/vertex_error_cm" and monitor("patch") == "val/patch_vertex_error_cm"
+    assert monitor("patches") == "val/vertex_error_cm"  # the stacked run's mean over its patches
     assert scoped_name("vertex_error_cm_std", "patch") == "patch_vertex_error_cm_std"
     assert scoped_name("image_loss", "patch") == "image_loss"
     assert scoped_name("normal_distance", "fc") == "normal_distance"
-    new = ok_metrics(0.2, 0.02, 0.3, 0.03)
-    new["test"] = {"patch_vertex_error_cm": 0.3, "patch_normal_distance": 0.03, "image_loss": 0.01}
-    new["train"] = {"patch_vertex_error_cm": 0.2, "patch_normal_distance": 0.02}
-    new |= {"optimized_metric": "val/patch_vertex_error_cm", "val_best": {"patch_vertex_error_cm": 0.3},
-            "identity": {"kind": "patch", "patch_id": 3}}
-    make_run(tmp_path, "new", {"experiment": "patch_03"}, new,
-             {"val/patch_vertex_error_cm": [0.5, 0.3], "train/vertex_error_cm_epoch": [0.9, 0.4]})
-    make_run(tmp_path, "old", {"experiment": "patch_05"}, ok_metrics(0.2, 0.02, 0.4, 0.03),
-             {"val/vertex_error_cm": [0.6, 0.4]})
+    make_run(tmp_path, "new", {"experiment": "patch_03"}, patch_metrics(3, 0.2, 0.02, 0.3, 0.03),
+             {"val/patch_vertex_error_cm": [0.5, 0.3], "train/patch_vertex_error_cm_epoch": [0.9, 0.4]})
+    make_run(tmp_path, "other", {"experiment": "patch_05"}, patch_metrics(5, 0.2, 0.02, 0.4, 0.03))
     make_run(tmp_path, "whole", {"experiment": "whole", "loss": "l1"}, ok_metrics(0.2, 0.02, 0.5, 0.03))
     runs = {r.name: r for r in load_runs(tmp_path)}
-    for name, test_v in (("new", 0.3), ("old", 0.4)):
+    for name, test_v in (("new", 0.3), ("other", 0.4)):
         r = runs[name]
         assert r.metrics["test/patch_vertex_error_cm"] == test_v and "test/vertex_error_cm" not in r.metrics
         assert r.metrics["val_best/patch_vertex_error_cm"] == test_v and "train/vertex_error_cm" not in r.metrics
-        assert "val/patch_vertex_error_cm" in r.curves and "val/vertex_error_cm" not in r.curves
-    assert "train/patch_vertex_error_cm_epoch" in runs["new"].curves
+        assert r.record.metric("test", "vertex_error_cm") == test_v  # the record looks up the scoped name
     assert runs["whole"].metrics["test/vertex_error_cm"] == 0.5
     assert "test/patch_vertex_error_cm" not in runs["whole"].metrics
     report.build_report(tmp_path, tmp_path / "out")

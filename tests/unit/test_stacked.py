@@ -4,7 +4,6 @@ stacked job equals the single-patch steps, and the export loads as single-patch 
 
 from __future__ import annotations
 
-import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,7 +14,7 @@ from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
 from pbc.models.module import ClothModule
 from pbc.models.stacked import StackedDecoder, StackedPatchModule, export_patch_runs
 from pbc.pixels.target import PatchesTarget, PatchTarget, make_target
-from pbc.runs import find_runs, select_patch_runs
+from pbc.runs import ModelKind, RunRecord, find_runs, monitor, select_patch_runs
 
 IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 256,
          "margin": 16, "pad": 16, "exact_sample": True, "method": "sparse"}
@@ -163,9 +162,11 @@ def test_export_loads_as_single_patch_runs(world, tmp_path):
     ck = run / "checkpoints" / "epoch_004.ckpt"
     ck.parent.mkdir(parents=True)
     torch.save({"hyper_parameters": dict(stacked.hparams), "state_dict": stacked.state_dict(), "epoch": 4}, ck)
-    metrics = {"test": {"vertex_error_cm": 1.0, "patch_01/vertex_error_cm": 0.5}, "config": {"model": {}}}
-    (run / "metrics.json").write_text(json.dumps({"status": "ok", "identity": stacked.hparams.identity}))
-    dirs = export_patch_runs(ck, run, metrics, stacked.target, ds)
+    record = RunRecord(kind="patches", optimized_metric=monitor("patches"), identity=stacked.hparams.identity,
+                       test={"vertex_error_cm": 1.0, "patch_01/vertex_error_cm": 0.5}, config={"model": {}},
+                       data={"dir": str(ds.dir)})
+    record.write(run)
+    dirs = export_patch_runs(ck, run, record, stacked.target, ds)
     assert len(dirs) == 3
     # the stacked run dir stands for its exported runs, alone or inside a sweep dir
     for where in (run, tmp_path):
@@ -179,9 +180,11 @@ def test_export_loads_as_single_patch_runs(world, tmp_path):
         assert hp["identity"] == make_target(ds, IMAGE, "patch", patch_id=p, skinner=stacked.target.skinner
                                              ).identity(ds)
         assert torch.allclose(net(pose), stacked.net(pose)[:, 3 * p:3 * p + 3], atol=1e-6)
-        m = json.loads((r.dir / "metrics.json").read_text())
-        assert m["config"]["model"]["kind"] == "patch" and m["config"]["model"]["patch_id"] == p
-        assert m["test"] == ({"vertex_error_cm": 0.5} if p == 1 else {})
+        m = RunRecord.read(r.path)
+        assert m.kind is ModelKind.PATCH and m.config["model"]["kind"] == "patch" and m.config["model"]["patch_id"] == p
+        # the patch's own metric under its scoped name; the checkpoint was chosen by the stacked run's mean
+        assert m.test == ({"patch_vertex_error_cm": 0.5} if p == 1 else {})
+        assert m.optimized_metric is None and m.exported_from == str(run) and m.data == record.data
         # a single-patch module accepts the exported checkpoint (identity check included)
         single = ClothModule(**{k: v for k, v in hp.items() if k != "summary"})
         single.on_load_checkpoint(torch.load(r.checkpoint, weights_only=False))

@@ -10,7 +10,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+import pbc.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
 from pbc import sweeps
+from pbc.runs import sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "conf"
@@ -32,8 +34,8 @@ def _compose(overrides):
 def test_sweep_names_and_scales():
     assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
     assert SCALES == ["cpu", "gpu", "paper", "smoke"]
-    assert sweeps.sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
-    assert len(sweeps.sweep_values("experiment", "glob([whole,patch_*])")) == 29
+    assert sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
+    assert len(sweep_values("experiment", "glob([whole,patch_*])")) == 29
 
 
 
@@ -108,6 +110,43 @@ def test_runner_commands(tmp_path):
     assert cmds["evaluate"] is None  # built after training, from the runs it made
     with pytest.raises(ValueError, match="choose one of"):
         sweeps.sweep_commands("nope", [], tmp_path)
+
+
+def test_robustness_is_a_sweep_of_the_runner(tmp_path):
+    """The wrong-body study: data, then the bodies (a library step), then the plain multirun over
+    robustness.trial; a data.dir override names the base data (data step) and never reaches training,
+    where each trial's data.dir is its body's."""
+    ovr = ["scale=smoke", "data.dir=/base", "robustness.trial=shape_0.0,shape_2.0", "trainer.max_epochs=1"]
+    steps = sweeps.sweep_commands("robustness", ovr, tmp_path, python="py")
+    assert [s for s, _ in steps] == ["data", "bodies", "train"]
+    cmds = dict(steps)
+    assert cmds["bodies"] is None and "bodies" in sweeps.IN_PROCESS_STEPS
+    assert "data.dir=/base" in cmds["data"] and "robustness.trial=shape_0.0,shape_2.0" not in cmds["data"]
+    train = cmds["train"]
+    assert train[:5] == ["py", "-m", "pbc.train", "-m", "+sweep=robustness"]
+    assert not any(a.startswith("data.dir=") for a in train)
+    assert "robustness.trial=shape_0.0,shape_2.0" in train and "trainer.max_epochs=1" in train
+    assert sweeps.data_overrides(ovr) == ["data.dir=/base"]
+
+
+@pytest.mark.usefixtures("_hydra")
+def test_robustness_trial_runs_on_its_body():
+    from hydra.core.hydra_config import HydraConfig
+
+    from pbc.robustness import load_settings, selected_trials, trial_names
+
+    cfg = _compose(["+sweep=robustness", "scale=smoke", "robustness.trial=paint_torso",
+                    "hydra.sweep.dir=/sweep"])
+    HydraConfig.instance().set_config(cfg)  # what a launched job has: ${hydra:sweep.dir} resolves
+    try:
+        assert cfg.data.dir == "/sweep/bodies/paint_torso"
+        assert cfg.hydra.sweep.subdir == "paint_torso"  # the run dir beside its body: <sweep>/<trial>/
+    finally:
+        HydraConfig.instance().cfg = None
+    rob = load_settings()
+    swept = sweep_values("robustness.trial", str(cfg.hydra.sweeper.params["robustness.trial"]))
+    assert swept == trial_names(rob) == selected_trials(rob)  # the sweep runs every trial the settings name
+    assert selected_trials(rob, ["robustness.trial=shape_0.0,paint_torso"]) == ["shape_0.0", "paint_torso"]
 
 
 @pytest.fixture(scope="module")
