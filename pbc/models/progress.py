@@ -2,8 +2,9 @@
 
 - :class:`EpochLine`: a Lightning callback (``conf/callbacks/default.yaml``, ``minimal.yaml``). Off a
   terminal (a log file, a cluster job) it logs one plain line per epoch -- epoch/max, train loss, the
-  validation vertex error in cm, seconds per epoch, ETA -- and turns Lightning's progress bar off, whose
-  carriage-return redraws are noise in a file. On a terminal it does nothing: the bar stays.
+  validation vertex error in cm, seconds per epoch, ETA -- turns Lightning's progress bar off, whose
+  carriage-return redraws are noise in a file, and swaps its Rich model summary for the plain one. On a
+  terminal it does nothing: the bar stays.
 - :func:`metric_table`: the scores of ``pbc.train`` as a plain table with full metric names (Lightning's
   Rich table truncates them and wraps at 80 columns in a file).
 - :func:`silence_training_noise`: the one place that filters messages of dependencies that carry nothing
@@ -19,6 +20,7 @@ import time
 import warnings
 
 import lightning as L
+from lightning.pytorch.callbacks import ModelSummary, RichModelSummary
 from lightning.pytorch.utilities.warnings import PossibleUserWarning
 
 from pbc.runs import monitor
@@ -95,8 +97,15 @@ class EpochLine(L.Callback):
         return not (on_terminal() if self.tty is None else self.tty)
 
     def setup(self, trainer, pl_module, stage: str) -> None:
-        if self.active() and trainer.progress_bar_callback is not None:
+        if not self.active():
+            return
+        if trainer.progress_bar_callback is not None:
             trainer.progress_bar_callback.disable()
+        # Lightning picks the Rich model summary whenever rich is installed: box drawing padded to 80
+        # columns in a file; the plain one logs the same rows as text (it runs at fit start, after setup)
+        for i, cb in enumerate(trainer.callbacks):
+            if isinstance(cb, RichModelSummary):
+                trainer.callbacks[i] = ModelSummary(max_depth=cb._max_depth)
 
     def on_train_epoch_start(self, trainer, pl_module) -> None:
         self._start = time.perf_counter()

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import lightning as L
 import pytest
 import torch
+from lightning.pytorch.callbacks import ModelSummary, RichModelSummary
 from torch.utils.data import DataLoader
 
 LINE = re.compile(r"^epoch (\d+)/(\d+)  train loss (\S+)  (val/\S+) (\S+)  (\d+\.\d) s/epoch  ETA (\d+s|\d+m\d\ds)$")
@@ -77,8 +78,9 @@ class Data(L.LightningDataModule):
 
 
 def fit(callbacks, tmp_path, logger=False, kind="whole", max_epochs=2, **kw) -> L.Trainer:
+    kw.setdefault("enable_model_summary", False)
     trainer = L.Trainer(max_epochs=max_epochs, callbacks=callbacks, logger=logger, enable_checkpointing=False,
-                        enable_model_summary=False, default_root_dir=tmp_path, **kw)
+                        default_root_dir=tmp_path, **kw)
     trainer.fit(Tiny(kind), datamodule=Data())
     return trainer
 
@@ -95,7 +97,7 @@ def test_epoch_line_off_a_terminal(tmp_path, caplog, kind):
             records.append({k: float(v) for k, v in trainer.callback_metrics.items()})
 
     with caplog.at_level(logging.INFO, logger="pbc.models.progress"):
-        trainer = fit([EpochLine(tty=False), Keep()], tmp_path, kind=kind)
+        trainer = fit([EpochLine(tty=False), Keep()], tmp_path, kind=kind, enable_model_summary=True)
     lines = [r.getMessage() for r in caplog.records if r.name == "pbc.models.progress"]
     assert len(lines) == 2, lines
     want = "val/patch_vertex_error_cm" if kind == "patch" else "val/vertex_error_cm"
@@ -106,8 +108,10 @@ def test_epoch_line_off_a_terminal(tmp_path, caplog, kind):
         assert float(m[3]) == pytest.approx(metrics["train/loss_epoch"], rel=1e-3)
         assert float(m[5]) == pytest.approx(metrics[want], abs=1e-3)
     assert LINE.match(lines[-1])[7] == "0s"  # nothing left after the last epoch
-    # the progress bar's redraws would land in the file too: it is off
+    # the progress bar's redraws would land in the file too: it is off; the model summary is plain text
     assert trainer.progress_bar_callback.is_disabled
+    summaries = [type(cb).__name__ for cb in trainer.callbacks if isinstance(cb, ModelSummary)]
+    assert summaries == ["ModelSummary"]
 
 
 def test_epoch_line_says_when_an_epoch_did_not_validate(tmp_path, caplog):
@@ -125,9 +129,10 @@ def test_on_a_terminal_the_bar_stays_and_no_lines(tmp_path, caplog):
     from pbc.models.progress import EpochLine
 
     with caplog.at_level(logging.INFO, logger="pbc.models.progress"):
-        trainer = fit([EpochLine(tty=True)], tmp_path)
+        trainer = fit([EpochLine(tty=True)], tmp_path, enable_model_summary=True)
     assert not [r for r in caplog.records if r.name == "pbc.models.progress"]
     assert not trainer.progress_bar_callback.is_disabled
+    assert any(isinstance(cb, RichModelSummary) for cb in trainer.callbacks)
 
 
 @pytest.mark.parametrize("out,err,want", [(True, True, True), (False, True, False), (True, False, False)])
@@ -289,3 +294,25 @@ def test_cpu_flags_without_proc_cpuinfo_asks_torch(monkeypatch):
     monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: True, raising=False)
     monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: False, raising=False)
     assert predict.cpu_flags() == {"avx512_bf16"}
+
+
+@pytest.mark.parametrize("flags,used", [({"avx2"}, "float32"), ({"avx512_bf16"}, "bfloat16")])
+def test_predictor_runs_the_precision_the_device_supports(monkeypatch, tmp_path, flags, used):
+    import warnings
+
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+    from test_evaluate import IMAGE, ROOT, fake_dataset
+
+    import pbc.predict as predict
+
+    monkeypatch.setattr(predict, "cpu_flags", lambda: flags)
+    whole = OmegaConf.merge({"image": IMAGE}, {"n": OmegaConf.load(ROOT / "conf/model/whole.yaml").net})
+    net = instantiate(OmegaConf.to_container(whole, resolve=True)["n"]).eval()
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        pred = predict.ClothPredictor(fake_dataset(tmp_path / "fake"), IMAGE, net, [],
+                                      OmegaConf.load(ROOT / "conf/stitch/average.yaml"), precision="bfloat16",
+                                      cache_dir=tmp_path / "ops")
+    assert pred.precision == used
+    assert len([w for w in seen if "bfloat16" in str(w.message)]) == (used == "float32")
