@@ -26,8 +26,6 @@ the mean / max vertex displacement).
 
 from __future__ import annotations
 
-import argparse
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -40,6 +38,11 @@ from pbc.io import save_figure, save_npy, write_json
 CM = 100.0
 
 
+# EditSpec's numeric fields and the pbc.edit flags that set them (named in its error)
+EDIT_FLAGS = {"shift_u": "--shift-u", "shift_v": "--shift-v", "normal": "--normal", "normal_gain": "--normal-gain",
+              "feature_amplitude": "--feature-amplitude"}
+
+
 @dataclass(frozen=True)
 class EditSpec:
     """An image edit; every field at its default is the identity. Lengths in metres."""
@@ -50,6 +53,19 @@ class EditSpec:
     normal_gain: float = 0.0  # dn *= (1 + gain) inside the mask
     feature: np.ndarray | None = None  # (2, H, W) painted field in [0, 1] (see `place_feature`)
     feature_amplitude: float = 0.0  # metres added to dn where the feature is 1
+
+    def __post_init__(self) -> None:
+        # checked here, when the edit is made and before anything is written: a NaN (--normal nan) would
+        # otherwise flow through every pixel and vertex into edited.npy and after.obj
+        bad = []
+        for name, flag in EDIT_FLAGS.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating) \
+                    or not np.isfinite(float(v)):
+                bad.append(f"{name}={v!r} ({flag})")
+        if bad:
+            raise ValueError(f"edit values must be finite numbers (metres; normal_gain a factor): got "
+                             f"{', '.join(bad)}; pass e.g. --normal 0.01")
 
     def is_identity(self) -> bool:
         return (self.shift_u == 0 and self.shift_v == 0 and self.normal == 0 and self.normal_gain == 0
@@ -320,6 +336,8 @@ def run_edit(args) -> dict:
     from pbc.data.dataset import load_dataset
     from pbc.geometry.garment import save_garment_obj
 
+    # the numbers first (EditSpec checks them), before the dataset is opened or anything written
+    EditSpec(args.shift_u, args.shift_v, args.normal, args.normal_gain, None, args.feature_amplitude)
     cfg = load_config(args.overrides + ([f"image.whole_resolution={args.resolution}"] if args.resolution else []))
     ds = load_dataset(args.data_dir or cfg.data.dir)
     src = source_from_dataset(ds, args.sample, cfg.image, run=args.run)
@@ -373,36 +391,7 @@ def run_edit(args) -> dict:
     return record
 
 
-def parse_args(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m pbc.edit", description=__doc__.split("\n\n")[0])
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides of conf/config.yaml (data=..., image...)")
-    ap.add_argument("--data-dir", default=None, help="dataset directory (default: the config's data.dir)")
-    ap.add_argument("--sample", type=int, default=0, help="dataset sample whose pose (and cloth) is edited")
-    ap.add_argument("--run", default=None, help="a whole-shirt run dir: edit its prediction instead of the data")
-    ap.add_argument("--resolution", type=int, default=None,
-                    help="image resolution (sets image.whole_resolution; a --run uses its own)")
-    ap.add_argument("--shift-u", type=float, default=0.0, help="metres added to du")
-    ap.add_argument("--shift-v", type=float, default=0.0, help="metres added to dv")
-    ap.add_argument("--normal", type=float, default=0.0, help="metres added to dn (+ inflate, - shrink)")
-    ap.add_argument("--normal-gain", type=float, default=0.0, help="dn *= 1 + gain")
-    ap.add_argument("--patch", type=int, default=None, help="region: a cage patch id")
-    ap.add_argument("--mask", default=None, help="region: a painted grayscale PNG (white = edit)")
-    ap.add_argument("--mask-side", type=int, default=None, help="chart of a one-chart --mask PNG (0 front, 1 back)")
-    ap.add_argument("--rect", type=float, nargs=5, default=None, metavar=("SIDE", "U0", "V0", "U1", "V1"),
-                    help="region: a UV rectangle of one chart")
-    ap.add_argument("--feature", default=None, help="grayscale PNG painted into the normal channel")
-    ap.add_argument("--feature-rect", type=float, nargs=5, default=None, metavar=("SIDE", "U0", "V0", "U1", "V1"))
-    ap.add_argument("--feature-amplitude", type=float, default=0.01, help="metres of dn where the feature is white")
-    ap.add_argument("--gallery", action="store_true", help="figure: every kind of edit side by side (Fig. 2)")
-    ap.add_argument("--out", default="outputs/edit", help="output directory")
-    return ap.parse_args(argv)
+if __name__ == "__main__":  # `python -m pbc.edit`, the users' own command: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-def main(argv=None) -> int:
-    record = run_edit(parse_args(argv))
-    print(json.dumps(record, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    run_as_module("edit")

@@ -22,22 +22,19 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
-from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.data.dataset import run_data_record
 from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
 from pbc.pixels.frames import from_offsets
-from pbc.runs import INTERIOR_JUMP, NORMAL_DISTANCE, SEAM_JUMP, VERTEX_ERROR, RunRecord
 from pbc.pixels.reconstruct import mesh_edges, vertex_normals
 from pbc.predict import ClothPredictor, fit_training_pca
+from pbc.runs import INTERIOR_JUMP, NORMAL_DISTANCE, SEAM_JUMP, VERTEX_ERROR, RunRecord
 from pbc.stitch.pca import dataset_hash, load_pca, save_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, edge_jump, patch_disagreement, seam_edges, uv_to_pixel
-from pbc.validate import check_config
 
 log = logging.getLogger(__name__)
 CM = 100.0
@@ -228,15 +225,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
         save_figure(fig, out / f"preview_{i}.png", dpi=80)
 
 
-@hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
-def main(cfg: DictConfig) -> float:
-    out = Path(HydraConfig.get().runtime.output_dir)
-    check_config(cfg)
-    metrics = evaluate(cfg, out)
-    log.info("\n%s", markdown_table(metrics))
-    best = f"patches_{cfg.stitch.method}" if metrics["patch_runs"] is not None else "whole"
-    return metrics["entries"].get(best, {}).get("vertex_error_cm", float("nan"))
+if __name__ == "__main__":  # `python -m pbc.evaluate`, the users' own command: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-if __name__ == "__main__":
-    main()
+    run_as_module("evaluate")

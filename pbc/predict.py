@@ -44,6 +44,11 @@ DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
 # --device cuda prints every layout side by side)
 GPU_LAYER_MODES = ("grouped", "grouped", "grouped", "grouped", "grouped")
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
+# what `ClothPredictor(pose, model=...)` answers with: the P patch models stitched, or the whole-shirt model
+MODELS = ("patches", "whole")
+# the image sizes a patch model's crops follow (pbc.pixels.operators.image_sizes): the stitcher is built
+# from one run's, so every patch run must share them
+PATCH_SIZE_KEYS = ("patch_resolution", "crop_size", "margin", "patch_pad")
 # x86 CPU flags (/proc/cpuinfo) of native bf16 arithmetic; without them torch emulates bf16 in software
 # (issue 22: the stacked patch net 30x slower than float32)
 CPU_BF16_FLAGS = ("avx512_bf16", "amx_bf16")
@@ -108,6 +113,56 @@ def open_run_dataset(run: Run, directory: str | Path | None = None) -> datasets.
         return datasets.open_recorded_dataset(run.data, directory)
     d = directory if directory is not None else OmegaConf.select(OmegaConf.create(run.config), "data.dir")
     return datasets.load_dataset(d)
+
+
+def _patch_sizes(image_cfg) -> dict:
+    from pbc.pixels.operators import image_sizes
+
+    sizes = image_sizes(image_cfg)
+    return {k: sizes[k] for k in PATCH_SIZE_KEYS}
+
+
+def _sizes_text(sizes: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in sizes.items())
+
+
+def check_patch_sizes(first: Run, patch_runs: Sequence[Run]) -> None:
+    """Refuse patch runs whose crops differ from `first`'s image config (the run whose config the
+    predictor's operators and stitcher are built from: the whole run, else the first patch run), naming
+    both runs and their sizes; the stitcher otherwise fails deep inside with a shape error."""
+    from pbc.runs import run_image_config
+
+    if not patch_runs or not (first.config or {}).get("image"):
+        return
+    want = _patch_sizes(run_image_config(first))
+    for r in patch_runs:
+        image = run_image_config(r)
+        if image is None:
+            continue  # a run recording no image config: the net sizes are compared in the constructor
+        got = _patch_sizes(image)
+        if got != want:
+            raise ValueError(
+                f"patch run {r.path} was trained at other image sizes than {first.path}: {_sizes_text(got)} vs "
+                f"{_sizes_text(want)} (pixels at the patch resolution); the predictor stitches every patch "
+                "model with one run's operators, so train them with the same image.patch_resolution / "
+                "crop_size / margin / pad (or give runs made together)"
+            )
+
+
+def check_net_sizes(image_cfg, whole_net: ConvDecoder | None, patch_nets: Sequence[ConvDecoder]) -> None:
+    """Every patch net must predict the crop size `image_cfg` gives (crop_size at patch_resolution)."""
+    if not patch_nets:
+        return
+    sizes = _patch_sizes(image_cfg)
+    side = min(sizes["crop_size"], sizes["patch_resolution"])  # ImageOperators.crop_window clamps it so
+    crop = (side, side)
+    bad = [i for i, n in enumerate(patch_nets) if tuple(getattr(n, "output_size", crop)) != crop]
+    if bad:
+        got = tuple(patch_nets[bad[0]].output_size)
+        raise ValueError(f"patch models {bad[:8]}{' ...' if len(bad) > 8 else ''} predict {got} crops, the image "
+                         f"config gives {crop} ({_sizes_text(sizes)}): the patch models and the image config "
+                         "(or the whole-shirt run it came from) were made at different image sizes; train "
+                         "them with the same image settings")
 
 
 # ----------------------------------------------------------------------------- stacked patches
@@ -275,8 +330,14 @@ class ClothPredictor:
         # whole-only (no patch nets): no patch operators, stitcher or patch net; model="whole" throughout
         patches = bool(patch_nets)
         # what the whole model predicts and how it goes back to offsets: the run's own cloth target
+        check_net_sizes(image_cfg, whole_net, patch_nets)  # before any operator is built
         self.whole_target = make_target(dataset, image_cfg, "whole", space=space, skinner=self.skinner,
                                         cache_dir=cache_dir)
+        if whole_net is not None and tuple(whole_net.output_size) != tuple(self.whole_target.image_size):
+            raise ValueError(f"the whole-shirt model predicts {tuple(whole_net.output_size)} images, the image "
+                             f"config gives {tuple(self.whole_target.image_size)} (image.whole_resolution / "
+                             "whole_sides / whole_rows): build the predictor with the image config the model "
+                             "was trained with (from_runs reads it from the run)")
         self.ops_patch = image_operators(dataset, image_cfg, "patch", cache_dir) if patches else None
         self.crops = patch_crops(dataset, image_cfg, self.ops_patch) if patches else []
         self.stitcher = build_stitcher(self.ops_patch, self.crops, dataset.garment, dataset.cage, stitch_cfg,
@@ -330,6 +391,7 @@ class ClothPredictor:
         if whole is not None and whole.garment_hash != ghash:
             raise ValueError(f"{whole.path}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
         runs = select_patch_runs(patch_runs, ghash, len(dataset.cage.patches)) if has_patches else []
+        check_patch_sizes(first, runs)
         if has_patches and stitch_cfg is None:
             stitch_cfg = stitch_config("average")
         whole_net, whole_hp = load_decoder(whole.checkpoint) if whole is not None else (None, None)
@@ -343,6 +405,17 @@ class ClothPredictor:
         if len(spaces) > 1:
             raise ValueError(f"the runs use different offset spaces {sorted(spaces)}")
         return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
+
+    def check_model(self, model: str | None) -> str:
+        """The model a call answers with: `model` ("patches" or "whole"), or None = the patches when there
+        are patch models, else the whole. Anything else is refused naming the choices ("Whole",
+        "whole_shirt" and "patch" used to fall through to the stitched patches)."""
+        if model is None:
+            return "patches" if self.patch_net is not None else "whole"
+        if not isinstance(model, str) or model not in MODELS:
+            raise ValueError(f"model={model!r} is not a predictor model; choose one of {list(MODELS)} (or None: "
+                             f"{'patches' if self.patch_net is not None else 'whole'}, what this predictor has)")
+        return model
 
     # -------------------------------------------------------------------- pieces
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
@@ -373,7 +446,7 @@ class ClothPredictor:
         names = list(self.dataset.body.skeleton.names)
         pose, batched = as_poses(pose, len(names), joint_names=names)
         single = not batched
-        model = model or ("patches" if self.patch_net is not None else "whole")
+        model = self.check_model(model)
         if model == "patches" and self.patch_net is None:
             raise ValueError("this predictor has no patch models (built from a whole-shirt run alone): use "
                              f"model='whole', or give from_runs the {len(self.dataset.cage.patches)} patch runs "
@@ -443,10 +516,15 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
     if path.suffix == ".npy" or path.exists():
         if not path.is_file():
             raise ValueError(f"pose file {path} does not exist")
+        if path.stat().st_size == 0:
+            raise ValueError(f"pose file {path} is empty (0 bytes): it was not written completely; save the poses "
+                             "again with np.save (an (N, J, 3, 3) or (N, J*9) array)")
         try:
             arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise ValueError(f"pose file {path} is not a numpy .npy array ({e}); save one with np.save") from None
+        except (OSError, ValueError, EOFError) as e:  # EOFError: a header cut short
+            raise ValueError(f"pose file {path} is not a complete numpy .npy array ({type(e).__name__}: {e}): "
+                             "it is corrupt or truncated, or another format; save the poses again with "
+                             "np.save") from None
         rot, _ = as_poses(arr, J, joint_names=names, what=f"pose file {path}")
         return rot, [f"pose_{k:05d}" for k in range(rot.shape[0])], None
     splits = sorted(dataset.manifest.get("splits") or {})
@@ -458,6 +536,25 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
         raise ValueError(f"split {source!r} of {dataset.dir} is empty")
     poses = torch.from_numpy(np.asarray(dataset.poses[idx])).float()
     return poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx])).float()
+
+
+def check_max_poses(n, what: str = "--max") -> int | None:
+    """How many poses to predict: None = all; else an integer >= 1 (0 used to mean all, -1 all but one)."""
+    if n is None:
+        return None
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"{what} {n!r}: give the number of poses to predict, an integer >= 1 (leave it out for "
+                         "every pose)")
+    return int(n)
+
+
+def first_poses(poses: Tensor, names: Sequence[str], truth: Tensor | None, n) -> tuple[Tensor, list[str],
+                                                                                        Tensor | None]:
+    """The first `n` (checked by `check_max_poses`; None = all) of what `read_poses` returned."""
+    n = check_max_poses(n)
+    if n is None:
+        return poses, list(names), truth
+    return poses[:n], list(names)[:n], None if truth is None else truth[:n]
 
 
 def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16, model: str | None = None,
@@ -546,8 +643,8 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
     from pbc.io import require_writable_dir, save_npy, write_json
 
     t0 = time.time()
+    model = predictor.check_model(model)  # before the output dir is made
     out = require_writable_dir(out, "prediction output directory")
-    model = model or ("patches" if predictor.patch_net is not None else "whole")
     verts = predict_poses(predictor, poses, batch_size, model)
     ds = predictor.dataset
     bodies = pose_body(ds.body, poses) if body or sheet else None
@@ -579,68 +676,7 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
     return result
 
 
-EXAMPLES = """examples:
-  python -m pbc.predict runs/main/whole --poses test                  # the dataset's test poses
-  python -m pbc.predict runs/main/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
-  python -m pbc.predict runs/main/whole --patches runs/patches --method pca --poses test --format ply
-"""
+if __name__ == "__main__":  # `python -m pbc.predict`, the users' own command: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-def main(argv: list[str] | None = None) -> int:
-    """The command line; returns the exit status (2 for bad input, with one line saying what is wrong)."""
-    import argparse
-    import sys
-    import time
-
-    from pbc.stitch.seams import METHODS
-
-    ap = argparse.ArgumentParser(
-        prog="pbc predict", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES,
-        description="Garment meshes for body poses, from trained pbc models: the whole-shirt model alone, or "
-                    "the patch models (one per patch of the garment's cage) stitched by a seam method. Writes "
-                    "meshes/ (OBJ with the garment's UVs and normals, or PLY), vertices.npy, poses.npy, "
-                    "contact_sheet.png and predict.json.")
-    ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/whole)")
-    ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
-                    "dir holding them, or a stacked +experiment=patches run dir")
-    ap.add_argument("--method", default="pca", choices=METHODS, help="seam method for --patches (default pca)")
-    ap.add_argument("--pca", metavar="FILE", help="PCA basis for --method pca (pbc.evaluate's pca.pt); "
-                                                   "default: fitted on the training split")
-    ap.add_argument("--model", choices=("patches", "whole"), help="default: patches when given, else whole")
-    ap.add_argument("--poses", required=True, help="an .npy of rotations, (N, 10, 3, 3) or (N, 90), or a split "
-                                                   "of the run's dataset: train, val or test")
-    ap.add_argument("--max", type=int, metavar="N", help="the first N poses only")
-    ap.add_argument("--out", help="output dir (default runs/predict/<date>_<time>)")
-    ap.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh format (default obj)")
-    ap.add_argument("--body", action="store_true", help="also write each posed body mesh")
-    ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png (0: none)")
-    ap.add_argument("--batch-size", type=int, default=16)
-    args = ap.parse_args(argv)
-    if not args.whole_run and not args.patches:
-        ap.error("give a whole-shirt run dir, or --patches with the patch runs")
-    out = Path(args.out or Path("runs/predict") / time.strftime("%Y-%m-%d_%H-%M-%S"))
-    try:
-        stitch = stitch_config(args.method) if args.patches else None
-        predictor = ClothPredictor.from_runs(args.whole_run, args.patches, stitch)
-        if predictor.stitcher is not None and args.method == "pca":
-            from pbc.stitch.pca import dataset_hash, load_pca
-
-            predictor.stitcher.pca = (load_pca(args.pca, dataset_hash(predictor.dataset.dir)) if args.pca else
-                                      fit_training_pca(predictor, int(stitch.pca_components), 4096))
-        poses, names, truth = read_poses(args.poses, predictor.dataset)
-        if args.max:
-            poses, names, truth = poses[:args.max], names[:args.max], None if truth is None else truth[:args.max]
-        info = {"whole_run": args.whole_run, "patch_runs": args.patches, "poses": str(args.poses)}
-        res = predict_to_dir(predictor, poses, names, out, args.format, args.body, args.sheet, args.batch_size,
-                             args.model, truth, info)
-    except (ValueError, TypeError, FileNotFoundError, PermissionError) as e:
-        print(f"pbc predict: error: {e}", file=sys.stderr)
-        return 2
-    err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
-    print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format} ({res['model']} model{err}), "
-          f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    run_as_module("predict")

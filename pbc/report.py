@@ -10,13 +10,11 @@ written atomically (temp file + rename), so a reader never sees half a report.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
 import re
 import statistics
-import sys
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import yaml
 
 from pbc.io import save_figure, write_text
+from pbc.paths import CONF_DIR
 from pbc.runs import (
     FAILED,
     INCOMPLETE,
@@ -42,7 +41,7 @@ from pbc.runs import (
 )
 
 REPO = Path(__file__).resolve().parents[1]
-PAPER_FILE = REPO / "sweeps" / "paper.yaml"
+PAPER_FILE = CONF_DIR / "paper.yaml"  # the paper's own numbers, shipped with the configs
 
 # Metric names as pbc.train logs them, per split (pbc.runs defines them)...
 VERTEX, NORMAL = VERTEX_ERROR, NORMAL_DISTANCE
@@ -766,19 +765,7 @@ def build_report(
     return out / "report.md"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pbc.report", description=__doc__.splitlines()[0])
-    ap.add_argument("sweep_dir", type=Path, help="a Hydra multirun dir (or a folder of them, or one run dir)")
-    ap.add_argument("--out", type=Path, default=None, help="where to write report.md and PNGs (default: sweep_dir)")
-    args = ap.parse_args(argv)
-    try:
-        path = build_report(args.sweep_dir, args.out)
-    except FileNotFoundError as e:
-        print(f"pbc.report: {e}", file=sys.stderr)
-        return 2
-    print(path)
-    return 0
+if __name__ == "__main__":  # `python -m pbc.report`: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    run_as_module("report")

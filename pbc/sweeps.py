@@ -9,13 +9,12 @@ own: `pbc.robustness.build_report`); it records the exact commands and wall time
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import subprocess
 import sys
-import traceback
 import time
+import traceback
 from pathlib import Path
 
 from pbc.io import write_text
@@ -28,9 +27,9 @@ SWEEP_NAMES = tuple(sorted(p.stem for p in (ROOT / "conf" / "sweep").glob("*.yam
 DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every conf/sweep/*.yaml
 # Overrides that decide the data set: the data step gets these and no others (launcher keys, losses...
 # are not in a single run's config).
+_DATA_KEYS = ("data", "garment", "body", "sim", "paths", "seed")
 # Steps run in this process (library functions, not commands): the wrong-body study's per-body datasets.
 IN_PROCESS_STEPS = {"bodies": "pbc.robustness.prepare_bodies"}
-_DATA_KEYS = ("data", "garment", "body", "sim", "paths", "seed")
 
 
 # ------------------------------------------------------------------------------------------ the runner
@@ -48,10 +47,10 @@ def scale_data(scale: str, conf_dir: Path = ROOT / "conf") -> str:
             return str(entry["override /data"])
     raise ValueError(f"conf/scale/{scale}.yaml selects no data set (`- override /data: NAME`)")
 
+
 def data_overrides(overrides: list[str]) -> list[str]:
     """The overrides that decide the data set (`_DATA_KEYS`)."""
     return [o for o in overrides if o.lstrip("+").split("=", 1)[0].split(".")[0] in _DATA_KEYS]
-
 
 
 def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable):
@@ -140,6 +139,7 @@ def _run_logged(argv: list[str], log: Path) -> tuple[int, str | None]:
         code = proc.wait()
     return code, (last_err or f"exit {code}, see {log.name}") if code else None
 
+
 def _run_in_process(step: str, overrides: list[str], sweep_dir: Path) -> tuple[int, str | None]:
     """An `IN_PROCESS_STEPS` step; -> (0, None) or (1, its error), the traceback printed."""
     try:
@@ -163,7 +163,6 @@ def build_sweep_report(name: str, sweep_dir: Path, report_dir: Path | None = Non
 
         return robustness_report(sweep_dir, report_dir)
     return build_report(sweep_dir, report_dir)
-
 
 
 def run_sweep(
@@ -215,23 +214,7 @@ def run_sweep(
     return sweep_dir, rc
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m pbc.sweeps",
-        description="Run a named sweep end to end (data, training multirun, evaluation, report).",
-    )
-    ap.add_argument("name", choices=SWEEP_NAMES)
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. scale=smoke hydra.launcher.n_jobs=2")
-    ap.add_argument("--dir", type=Path, default=None, help="sweep dir (default runs/sweeps/NAME/SCALE_TIME)")
-    ap.add_argument("--no-report", action="store_true")
-    ap.add_argument("--report-dir", type=Path, default=None, help="write the report here (default: sweep dir)")
-    args = ap.parse_args(argv)
-    sweep_dir, rc = run_sweep(
-        args.name, args.overrides, args.dir, report=not args.no_report, report_dir=args.report_dir
-    )
-    print(f"[pbc.sweeps] {sweep_dir} (exit {rc})")
-    return rc
+if __name__ == "__main__":  # `python -m pbc.sweeps`: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+    run_as_module("sweeps")

@@ -33,13 +33,12 @@ settings (``check_matches_config``). ``metrics.json`` records the data by resolv
 
 from __future__ import annotations
 
-import json
+import contextlib
 import logging
 import time
 import traceback
 from pathlib import Path
 
-import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
@@ -48,7 +47,7 @@ from omegaconf import DictConfig, OmegaConf
 from pbc.config import register_resolvers
 from pbc.data.datamodule import ClothDataModule
 from pbc.data.dataset import dataset_fingerprint, run_data_record
-from pbc.io import is_writable_dir, load_checkpoint, require_writable_dir, write_json
+from pbc.io import LockHeld, dir_lock, is_writable_dir, load_checkpoint, lock_holder, read_json, require_writable_dir
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.models.progress import metric_table, silence_training_noise
 from pbc.pixels.target import VertexTarget
@@ -165,11 +164,146 @@ def _checked(path: Path, training: dict | None) -> str:
     return str(path)
 
 
+# ------------------------------------------------------------------------------------------- the run dir
+RUN_LOCK = ".train.lock"  # held in the run dir for the whole training (pbc.io.dir_lock; gone when it ends)
+
+
+class RunDirTaken(ValueError):
+    """The run dir belongs to another training (running now, or finished there): nothing was written to it.
+    A ValueError, so the CLI prints it as a user error; `record_failure` leaves the dir alone."""
+
+
+class RunDirInUse(RunDirTaken, LockHeld):
+    """Another process trains in this run dir now (also a `pbc.io.LockHeld`)."""
+
+
+@contextlib.contextmanager
+def run_dir_lock(out: Path):
+    """Hold ``<out>/.train.lock`` for the block: a second job in the same hydra.run.dir is refused at once
+    (two jobs would mix checkpoints, TensorBoard events and metrics.json). The kernel drops the lock of a
+    SIGKILLed job, so a killed run's dir can be resumed at once."""
+    lock = Path(out) / RUN_LOCK
+    stack = contextlib.ExitStack()
+    try:
+        stack.enter_context(dir_lock(lock, f"run dir {out}"))
+    except LockHeld:
+        raise RunDirInUse(
+            f"run dir {out} is in use by another training ({lock_holder(lock) or 'holder unknown'}; lock file "
+            f"{lock}): two jobs in one run dir mix their checkpoints, logs and metrics.json. Give this job "
+            "another run dir (hydra.run.dir=..., or paths.output_dir=... from Python), or wait for the other "
+            "to finish"
+        ) from None
+    with stack:
+        yield out
+
+
+def check_run_dir_free(out: Path, ckpt_spec: str | None) -> None:
+    """Refuse a run dir that holds another training's results (a finished metrics.json, or checkpoints of
+    a killed or finished run) unless this job resumes that run dir's own last.ckpt.
+
+    Refused rather than warned about: a second training there would write its epoch_NNN.ckpt beside the
+    first's (pbc.predict and pbc.evaluate then could load either), add a second TensorBoard version, and
+    overwrite metrics.json, so the first run's record is lost while its checkpoints stay."""
+    out = Path(out)
+    own_last = out / "checkpoints" / "last.ckpt"
+    if ckpt_spec not in (None, "", "null"):
+        if ckpt_spec == "last" and own_last.is_file():
+            return  # continuing this dir's run (resolve_ckpt_path checks it is the same training)
+        if ckpt_spec != "last" and Path(ckpt_spec).resolve() in (out.resolve(), own_last.resolve()):
+            return
+    found = []
+    if (out / "metrics.json").is_file():
+        with contextlib.suppress(ValueError, FileNotFoundError):  # unreadable: not a finished record
+            if read_json(out / "metrics.json", "run metrics").get("status") == "ok":
+                found.append("metrics.json of a finished training")
+    ckpts = sorted(p.name for p in (out / "checkpoints").glob("*.ckpt"))
+    if ckpts:
+        found.append(f"checkpoints {', '.join(ckpts[:4])}{' ...' if len(ckpts) > 4 else ''}")
+    if found:
+        resume = "continue that training with ckpt_path=last, " if own_last.is_file() else ""
+        raise RunDirTaken(
+            f"run dir {out} already holds another training's results ({'; '.join(found)}): a new training "
+            "there would mix its checkpoints and logs with them and overwrite metrics.json. Give this job "
+            f"another run dir (hydra.run.dir=..., or paths.output_dir=... from Python), {resume}or delete {out}"
+        )
+
+
+def record_failure(cfg: DictConfig, err: BaseException) -> Path | None:
+    """Write the failed run's metrics.json (error line, traceback, config): the CLI's handler calls it.
+    Nothing is written when the run dir belongs to another training (RunDirTaken: the other job's
+    metrics.json stays as it is) or cannot be written (the one clear error, not a second one chained)."""
+    out = output_dir(cfg)
+    if isinstance(err, RunDirTaken) or not is_writable_dir(out):
+        return None
+    return write_metrics(out, RunRecord.failure(err, OmegaConf.to_container(cfg, resolve=False),
+                                                "".join(traceback.format_exception(err))))
+
+
+class KeepBestOfResumedRun(L.Callback):
+    """A run resumed from another run dir's checkpoint keeps that run's best checkpoint in the running.
+
+    Lightning's ModelCheckpoint restores only ``best_model_path`` (not its score or top-k) when the
+    checkpoint's dirpath differs from its own, so the resumed run's first validation became "best" and
+    the killed run's better epoch was never tested. At train start (after Lightning restored the state)
+    this puts the checkpoint's top-k, those files still on disk, back into the trainer's monitored
+    callback: a later epoch replaces them only when it is better, and Lightning never deletes a file
+    outside its own dirpath. Chained resumes carry it on, as every checkpoint records the top-k."""
+
+    def __init__(self, ckpt_path: str | Path):
+        self.ckpt_path = str(ckpt_path)
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        carry_best(trainer.checkpoint_callback, load_checkpoint(self.ckpt_path))
+
+
+def carry_best(mc, ckpt: dict) -> str | None:
+    """Put the top-k of checkpoint dict `ckpt` (ModelCheckpoint `mc`'s state in it) into `mc` when it was
+    written in another dirpath; returns the best path carried, or None (same dir, no state, files gone)."""
+    import torch
+
+    state = (ckpt.get("callbacks") or {}).get(getattr(mc, "state_key", None)) if mc is not None else None
+    if not state or not mc.monitor or state.get("dirpath") == mc.dirpath:
+        return None  # same dir: Lightning restored all of it
+    kept = {p: torch.as_tensor(s) for p, s in (state.get("best_k_models") or {}).items() if Path(p).is_file()}
+    if not kept:
+        return None
+    worst, best = (max, min) if mc.mode == "min" else (min, max)
+    merged = {**kept, **mc.best_k_models}  # with any epoch this run saved already (none at train start)
+    k = len(merged) if mc.save_top_k == -1 else mc.save_top_k
+    keep = sorted(merged, key=lambda p: float(merged[p]), reverse=mc.mode != "min")[:k]
+    mc.best_k_models = {p: merged[p] for p in keep}
+    if len(mc.best_k_models) == k:
+        mc.kth_best_model_path = worst(mc.best_k_models, key=mc.best_k_models.get)
+        mc.kth_value = mc.best_k_models[mc.kth_best_model_path]
+    mc.best_model_path = best(mc.best_k_models, key=mc.best_k_models.get)
+    mc.best_model_score = mc.best_k_models[mc.best_model_path]
+    log.info("best checkpoint so far: %s (%s %.4f), from the run resumed", mc.best_model_path, mc.monitor,
+             float(mc.best_model_score))
+    return mc.best_model_path
+
+
+def trainer_callbacks(cfg: DictConfig, ckpt: str | None) -> list[L.Callback]:
+    """The config's callbacks, plus KeepBestOfResumedRun(ckpt) when resuming: the best checkpoint of the
+    run resumed competes with this run's, whichever dir it lies in."""
+    callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
+    return callbacks + ([KeepBestOfResumedRun(ckpt)] if ckpt else [])
+
+
 def train(cfg: DictConfig) -> dict:
-    """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict."""
+    """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict.
+
+    The run dir is locked for the whole training (a second job there is refused at once: RunDirInUse) and
+    must not hold another training's results unless this job resumes it (RunDirTaken)."""
     t0, out = time.time(), output_dir(cfg)
     check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3
     require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
+    with run_dir_lock(out):
+        check_run_dir_free(out, cfg.get("ckpt_path"))
+        return fit_and_test(cfg, out, t0)
+
+
+def fit_and_test(cfg: DictConfig, out: Path, t0: float) -> dict:
+    """The training proper, in run dir `out` (held by `train`): fit, test the best checkpoint, metrics.json."""
     L.seed_everything(int(cfg.seed), workers=True)
     dm = datamodule(cfg)
     check_opened_data(cfg, dm)
@@ -178,13 +312,11 @@ def train(cfg: DictConfig) -> dict:
     module: ClothModule = instantiate(cfg.model, net=net_config(cfg, dm.target), identity=identity,
                                       summary=summary, training_identity=training).attach(dm.target)
     silence_training_noise()  # before the Trainer: its constructor logs a tip
-    callbacks = [instantiate(c) for c in (cfg.get("callbacks") or {}).values()]
-    loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
-    trainer = instantiate(cfg.trainer, callbacks=callbacks, logger=loggers or False)
-
     ckpt = resolve_ckpt_path(cfg.get("ckpt_path"), out, identity, training)
     if ckpt:
         log.info("resuming from %s", ckpt)
+    loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
+    trainer = instantiate(cfg.trainer, callbacks=trainer_callbacks(cfg, ckpt), logger=loggers or False)
     trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
 
     ck = trainer.checkpoint_callback
@@ -264,20 +396,7 @@ def write_metrics(out: Path, record: RunRecord | dict) -> Path:
     return record.write(out)
 
 
-@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
-def main(cfg: DictConfig) -> float:
-    try:
-        metrics = train(cfg)
-    except Exception as e:  # report, record, re-raise: see the module docstring
-        log.error("training failed: %s", e)
-        if is_writable_dir(output_dir(cfg)):  # a read-only run dir: the one clear error, not a second one chained
-            write_metrics(output_dir(cfg), {"status": "failed", "error": f"{type(e).__name__}: {e}",
-                                            "traceback": traceback.format_exc(),
-                                            "config": OmegaConf.to_container(cfg, resolve=False)})
-        raise
-    log.info("test metrics: %s", json.dumps(metrics["test"]))
-    return metrics["val_best"][metrics["optimized_metric"].split("/", 1)[1]]
+if __name__ == "__main__":  # `python -m pbc.train`, the users' own command: the entry floor runs it
+    from pbc.cli import run_as_module
 
-
-if __name__ == "__main__":
-    main()
+    run_as_module("train")

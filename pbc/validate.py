@@ -9,10 +9,15 @@ Imports nothing from pbc, so every stage (data, models, predict, the CLIs) can c
     training_identity(cfg, fp)  what a resumed run must share with its checkpoint
     identity_diff(a, b)         the differences between two identities, one readable line each
     check_resume(ck, ident, p)  refuse a checkpoint of another training identity, listing the differences
+    trainer_options()           the keyword arguments lightning's Trainer takes (check_config's trainer keys)
+    suggest_config_key(msg, c)  Hydra's "Could not override 'trainer.max_epoch'" -> the key meant, or None
 """
 
 from __future__ import annotations
 
+import difflib
+import functools
+import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -31,6 +36,8 @@ __all__ = [
     "check_resume",
     "identity_diff",
     "rotation_errors",
+    "suggest_config_key",
+    "trainer_options",
     "training_identity",
 ]
 
@@ -265,8 +272,100 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
             problems.append(f"model.patch_id is missing: model.kind=patch needs an integer {top}, {example}")
         elif not (_is_int(pid) and pid >= 0 and (num_patches is None or pid < num_patches)):
             problems.append(f"model.patch_id={pid!r} ({type(pid).__name__}): expected an integer {top}, {example}")
+    problems += _unknown_trainer_keys(cfg)
     if problems:
         raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
+
+
+# the trainer node's _target_ values whose keys are lightning.Trainer's keyword arguments
+TRAINER_TARGETS = ("lightning.pytorch.Trainer", "lightning.Trainer", "lightning.pytorch.trainer.Trainer",
+                   "lightning.pytorch.trainer.trainer.Trainer", "pytorch_lightning.Trainer")
+
+
+@functools.lru_cache(maxsize=1)
+def trainer_options() -> tuple[str, ...]:
+    """The keyword arguments of ``lightning.pytorch.Trainer.__init__`` (imported here only: ~3 s)."""
+    import inspect
+
+    from lightning.pytorch import Trainer
+
+    return tuple(n for n, p in inspect.signature(Trainer.__init__).parameters.items()
+                 if n != "self" and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD))
+
+
+def _closest(word: str, options: Sequence[str]) -> str | None:
+    hits = difflib.get_close_matches(word, list(options), n=1, cutoff=0.6)
+    return hits[0] if hits else None
+
+
+def _unknown_trainer_keys(cfg: Any) -> list[str]:
+    """`+trainer.max_epoch=3` composes (the + adds the key) and only fails when the Trainer is built, as a
+    TypeError naming no fix: refuse keys lightning's Trainer does not take, naming the closest one."""
+    present, node = _get(cfg, "trainer")
+    if not present or not isinstance(node, Mapping) and not hasattr(node, "keys"):
+        return []
+    try:
+        target = node.get("_target_")
+    except Exception:  # an unresolvable interpolation: not ours to judge
+        return []
+    if target not in TRAINER_TARGETS:
+        return []
+    options = trainer_options()
+    out = []
+    for key in node.keys():
+        key = str(key)
+        if key.startswith("_") or key in options:  # _target_, _partial_, _convert_: Hydra's own
+            continue
+        near = _closest(key, options)
+        hint = f"did you mean trainer.{near}?" if near else "see lightning.pytorch.Trainer's arguments"
+        out.append(f"trainer.{key}: not an argument of lightning's Trainer; {hint}")
+    return out
+
+
+_OVERRIDE = re.compile(r"Could not override '([^']+)'")
+_APPEND = re.compile(r"use \+([^\s=]+)=(\S*)")
+_FULL_KEY = re.compile(r"full_key: (\S+)")
+
+
+def suggest_config_key(exc_message: str, cfg: Any = None) -> str | None:
+    """Hydra's composition error for a mistyped key (``Could not override 'trainer.max_epoch'. To append to
+    your config use +trainer.max_epoch=3 ... Key 'max_epoch' is not in struct``) -> one line naming the key
+    meant: "unknown key trainer.max_epoch; did you mean trainer.max_epochs?". Hydra itself suggests the
+    ``+`` form, which then fails when the Trainer is built.
+
+    cfg: the composed config without the failing override (DictConfig or dict) whose keys are the
+    candidates; trainer.* also takes lightning's Trainer arguments (a real one the config does not set
+    is suggested with its ``+``). Returns None when the message is not such an error or the key exists.
+    """
+    m = _OVERRIDE.search(exc_message) or _FULL_KEY.search(exc_message)
+    if not m:
+        return None
+    key = m.group(1).lstrip("+~")
+    value = next((v for k, v in _APPEND.findall(exc_message) if k == key), None)
+    parts = key.split(".")
+    node, fixed = cfg, []
+    for i, part in enumerate(parts):
+        keys = [str(k) for k in node.keys()] if node is not None and hasattr(node, "keys") else []
+        trainer = fixed == ["trainer"]
+        options = sorted(set(keys) | set(trainer_options() if trainer else ()))
+        if part in keys:
+            fixed.append(part)
+            try:
+                node = node[part]
+            except Exception:  # an interpolation that cannot resolve here: its children are unknown
+                node = None
+            continue
+        if trainer and part in options:  # a real Trainer argument the preset does not set
+            return (f"trainer.{part} is not set by the trainer preset: add it with "
+                    f"+trainer.{part}={value if value is not None else '...'}")
+        near = _closest(part, [o for o in options if not o.startswith("_")])
+        if near is None:
+            where = ".".join(fixed) or "the config"
+            return f"unknown key {key}: {where} has no key {part!r} (its keys: {', '.join(keys) or 'none'})"
+        meant = ".".join([*fixed, near, *parts[i + 1:]])
+        tail = f" ({meant}={value})" if value is not None else ""
+        return f"unknown key {key}; did you mean {meant}?{tail}"
+    return None
 
 
 # ------------------------------------------------------------------------------------------ identity

@@ -81,8 +81,12 @@ def load_dataset(directory: str | Path, check: bool = True) -> ClothDataset:
     d = Path(directory)
     manifest_path = d / "manifest.json"
     if not manifest_path.is_file():
-        hint = " (generation is unfinished: re-run `python -m pbc.generate` to resume)" if (d / "work").exists() else ""
-        raise FileNotFoundError(f"no dataset at {d}: {manifest_path.name} is missing{hint}")
+        if (d / "work").exists():
+            hint = "generation is unfinished: re-run the same `pbc generate ...` to resume"
+        else:  # say where data is looked for: a command run outside the project dir finds none
+            hint = (f"make it with `pbc generate data=...` (data is looked for under paths.data_dir, "
+                    f"$PBC_ROOT/data or ./data; this one resolves to {d.resolve()})")
+        raise FileNotFoundError(f"no dataset at {d}: {manifest_path.name} is missing; {hint}")
     manifest = read_json(manifest_path, "dataset manifest")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise ValueError(

@@ -9,7 +9,6 @@ atomically.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib
@@ -154,27 +153,3 @@ def write_preview(directory: str | Path, cfg: DictConfig | None = None, n_sample
     if cfg is not None:  # cloth images, crop windows, round-trip error: the pixels stage's figures
         paths += cloth_image_preview(ds, out, cfg.image, space=str(OmegaConf.select(cfg, "model.space") or "local"))
     return paths
-
-
-def main(argv: list[str] | None = None) -> None:
-    """The cloth-image figures of a dataset (under DATASET_DIR/preview_pixels unless OUT_DIR is given)."""
-    ap = argparse.ArgumentParser(description="Cloth images, crop windows and round-trip error of a dataset.")
-    ap.add_argument("dataset")
-    ap.add_argument("out", nargs="?", default=None)
-    ap.add_argument("--samples", type=int, default=3)
-    ap.add_argument("overrides", nargs="*", help="config overrides giving the image and offset space the figures "
-                    "show, as a run's (e.g. +experiment=necktie: its 64 x 256 window in the root frame)")
-    args, extra = ap.parse_known_args(argv)
-    from pbc.config import load_config  # the run's config: image window, model.space
-
-    overrides = [*args.overrides, *extra]
-    if args.out and "=" in args.out:  # `preview DATASET +experiment=necktie`: an override, not OUT_DIR
-        overrides, args.out = [args.out, *overrides], None
-    cfg = load_config(overrides)
-    out = args.out or Path(args.dataset) / "preview_pixels"
-    for p in cloth_image_preview(load_dataset(args.dataset), out, cfg.image, args.samples, str(cfg.model.space)):
-        print(p)
-
-
-if __name__ == "__main__":
-    main()

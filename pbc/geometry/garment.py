@@ -12,7 +12,6 @@ both charts are seen from outside the garment and have the same winding as the o
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,10 +25,10 @@ from torch import Tensor
 from pbc.geometry.cage import Cage, load_cage, save_cage, tshirt_cage, validate_cage
 from pbc.geometry.meshio import obj_text
 from pbc.io import write_text
+from pbc.paths import resolve_path
 
 # The repository root: relative cage paths in the garment config are resolved against it when they do
 # not exist relative to the working directory (Hydra runs keep the cwd, tests may not).
-_REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass
@@ -327,14 +326,6 @@ def build_tshirt_mesh(cfg) -> tuple[Garment, TShirtLayout]:
     return garment, layout
 
 
-def resolve_path(path: str | os.PathLike) -> Path:
-    """A config path: as given if it exists or is absolute, else relative to the repository root."""
-    p = Path(path)
-    if p.is_absolute() or p.exists():
-        return p
-    return _REPO_ROOT / p
-
-
 def make_tshirt(cfg, use_cage_file: bool = True) -> tuple[Garment, Cage]:
     """The procedural T-shirt and its cage.
 
@@ -560,12 +551,3 @@ def _load_with_defaults(path):
     parts = [node if d == "_self_" else _load_with_defaults(Path(path).parent / f"{d}.yaml") for d in defaults]
     return OmegaConf.merge(*parts)
 
-
-if __name__ == "__main__":
-    # Regenerate the committed cage JSON of garment configs:
-    #   python -m pbc.geometry.garment conf/garment/tshirt.yaml conf/garment/tshirt_coarse.yaml
-    import sys
-
-    for arg in sys.argv[1:]:
-        g_cfg = load_garment_config(arg)
-        print(f"{arg}: wrote {write_tshirt_cage(g_cfg)}")

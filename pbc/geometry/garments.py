@@ -13,11 +13,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pbc.geometry.autocage import auto_cage, cage_summary
-from pbc.geometry.cage import Cage, load_cage, save_cage
-from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt, resolve_path
+from pbc.geometry.autocage import auto_cage
+from pbc.geometry.cage import Cage, load_cage
+from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt
 from pbc.geometry.necktie import make_necktie
 from pbc.geometry.obj_import import import_garment
+from pbc.paths import resolve_path
 
 
 def load_any_obj(path, **options) -> Garment:
@@ -70,37 +71,3 @@ def garment_from_config(gcfg) -> tuple[Garment, Cage]:
     if gcfg.get("kind") == "necktie":
         return make_necktie(gcfg)
     return make_tshirt(gcfg)
-
-
-def main(argv: list[str] | None = None) -> None:
-    """Write the automatic cage of a garment as an editable JSON (patches/ format) and compare it with
-    the garment config's own cage file when it has one. Arguments: Hydra overrides choosing the garment.
-
-        python -m pbc.geometry.garments garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
-        python -m pbc.geometry.garments garment=tshirt --out /tmp/tshirt_auto.json
-    """
-    import argparse
-
-    from pbc.config import load_config
-
-    ap = argparse.ArgumentParser(description=main.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. garment=obj garment.obj=my.obj")
-    ap.add_argument("--out", required=True, help="where to write the cage JSON")
-    args = ap.parse_args(argv)
-    gcfg = load_config(args.overrides).garment
-    image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
-    own = gcfg.get("cage")
-    gcfg.cage = "auto"
-    if gcfg.get("obj") or gcfg.get("kind") == "necktie":
-        garment, cage = garment_from_config(gcfg)
-    else:  # the procedural shirt: its mesh with the automatic cage
-        garment, _ = make_tshirt(gcfg, use_cage_file=False)
-        cage = auto_cage(garment, *image)
-    save_cage(cage, args.out, garment.num_vertices)
-    print(f"wrote {args.out}: automatic cage {cage_summary(cage)}")
-    if own and str(own) != "auto" and resolve_path(own).exists():
-        print(f"{own}: {cage_summary(load_cage(resolve_path(own), garment, *image))}")
-
-
-if __name__ == "__main__":
-    main()

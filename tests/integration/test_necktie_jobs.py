@@ -99,7 +99,7 @@ def test_the_necktie_trains_and_predicts_end_to_end(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     assert list((tmp_path / "pred" / "meshes").glob("*.obj")) and (tmp_path / "pred" / "contact_sheet.png").is_file()
     # the dataset preview shows the 64 x 256 window in the root frame, as training serves it
-    r = subprocess.run([sys.executable, "-m", "pbc.data.preview", str(data_dir), "--samples", "2", *overrides],
+    r = subprocess.run([sys.executable, "-m", "pbc", "preview", str(data_dir), "--samples", "2", *overrides],
                        cwd=root, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     from PIL import Image

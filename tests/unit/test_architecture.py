@@ -11,7 +11,7 @@ PKG = Path(__file__).resolve().parents[2] / "pbc"
 # The data flow, lowest first; a module may import its own stage or an earlier one. The longest matching
 # prefix names a module's stage. The ground floor (io, config, runs) reads and writes files only.
 STAGES = [
-    ("pbc.io", "pbc.config", "pbc.runs", "pbc.validate"),
+    ("pbc.paths", "pbc.io", "pbc.config", "pbc.runs", "pbc.validate"),
     ("pbc.geometry",),
     ("pbc.sim",),
     ("pbc.pixels",),
@@ -22,8 +22,11 @@ STAGES = [
     ("pbc.evaluate", "pbc.train", "pbc.edit"),
     ("pbc.report",),
     ("pbc.sweeps", "pbc.robustness"),
-    ("pbc.generate", "pbc.main", "pbc.cli"),
+    ("pbc.generate", "pbc.main", "pbc.cli", "pbc.__main__"),
 ]
+# the library stages: no command lives there (the entry floor, pbc.cli, holds them all)
+LIBRARY = ("pbc.paths", "pbc.io", "pbc.config", "pbc.runs", "pbc.validate", "pbc.geometry", "pbc.sim", "pbc.pixels",
+           "pbc.data", "pbc.losses", "pbc.metrics", "pbc.models", "pbc.stitch")
 
 
 def module_name(path: Path) -> str:
@@ -31,13 +34,27 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def main_guard(tree: ast.Module) -> ast.If | None:
+    """The module's `if __name__ == "__main__":` block, if any."""
+    for node in tree.body:
+        if (isinstance(node, ast.If) and isinstance(node.test, ast.Compare)
+                and isinstance(node.test.left, ast.Name) and node.test.left.id == "__name__"):
+            return node
+    return None
+
+
 def import_graph() -> dict[str, set[str]]:
-    """{module: the pbc modules it imports}, from the source alone (nothing is imported)."""
+    """{module: the pbc modules it imports}, from the source alone (nothing is imported). The imports of a
+    `python -m pbc.X` alias's main guard (it hands over to the entry floor) are not dependencies."""
     modules = {module_name(p): p for p in PKG.rglob("*.py")}
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
         deps = set()
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        tree = ast.parse(path.read_text(), str(path))
+        guard = main_guard(tree)
+        if guard is not None:
+            tree.body.remove(guard)
+        for node in ast.walk(tree):
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -106,3 +123,18 @@ def test_the_checks_catch_a_cycle_and_an_upward_import():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
     assert stage("pbc.pixels.preview") < stage("pbc.data.dataset")
+
+
+def test_commands_live_on_the_entry_floor():
+    """No library stage holds a command; a `python -m pbc.X` alias only hands over to pbc.cli."""
+    for path in sorted(PKG.rglob("*.py")):
+        name = module_name(path)
+        guard = main_guard(ast.parse(path.read_text(), str(path)))
+        if guard is None:
+            continue
+        assert not name.startswith(LIBRARY), f"{name} (a library stage) has a __main__ block: move it to pbc/cli"
+        if name.startswith("pbc.cli") or name == "pbc.__main__":
+            continue
+        calls = [n.func for n in ast.walk(guard) if isinstance(n, ast.Call)]
+        assert [getattr(c, "id", None) for c in calls] == ["run_as_module"], \
+            f"{name}'s __main__ block must only call pbc.cli.run_as_module (the command lives in pbc/cli)"

@@ -56,12 +56,12 @@ def test_a_chart_that_cannot_be_covered_is_refused(tmp_path):
 
 
 def test_cli_writes_an_editable_cage(tmp_path, capsys):
-    from pbc.geometry.garments import main
+    from pbc.cli.cage import run
 
     path = tmp_path / "top.obj"
     path.write_text(tube_top_obj())
     out = tmp_path / "top.json"
-    main(["garment=obj", f"garment.obj={path}", "garment.uv_unit=cm", "garment.charts={front:0,back:1,band:0}",
+    run(["garment=obj", f"garment.obj={path}", "garment.uv_unit=cm", "garment.charts={front:0,back:1,band:0}",
           "--out", str(out)])
     garment, names, _ = import_garment(path, charts=CHARTS, uv_unit="cm")
     cage = load_cage(out, garment, *IMAGE)

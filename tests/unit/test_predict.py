@@ -11,11 +11,13 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from helpers.cli import exit_code
 from omegaconf import OmegaConf
 from test_robustness import stand_in_dataset
 
 from pbc import cli
-from pbc.predict import ClothPredictor, load_decoder, main, stitch_config
+from pbc.cli.predict import main
+from pbc.predict import ClothPredictor, load_decoder, stitch_config
 from pbc.runs import RunRecord, monitor
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,7 +85,7 @@ def test_whole_model_alone_is_a_predictor(setup):
 def test_cli_writes_meshes_sheet_and_metrics(setup, tmp_path, capsys):
     data, whole = setup
     out = tmp_path / "out"
-    assert main([str(whole), "--poses", "test", "--out", str(out), "--body"]) == 0
+    assert exit_code(main, [str(whole), "--poses", "test", "--out", str(out), "--body"]) == 0
     res = json.loads((out / "predict.json").read_text())
     test_ids = json.loads((data / "manifest.json").read_text())["splits"]["test"]
     assert res["names"] == [f"test_{i:05d}" for i in test_ids] and res["model"] == "whole"
@@ -110,7 +112,7 @@ def test_cli_pose_file_ply_and_bad_input(setup, tmp_path, capsys):
     poses = np.load(data / "poses.npy")[:5]
     np.save(tmp_path / "flat.npy", poses.reshape(5, 90))  # (N, 90) rows accepted as (N, 10, 3, 3)
     out = tmp_path / "ply"
-    assert main([str(whole), "--poses", str(tmp_path / "flat.npy"), "--out", str(out), "--format", "ply",
+    assert exit_code(main, [str(whole), "--poses", str(tmp_path / "flat.npy"), "--out", str(out), "--format", "ply",
                  "--sheet", "0", "--batch-size", "2", "--body"]) == 0
     res = json.loads((out / "predict.json").read_text())
     assert res["names"] == [f"pose_{k:05d}" for k in range(5)] and not (out / "contact_sheet.png").exists()
@@ -125,7 +127,7 @@ def test_cli_pose_file_ply_and_bad_input(setup, tmp_path, capsys):
     for bad, msg in ((tmp_path / "shape.npy", "(N|B), 90"), (tmp_path / "scaled.npy", "rotation"),
                      ("tset", "neither an .npy file nor a split"), (tmp_path / "missing.npy", "does not exist")):
         capsys.readouterr()
-        assert main([str(whole), "--poses", str(bad), "--out", str(tmp_path / "bad")]) == 2
+        assert exit_code(main, [str(whole), "--poses", str(bad), "--out", str(tmp_path / "bad")]) == 2
         err = capsys.readouterr().err
         assert err.startswith("pbc predict: error:") and len(err.strip().splitlines()) == 1, err
         assert re.search(msg, err), err
@@ -158,7 +160,7 @@ def patch_sweep(setup):
 def test_cli_with_patch_models_and_a_seam_method(setup, patch_sweep, tmp_path):
     data, whole = setup
     out = tmp_path / "pca"
-    assert main([str(whole), "--patches", str(patch_sweep), "--method", "pca", "--poses", "test",
+    assert exit_code(main, [str(whole), "--patches", str(patch_sweep), "--method", "pca", "--poses", "test",
                  "--out", str(out), "--sheet", "2"]) == 0
     res = json.loads((out / "predict.json").read_text())
     assert res["model"] == "patches" and res["method"] == "pca"

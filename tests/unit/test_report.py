@@ -14,8 +14,10 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers.cli import exit_code
 
 from pbc import report, sweeps
+from pbc.cli import report as report_cli
 from pbc.runs import FAILED, INCOMPLETE, OK, RunRecord, load_runs
 
 
@@ -219,7 +221,7 @@ def test_train_error_falls_back_to_tensorboard(tmp_path):
 
 
 def test_cli_missing_dir(tmp_path, capsys):
-    assert report.main([str(tmp_path / "nope")]) == 2
+    assert exit_code(report_cli.main, [str(tmp_path / "nope")]) == 2
     assert "does not exist" in capsys.readouterr().err
 
 

@@ -1,0 +1,135 @@
+"""The entry floor's one error handler and its Hydra runner.
+
+A user error is a mistake in what the user gave (a path, a value, an override, data made with other
+settings): pbc's layers raise it with a message that names the problem and the fix, and here it becomes
+that one line on stderr and exit status 2, in every command. Anything else is a bug: its traceback stays.
+`--debug` (any command) or HYDRA_FULL_ERROR=1 shows the traceback of a user error too.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import sys
+from collections.abc import Callable, Sequence
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.errors import ConfigCompositionException, HydraException
+from hydra.types import RunMode
+from omegaconf import DictConfig
+from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
+
+from pbc.config import load_config
+from pbc.io import LockHeld
+from pbc.paths import CONF_DIR
+from pbc.validate import suggest_config_key
+
+USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, LockHeld,
+               HydraException, OmegaConfBaseException)
+# OSErrors that are the machine's state, not pbc's bug: say which path and what to free or change
+USER_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EDQUOT}
+DEBUG_FLAG = "--debug"
+EXIT_USER_ERROR = 2
+
+
+def is_user_error(exc: BaseException) -> bool:
+    return isinstance(exc, USER_ERRORS) or (isinstance(exc, OSError) and exc.errno in USER_ERRNOS)
+
+
+def one_line(exc: BaseException) -> str:
+    """The message a user reads: pbc's own text, Hydra's without its wrapper, a close key for a typo."""
+    text = str(exc).strip() or type(exc).__name__
+    if isinstance(exc, HydraException):  # Hydra's lists: one line of options, no search path
+        text = text.split("\nConfig search path:")[0]
+        text = re.sub(r"\n+Available options in '([^']+)':\s*((?:\n\t[^\n]+)+)",
+                      lambda m: f"; options of {m.group(1)}: " + ", ".join(m.group(2).split()), text)
+    if isinstance(exc, MissingMandatoryValue) and getattr(exc, "full_key", None):
+        return f"the config value {exc.full_key} is not set (???): give it on the command line, {exc.full_key}=..."
+    cause = exc.__cause__
+    if isinstance(exc, HydraException) and isinstance(cause, (OmegaConfBaseException, TypeError)):
+        text = f"{text}: {str(cause).strip().splitlines()[0]}"  # Hydra's wrapper hides the key at fault
+    if isinstance(exc, OSError) and exc.errno in USER_ERRNOS and exc.filename and str(exc.filename) not in text:
+        text = f"{text} ({exc.filename})"
+    return text
+
+
+def entry_point(name: str, run: Callable[[list[str]], int | None]) -> Callable[[Sequence[str] | None], None]:
+    """`main(argv=None)` of command `name`: `run(args)` under the one handler; exits with run's status."""
+
+    def main(argv: Sequence[str] | None = None) -> None:
+        args = list(sys.argv[1:] if argv is None else argv)
+        debug = DEBUG_FLAG in args or os.environ.get("HYDRA_FULL_ERROR") == "1"
+        args = [a for a in args if a != DEBUG_FLAG]
+        try:
+            rc = run(args)
+        except KeyboardInterrupt:
+            print(f"pbc {name}: interrupted", file=sys.stderr)
+            sys.exit(130)
+        except Exception as exc:
+            if debug or not is_user_error(exc):
+                raise
+            print(f"pbc {name}: error: {one_line(exc)}", file=sys.stderr)
+            sys.exit(EXIT_USER_ERROR)
+        sys.exit(int(rc or 0))
+
+    main.__doc__ = f"`pbc {name} [args]` (see `pbc {name} --help`)."
+    return main
+
+
+def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name: str = "config") -> None:
+    """Run the Hydra job `task` (a function of the composed config) with command-line `args`, the configs
+    read from pbc's shipped conf/ (pbc.paths) wherever pbc is installed.
+
+    Hydra prints an exception itself and exits 1; here it re-raises instead (HYDRA_FULL_ERROR for the
+    duration) so the entry floor's handler decides. In a single run the task's own exception is carried
+    out of Hydra and raised after it has closed the job (no "Error executing job" banner); in a multirun
+    it stays with the launcher, which marks that job failed and runs the others.
+    """
+    failure: list[BaseException] = []
+
+    def job(cfg: DictConfig):
+        try:
+            return task(cfg)
+        except Exception as exc:
+            if HydraConfig.get().mode != RunMode.RUN:
+                raise
+            failure.append(exc)
+            return None
+
+    job.__module__, job.__qualname__ = task.__module__, task.__qualname__  # Hydra names the job from these
+    job.__name__ = task.__name__
+    saved_argv, saved_env = sys.argv, os.environ.get("HYDRA_FULL_ERROR")
+    sys.argv = [f"pbc-{task.__module__.rsplit('.', 1)[-1]}", *args]
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    try:
+        hydra.main(config_path=str(CONF_DIR), config_name=config_name, version_base="1.3")(job)()
+    except ConfigCompositionException as exc:
+        hint = config_key_hint(str(exc), args, config_name)
+        if hint is None:
+            raise
+        raise ValueError(hint) from exc  # instead of Hydra's advice to add the key with "+"
+    finally:
+        sys.argv = saved_argv
+        if saved_env is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = saved_env
+    if failure:
+        raise failure[0]
+
+
+def config_key_hint(message: str, args: list[str], config_name: str) -> str | None:
+    """For a mistyped override (`trainer.max_epoch=3`): the key meant, from the config the other
+    overrides compose (pbc.validate.suggest_config_key); None when that is not the error."""
+    key = message.split("'")[1] if message.startswith("Could not override '") else None
+    if key is None:
+        return suggest_config_key(message)
+    others = [a for a in args if "=" in a and not a.lstrip("+~").startswith(key + "=")
+              and not a.startswith(("hydra.", "hydra/", "-"))]
+    try:
+        cfg = load_config(others, config_name=config_name)
+    except Exception:  # another override is wrong too: judge this one without a config
+        cfg = None
+    return suggest_config_key(message, cfg)

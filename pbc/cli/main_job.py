@@ -1,0 +1,90 @@
+"""The README's main job: make the default dataset with its previews, train the whole-shirt model and one
+patch model on it (CPU schedule), and print their test metrics.
+
+    python -m pbc.main data=tshirt_tiny trainer=smoke      # a quick look (minutes)
+
+Each step is the command a user would type, run as its own process with its own Hydra run dir under a
+fresh `runs/main/<date>_<time>/` per invocation (`runs/main/latest` points at the newest; under $PBC_ROOT
+when set, as `paths.log_dir`), so a quick look never overwrites a real run. The overrides go to every
+step (`pbc.generate`, then `pbc.train` twice).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from pbc.cli.errors import entry_point
+from pbc.runs import scoped_name
+
+RUNS = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "main"  # conf/paths: ${paths.log_dir}/main
+STEPS = [
+    ("make the dataset and its preview figures", "generate", ["pbc.generate", "preview=true"]),
+    ("train the whole-shirt model", "whole", ["pbc.train", "+experiment=whole"]),
+    ("train patch model 7", "patch_07", ["pbc.train", "+experiment=patch_07"]),
+]
+SHOWN = ("vertex_error_cm", "normal_distance", "image_loss")
+
+
+def usage() -> str:
+    steps = "\n".join(f"  {i + 1}. {title}: python -m {' '.join(cmd)} hydra.run.dir=<run dir>/{name}"
+                      for i, (title, name, cmd) in enumerate(STEPS))
+    return (f"usage: python -m pbc.main [HYDRA OVERRIDES...]\n\n{__doc__.strip()}\n\nsteps:\n{steps}\n\n"
+            "Each step's own options: python -m pbc.train --help, python -m pbc.generate --help.")
+
+
+def fresh_run_dir(root: Path = RUNS) -> Path:
+    """A new `<root>/<date>_<time>[_N]` for this invocation, and `<root>/latest` pointing at it."""
+    stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+    out, n = root / stamp, 1
+    while out.exists():
+        out, n = root / f"{stamp}_{n}", n + 1
+    out.mkdir(parents=True)
+    latest = root / "latest"
+    try:  # a convenience only: a file system without symlinks still gets the run
+        if latest.is_symlink() or latest.exists():
+            latest.unlink()
+        latest.symlink_to(out.name, target_is_directory=True)
+    except OSError:
+        pass
+    return out
+
+
+def run(extra: list[str]) -> None:
+    if any(a in ("-h", "--help") for a in extra):
+        print(usage())
+        return
+    runs = fresh_run_dir()
+    print(f"== run dir {runs}", flush=True)
+    t_start = time.time()
+    for title, name, step in STEPS:
+        print(f"== {title}", flush=True)
+        t0 = time.time()
+        rc = subprocess.run([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra]).returncode
+        if rc:  # the step printed its own error above; say which step and where its log is, no traceback here
+            sys.exit(f"pbc.main: step '{title}' failed (exit {rc}); its run dir: {runs / name}")
+        print(f"   ({time.time() - t0:.0f} s)", flush=True)
+    print(f"== test metrics (done in {(time.time() - t_start) / 60:.1f} min)")
+    print(f"{'run':<10}{'scope':>16}" + "".join(f"{k:>18}" for k in SHOWN))
+    for run in ("whole", "patch_07"):
+        path = runs / run / "metrics.json"
+        if not path.is_file():
+            sys.exit(f"pbc.main: {path} is missing: the {run} step ran but did not train "
+                     "(an override such as --cfg or --help stops pbc.train before training)")
+        test = json.loads(path.read_text())["test"]
+        # a patch model is scored over its patch's vertices only (patch_vertex_error_cm): say so
+        patch = scoped_name(SHOWN[0], "patch") in test
+        values = [test.get(scoped_name(k, "patch") if patch else k, float("nan")) for k in SHOWN]
+        scope = "its patch only" if patch else "whole garment"
+        print(f"{run:<10}{scope:>16}" + "".join(f"{v:>18.4f}" for v in values))
+    print(f"TensorBoard: tensorboard --logdir {runs}")
+
+
+main = entry_point("main", run)
+
+if __name__ == "__main__":
+    main()
