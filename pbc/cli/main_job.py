@@ -11,7 +11,6 @@ step (`pbc.generate`, then `pbc.train` twice).
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -19,7 +18,9 @@ import time
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
-from pbc.runs import scoped_name
+from pbc.data.baselines import mean_shape_errors
+from pbc.data.dataset import load_dataset
+from pbc.runs import ModelKind, RunRecord, scoped_name
 
 RUNS = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "main"  # conf/paths: ${paths.log_dir}/main
 STEPS = [
@@ -54,6 +55,29 @@ def fresh_run_dir(root: Path = RUNS) -> Path:
     return out
 
 
+def closing_table(runs: Path) -> str:
+    """The test scores of the two models beside the training mean shape's, each over the vertices its model
+    is scored on (a patch model: its patch only): an error in cm means little without the no-model level."""
+    header = f"{'run':<10}{'scored over':>16}{'model cm':>12}{'mean shape cm':>15}" + "".join(
+        f"{k:>18}" for k in SHOWN[1:])
+    rows = [header, "-" * len(header)]
+    for run in ("whole", "patch_07"):
+        path = runs / run / "metrics.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} is missing: the {run} step ran but did not train (an override "
+                                    "such as --cfg or --help stops pbc.train before training)")
+        record = RunRecord.read(path)
+        patch = record.kind == ModelKind.PATCH  # scored over its patch's vertices only (patch_vertex_error_cm)
+        values = [record.test.get(scoped_name(k, "patch") if patch else k, float("nan")) for k in SHOWN]
+        ds = load_dataset(record.data["dir"], check=False)
+        vertices = ds.cage.patches[int(record.config["model"]["patch_id"])].vertices if patch else None
+        mean_cm = mean_shape_errors(ds, ("test",), vertices)["test"]
+        scope = f"patch {record.config['model']['patch_id']}" if patch else "whole garment"
+        rows.append(f"{run:<10}{scope:>16}{values[0]:>12.3f}{mean_cm:>15.3f}"
+                    + "".join(f"{v:>18.4f}" for v in values[1:]))
+    return "\n".join(rows)
+
+
 def run(extra: list[str]) -> None:
     if any(a in ("-h", "--help") for a in extra):
         print(usage())
@@ -69,18 +93,7 @@ def run(extra: list[str]) -> None:
             sys.exit(f"pbc.main: step '{title}' failed (exit {rc}); its run dir: {runs / name}")
         print(f"   ({time.time() - t0:.0f} s)", flush=True)
     print(f"== test metrics (done in {(time.time() - t_start) / 60:.1f} min)")
-    print(f"{'run':<10}{'scope':>16}" + "".join(f"{k:>18}" for k in SHOWN))
-    for run in ("whole", "patch_07"):
-        path = runs / run / "metrics.json"
-        if not path.is_file():
-            sys.exit(f"pbc.main: {path} is missing: the {run} step ran but did not train "
-                     "(an override such as --cfg or --help stops pbc.train before training)")
-        test = json.loads(path.read_text())["test"]
-        # a patch model is scored over its patch's vertices only (patch_vertex_error_cm): say so
-        patch = scoped_name(SHOWN[0], "patch") in test
-        values = [test.get(scoped_name(k, "patch") if patch else k, float("nan")) for k in SHOWN]
-        scope = "its patch only" if patch else "whole garment"
-        print(f"{run:<10}{scope:>16}" + "".join(f"{v:>18.4f}" for v in values))
+    print(closing_table(runs))
     print(f"TensorBoard: tensorboard --logdir {runs}")
 
 
