@@ -88,8 +88,10 @@ def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name
     it stays with the launcher, which marks that job failed and runs the others.
     """
     failure: list[BaseException] = []
+    started: list[bool] = []
 
     def job(cfg: DictConfig):
+        started.append(True)
         try:
             return task(cfg)
         except Exception as exc:
@@ -110,6 +112,12 @@ def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name
         if hint is None:
             raise
         raise ValueError(hint) from exc  # instead of Hydra's advice to add the key with "+"
+    except OSError as exc:
+        if started or not exc.filename:
+            raise
+        # Hydra makes the run dir (and its .hydra/, log file) before the job runs: name it and the fix
+        raise PermissionError(f"cannot create the run dir {exc.filename}: {exc.strerror}; set hydra.run.dir "
+                              "(or PBC_ROOT, or hydra.sweep.dir for -m) to a writable folder") from exc
     finally:
         sys.argv = saved_argv
         if saved_env is None:

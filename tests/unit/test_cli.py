@@ -90,3 +90,13 @@ def test_hydra_errors_become_one_line_with_the_options(capsys, tmp_path, monkeyp
     err = capsys.readouterr().err
     assert "did you mean trainer.max_epochs" in err and "+trainer.max_epoch" not in err
     assert not any(tmp_path.iterdir())
+
+
+def test_a_run_dir_that_cannot_be_made_is_named_with_the_fix(capsys, tmp_path, monkeypatch):
+    from pbc.cli.train import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").write_text("a file where the runs folder should be")  # read-only as root cannot be
+    assert exit_code(main, ["data=tshirt_tiny"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot create the run dir runs/train/" in err and "hydra.run.dir" in err and "Errno" not in err
