@@ -424,6 +424,7 @@ def _generate(cfg: DictConfig) -> Path:
     batches = [list(range(b * k, min((b + 1) * k, len(poses)))) for b in range(math.ceil(len(poses) / k))]
     todo = [batches[b] for s in shards for b in range(s, len(batches), n_shards)
             if not all(_sample_path(work, i).is_file() for i in batches[b])]
+    _report_progress(work, len(poses), k, n_shards, data.shard, todo)
     t0 = time.perf_counter()
     _run_drapes(cfg, scene, poses, todo, work)
     timings["drape_wall"] = time.perf_counter() - t0
@@ -431,6 +432,21 @@ def _generate(cfg: DictConfig) -> Path:
         return out
     merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings, batch=k, num_shards=n_shards)
     return out
+
+
+def _report_progress(work: Path, num_poses: int, k: int, n_shards: int, shard, todo: list[list[int]]) -> None:
+    """One log line per shard that a killed run left unfinished, by name: a resumed shard says so, and a
+    merge that finds shards unfinished names them before draping what they left (here, in one job)."""
+    if shard is not None:
+        total = len(range(int(shard), math.ceil(num_poses / k), n_shards))  # its batches
+        if 0 < len(todo) < total:
+            log.info("shard %s of %d: resuming, %d of its %d batches already made", shard, n_shards,
+                     total - len(todo), total)
+        return
+    if n_shards > 1 and todo:
+        for s, ids in sorted(missing_shards(work, num_poses, k, n_shards).items()):
+            log.warning("shard %d of %d is unfinished (%d samples missing, first %s): draping them in this merge "
+                        "job; to spread them instead, run data.shard=%d again first", s, n_shards, len(ids), ids[:5], s)
 
 
 def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[list[int]], work: Path) -> None:
