@@ -102,12 +102,14 @@ def test_submitit_local_runs_a_two_job_smoke_training_sweep(tiny_dataset, tmp_pa
 
 
 def test_ddp_on_two_cpu_processes_writes_one_record_from_rank_zero(tiny_dataset, tmp_path):
-    """`trainer=ddp trainer.accelerator=cpu trainer.devices=2`: Lightning starts rank 1 as a second
+    """`trainer=ddp trainer.accelerator=cpu trainer.devices=2 trainer.sync_batchnorm=false` (SyncBatchNorm is
+    GPU-only): Lightning starts rank 1 as a second
     `python -m pbc.train` in the same run dir, the ranks talk over gloo; checkpoints and metrics.json come
     from rank 0 only."""
     run = tmp_path / "run"
     r = _pbc("pbc.train", "+experiment=whole", *tiny_overrides(tiny_dataset.parent), "trainer=ddp",
-             "trainer.accelerator=cpu", "trainer.devices=2", "trainer.max_epochs=2", "+trainer.limit_train_batches=2",
+             "trainer.accelerator=cpu", "trainer.devices=2", "trainer.sync_batchnorm=false", "trainer.max_epochs=2",
+             "+trainer.limit_train_batches=2",
              "+trainer.limit_val_batches=1", "+trainer.limit_test_batches=1", "trainer.enable_progress_bar=false",
              "image.whole_resolution=64", f"hydra.run.dir={run}")
     out = r.stdout + r.stderr
