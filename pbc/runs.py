@@ -503,9 +503,16 @@ def sweep_values(key: str, value: str, conf_dir: Path = ROOT / "conf") -> list[s
 
 
 def expected_jobs(sweep_dir: Path) -> dict[str, list[str]]:
-    """{key: values} the sweep was launched with (from Hydra's multirun.yaml), for naming missing runs."""
+    """{key: values} the sweep was launched with (from Hydra's multirun.yaml), for naming missing runs: the
+    sweeper's params, each replaced by the command line's value for the same key, as Hydra's sweeper does
+    (`robustness.trial=shape_0.0,shape_2.0` runs those two only)."""
     cfg = _read_yaml(Path(sweep_dir) / "multirun.yaml")
-    params = (((cfg or {}).get("hydra") or {}).get("sweeper") or {}).get("params") or {}
+    hydra = (cfg or {}).get("hydra") or {}
+    params = dict((hydra.get("sweeper") or {}).get("params") or {})
+    for line in (hydra.get("overrides") or {}).get("task") or []:
+        key, sep, value = str(line).partition("=")
+        if sep and (key in params or key.lstrip("+") in {k.lstrip("+") for k in params}):
+            params = {k: v for k, v in params.items() if k.lstrip("+") != key.lstrip("+")} | {key: value}
     out = {}
     for key, value in params.items():
         try:

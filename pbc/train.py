@@ -388,11 +388,9 @@ def log_final(trainer: L.Trainer, summary: dict, metrics: dict) -> None:
             lg.finalize("success")
 
 
-def write_metrics(out: Path, record: RunRecord | dict) -> Path:
-    """metrics.json of a run (what pbc.evaluate, pbc.report and the main job read), atomically, through
-    the run record (a dict is read as one, so it is checked the same way: ``RunRecord.failure(...)`` makes
-    a failed run's)."""
-    record = record if isinstance(record, RunRecord) else RunRecord.from_dict(record, str(out / "metrics.json"))
+def write_metrics(out: Path, record: RunRecord) -> Path:
+    """metrics.json of a run (what pbc.evaluate, pbc.report and the main job read): the run record,
+    checked and written atomically (``RunRecord.failure(...)`` makes a failed run's)."""
     return record.write(out)
 
 

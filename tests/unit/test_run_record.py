@@ -134,3 +134,16 @@ def test_read_run_finds_the_best_checkpoint_of_a_moved_run(tmp_path):
         p.unlink()
     with pytest.raises(ValueError, match="no checkpoint under"):
         read_run(moved)
+
+
+def test_expected_jobs_follow_the_command_line(tmp_path):
+    """A swept key typed on the command line replaces the sweeper's list, as Hydra's sweeper does, so a
+    report does not list the trials that were never launched as missing."""
+    import yaml
+
+    from pbc.runs import expected_jobs
+
+    mr = {"hydra": {"sweeper": {"params": {"robustness.trial": "shape_0.0,shape_0.5,paint_torso", "loss": "l1,l2"}},
+                    "overrides": {"task": ["scale=smoke", "robustness.trial=shape_0.0,paint_torso"]}}}
+    (tmp_path / "multirun.yaml").write_text(yaml.safe_dump(mr))
+    assert expected_jobs(tmp_path) == {"robustness.trial": ["shape_0.0", "paint_torso"], "loss": ["l1", "l2"]}
