@@ -6,6 +6,7 @@ directory written from the coarse shirt with identity poses instead of a real dr
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -620,8 +621,8 @@ def test_run_remembers_its_data_from_any_shell(trained, tiny_dir, tmp_path, monk
     with pytest.raises(ValueError, match=r"not the data the run was trained on(.|\n)*seed: recorded 0 vs found 7"):
         open_run_dataset(info, other)
     # a run written before the record existed still opens its config's data.dir
-    old = type(info)(info.dir, info.kind, info.patch_id, info.garment_hash, info.checkpoint,
-                     {"data": {"dir": str(tiny_dir)}}, None)
+    old = dataclasses.replace(info, record=dataclasses.replace(info.record, data=None,
+                                                               config={"data": {"dir": str(tiny_dir)}}))
     assert len(open_run_dataset(old)) == 6
 
 
