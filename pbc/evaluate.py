@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from matplotlib.collections import PolyCollection
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.data.dataset import run_data_record
@@ -172,11 +173,10 @@ def markdown_table(metrics: dict) -> str:
 
 def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str) -> None:
     """error_maps.png, preview_<i>.png and meshes/*.obj from the first batch's positions."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
 
     gt = keep["gt"]

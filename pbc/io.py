@@ -8,17 +8,22 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import hashlib
 import json
 import os
+import pickle
 import shutil
+import socket
 import tempfile
+import time
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 
 @contextlib.contextmanager
@@ -54,7 +59,7 @@ def write_json(path: str | os.PathLike, obj: Any) -> None:
 
 def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     """Save a matplotlib figure as PNG, atomically, and close it."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - the caller chose the backend and loaded pyplot; io needs none
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format="png")
@@ -132,9 +137,7 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None, what:
 
 def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu") -> dict:
     """`torch.load` of a Lightning checkpoint with one clear error naming the file when it is corrupt."""
-    import pickle
 
-    import torch
 
     path = Path(path)
     if not path.is_file():
@@ -269,10 +272,6 @@ def dir_lock(path: str | os.PathLike, what: str = "this directory", shared: bool
     exclusive holder removes the file on release (a waiter on the old file notices and retries), so a
     finished directory keeps no lock files.
     """
-    import fcntl
-    import socket
-    import time
-
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

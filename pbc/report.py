@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
+import matplotlib as mpl
+import numpy as np
 import yaml
 
 from pbc.io import save_figure, write_text
@@ -68,7 +70,6 @@ TIE_RELATIVE = 0.01
 @dataclass
 class Row:
     """One table row: what it selects, the runs behind it, mean values over its successful runs."""
-
     label: str
     select: dict[str, str]
     runs: list[str] = field(default_factory=list)
@@ -328,8 +329,6 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
 
 # ---------------------------------------------------------------------------------------------- figures
 def _bars(ax, labels, ours, theirs, ylabel, title):
-    import numpy as np
-
     x = np.arange(len(labels))
     ax.bar(x - 0.2, [o if o is not None else 0 for o in ours], 0.4, label="ours")
     if any(t is not None for t in theirs):
@@ -367,9 +366,6 @@ def curve_styles(labels: list[str], family_min: int = 5) -> tuple[list[dict], di
 
     -> ([{"color", "label" (None: no legend entry), "family" (prefix or None), "lw"}] per label,
     {family prefix: (smallest, largest number)})."""
-    import matplotlib as mpl
-    import numpy as np
-
     keys = {lb.split("=", 1)[0] for lb in labels if "=" in lb and "," not in lb}
     short = [lb.split("=", 1)[1] if len(keys) == 1 and "," not in lb and "=" in lb else lb for lb in labels]
     numbered = [re.fullmatch(r"(.*?)(\d+)", lb) for lb in short]
@@ -400,10 +396,10 @@ def curve_styles(labels: list[str], family_min: int = 5) -> tuple[list[dict], di
 
 def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
     """Write the PNGs that have data; returns {name: file name} for the markdown."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     made = {}
     if any(r.status == OK for r in t1):
@@ -468,7 +464,6 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
         made["hierarchy"] = "hierarchy.png"
     curved = [r for r in runs if r.curves]
     if curved:
-        import numpy as np
 
         styles, families = curve_styles([label_of(r, runs) for r in curved])
         fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), layout="constrained")

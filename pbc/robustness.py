@@ -23,22 +23,38 @@ TensorBoard), robustness.json, robustness.md, fig9_error_vs_shape.png, fig10_wro
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+from matplotlib.collections import PolyCollection
 from omegaconf import DictConfig, OmegaConf
 
-from pbc.io import read_json, save_figure, write_json, write_text
-from pbc.runs import OK, SWEEP_RECORD, VERTEX_ERROR, Run, default_sweep_dir, expected_jobs, load_runs, sweep_values
+from pbc.config import load_config
+from pbc.data.baselines import mean_shape_errors
+from pbc.data.dataset import load_dataset
+from pbc.geometry.body import pose_body, save_body
+from pbc.geometry.sculpt import paint_weights, sculpt_displacement, shaped_body
+from pbc.io import hash_arrays, read_json, save_figure, write_json, write_text
+from pbc.paths import CONF_DIR
+from pbc.pixels.frames import to_offsets
+from pbc.pixels.target import make_target
+from pbc.predict import load_decoder
+from pbc.runs import (
+    OK,
+    SWEEP_RECORD,
+    VERTEX_ERROR,
+    Run,
+    expected_jobs,
+    load_run,
+    load_runs,
+    read_run,
+    run_image_config,
+    sweep_values,
+)
 
-ROOT = Path(__file__).resolve().parents[1]
-SWEEP_CONFIG = ROOT / "conf" / "sweep" / "robustness.yaml"
+SWEEP_CONFIG = CONF_DIR / "sweep" / "robustness.yaml"
 LINKED = ("poses.npy", "verts.npy", "garment.obj", "cage.json", "embedding.npz")
 CM = 100.0
 
@@ -62,8 +78,6 @@ def load_settings(overrides: list[str] = ()) -> DictConfig:
 
 def trial_body(body, name: str, rob: DictConfig):
     """The body of one trial: the sculpt at its shape parameter, or the true body with painted weights."""
-    from pbc.geometry.sculpt import paint_weights, sculpt_displacement, shaped_body
-
     t = shape_of(name)
     if t is not None:
         sc = OmegaConf.to_container(rob.sculpt, resolve=True)
@@ -76,9 +90,6 @@ def trial_body(body, name: str, rob: DictConfig):
 
 def make_trial_dataset(base_dir: Path, out: Path, body, info: dict) -> Path:
     """A dataset dir holding the base data's cloth (linked) and another body. Idempotent."""
-    from pbc.geometry.body import save_body
-    from pbc.io import hash_arrays
-
     out.mkdir(parents=True, exist_ok=True)
     for name in LINKED:
         link = out / name
@@ -95,8 +106,6 @@ def make_trial_dataset(base_dir: Path, out: Path, body, info: dict) -> Path:
 
 def make_bodies(base_dir: Path, sweep_dir: Path, rob: DictConfig, trials: list[str]) -> dict[str, Path]:
     """One dataset dir per trial under <sweep_dir>/bodies/."""
-    from pbc.data.dataset import load_dataset
-
     base = load_dataset(base_dir)
     dirs = {}
     for name in trials:
@@ -121,8 +130,6 @@ def prepare_bodies(sweep_dir: Path, base_overrides: list[str], overrides: list[s
     dataset that `base_overrides` (`+scale=...` and the data keys) select, which the `data` step made.
 
     overrides: the sweep's own (`robustness.*=...`, `robustness.trial=a,b`)."""
-    from pbc.config import load_config
-
     rob = load_settings(overrides)
     base_dir = Path(load_config(["+experiment=whole", *base_overrides]).data.dir)
     if not (base_dir / "manifest.json").is_file():
@@ -165,35 +172,10 @@ def collect(sweep_dir: Path, runs: dict[str, Run], trials: list[str]) -> list[di
 
 
 def mean_baseline(data_dir: Path) -> dict:
-    """The no-model baseline of one body: every pose gets the training split's mean local offsets.
-
-    -> {train_cm, test_cm}: mean vertex error on each split. A model at this level has learnt nothing
-    beyond the mean shape, and an unchanged error across bodies then says little about robustness.
-    """
-    from pbc.data.dataset import load_dataset
-    from pbc.pixels.frames import from_offsets, to_offsets
-    from pbc.pixels.target import make_target
-
-    ds = load_dataset(data_dir)
-    skin = make_target(ds, None, "fc").skinner  # per-vertex target: the skinner, no operators
-
-    def split(name):
-        idx = ds.split(name)
-        pose = torch.from_numpy(np.array(ds.poses[idx], np.float32))
-        verts = torch.from_numpy(np.array(ds.verts[idx], np.float32))
-        anchors, frames = skin(pose)
-        return verts, anchors, frames
-
-    out = {}
-    with torch.inference_mode():
-        v, a, f = split("train")
-        mean = to_offsets(v, a, f).mean(0, keepdim=True)
-        for name in ("train", "test"):
-            v, a, f = split(name)
-            if len(v):
-                pred = from_offsets(mean.expand(len(v), -1, -1), a, f)
-                out[f"{name}_cm"] = float((pred - v).norm(dim=-1).mean()) * CM
-    return out
+    """The no-model baseline of one body (pbc.data.baselines): {train_cm, test_cm}. A model at this level has
+    learnt nothing beyond the mean shape, and an unchanged error across bodies then says little."""
+    errs = mean_shape_errors(load_dataset(data_dir), ("train", "test"))
+    return {f"{k}_cm": v for k, v in errs.items()}
 
 
 def verdict(rows: list[dict], factor: float) -> dict:
@@ -213,10 +195,10 @@ def verdict(rows: list[dict], factor: float) -> dict:
 
 def fig9(path: Path, rows: list[dict]) -> Path:
     """Train and test vertex error against the shape parameter; artifact trials as separate markers."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     ok = [r for r in rows if r.get("status") == "ok"]
     shp = sorted((r for r in ok if r["shape"] is not None), key=lambda r: r["shape"])
@@ -245,13 +227,6 @@ def fig9(path: Path, rows: list[dict]) -> Path:
 def predict_on(run_dir: Path, data_dir: Path, index: int):
     """A trial model's prediction for dataset sample `index`: (pred (V, 3), gt (V, 3), pred/gt local offsets,
     posed trial body (Vb, 3), dataset)."""
-    from pbc.data.dataset import load_dataset
-    from pbc.geometry.body import pose_body
-    from pbc.pixels.frames import to_offsets
-    from pbc.pixels.target import make_target
-    from pbc.predict import load_decoder
-    from pbc.runs import read_run, run_image_config
-
     ds = load_dataset(data_dir)
     info = read_run(run_dir)
     net, hp = load_decoder(info.checkpoint)
@@ -281,9 +256,6 @@ def penetration(offsets: torch.Tensor) -> dict:
 
 def _draw_scene(ax, body_v, body_f, cloth_v, cloth_f, title):
     """Front view of body and cloth in one painter's pass, so a body that pokes through the cloth shows."""
-    import matplotlib.pyplot as plt  # noqa: F401  (backend chosen by the caller)
-    from matplotlib.collections import PolyCollection
-
     tris, cols = [], []
     light = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
     for v, f, base in ((body_v, body_f, (0.85, 0.65, 0.5)), (cloth_v, cloth_f, (0.35, 0.55, 0.9))):
@@ -305,15 +277,15 @@ def _draw_scene(ax, body_v, body_f, cloth_v, cloth_f, title):
 
 def fig10(path: Path, sweep_dir: Path, trials: list[str], index: int) -> dict:
     """Predictions on the thickest body and on the artifact body, with the body drawn through the cloth."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     out, panels = {}, []
     for name in trials:
         run = sweep_dir / name
-        if not (run / "metrics.json").is_file() or json.loads((run / "metrics.json").read_text()).get("status") != "ok":
+        if load_run(run, sweep_dir, events=False).status != OK:
             continue
         pred, gt, off_p, off_g, body_v, ds = predict_on(run, sweep_dir / "bodies" / name, index)
         out[name] = {"sample": int(index), "predicted": penetration(off_p), "ground_truth": penetration(off_g),
@@ -426,33 +398,3 @@ def markdown(res: dict) -> str:
 
 
 # ----------------------------------------------------------------------------- entry point
-def run(overrides: list[str], sweep_dir: Path | None = None, trials: list[str] | None = None,
-        report_only: bool = False) -> tuple[Path, dict]:
-    """`python -m pbc.robustness` is the sweep runner's `python -m pbc.sweeps robustness` (run as that
-    command: the runner imports this module), then the report; report_only: the report of a finished
-    sweep dir alone."""
-    scale = next((o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("scale=")), "cpu")
-    sweep_dir = Path(sweep_dir) if sweep_dir is not None else default_sweep_dir("robustness", scale)
-    if not report_only:
-        pick = [f"robustness.trial={','.join(trials)}"] if trials else []
-        subprocess.run([sys.executable, "-m", "pbc.sweeps", "robustness", *overrides, *pick, "--dir", str(sweep_dir),
-                        "--no-report"], check=False)
-    return sweep_dir, report(sweep_dir)
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pbc.robustness", description=__doc__.split("\n\n")[0])
-    ap.add_argument("overrides", nargs="*", help="scale=smoke|cpu|paper, robustness.*=..., training overrides")
-    ap.add_argument("--dir", type=Path, default=None, help="sweep dir (default runs/sweeps/robustness/SCALE_TIME)")
-    ap.add_argument("--trials", default=None, help="comma list of trials (default: all 9)")
-    ap.add_argument("--report-only", action="store_true", help="only rebuild the report of a finished sweep dir")
-    args = ap.parse_args(argv)
-    sweep_dir, res = run(args.overrides, args.dir, args.trials.split(",") if args.trials else None, args.report_only)
-    print(markdown(res))
-    print(f"[pbc.robustness] {sweep_dir}")
-    failed = [r for r in res["rows"] if r.get("status") != "ok"]
-    return 1 if failed else 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

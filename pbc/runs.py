@@ -20,12 +20,15 @@ Nothing here trains, plots or formats.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from enum import Enum
 from pathlib import Path
 
 import yaml
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from omegaconf import OmegaConf
 
 from pbc.io import read_json, write_json
 
@@ -65,7 +68,6 @@ SWEEP_RECORD = "sweep.json"
 
 class ModelKind(str, Enum):
     """What a model predicts (`model.kind`, the cloth target of pbc.pixels.target)."""
-
     WHOLE = "whole"  # the whole garment's image
     PATCH = "patch"  # one patch's crop
     PATCHES = "patches"  # every patch in one stacked job (exports one PATCH run per patch)
@@ -120,7 +122,6 @@ class RunRecord:
     ``extra`` (written at the top level: split, entries, ...). A failed job has ``status`` "failed", the
     ``error`` line and its ``traceback``.
     """
-
     status: str = OK
     kind: ModelKind | None = None
     test: dict[str, float] = field(default_factory=dict)
@@ -256,7 +257,6 @@ def flatten(d: dict, prefix: str = "") -> tuple[dict[str, float], dict]:
 class Run:
     """One run dir read back: its record (None when the job left none: killed, or still running), Hydra
     choices and overrides, TensorBoard curves and status. `metrics` is flat: "test/vertex_error_cm" -> float."""
-
     path: Path
     name: str = "."  # path relative to the sweep dir ("." for the dir itself)
     job: str = ""  # hydra.job.name: "train", "evaluate", ...
@@ -365,7 +365,7 @@ def read_events(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
     if not folders:
         return {}
     # Imported lazily: tensorboard's loader costs a second and many run dirs have no events.
-    from tensorboard.backend.event_processing import event_accumulator
+    from tensorboard.backend.event_processing import event_accumulator  # noqa: PLC0415 - tensorboard loads in about a second; only when curves are read
 
     curves: dict[str, list[tuple[int, float]]] = {}
     for folder in folders:
@@ -482,8 +482,6 @@ def load_runs(root: Path, events: bool = True) -> list[Run]:
 def default_sweep_dir(name: str, scale: str) -> Path:
     """Where `python -m pbc.sweeps NAME scale=SCALE` puts a sweep without --dir:
     $PBC_ROOT/runs/sweeps/NAME/SCALE_<date>_<time> (as conf/sweep/*.yaml's hydra.sweep.dir)."""
-    import time
-
     stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
     return Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "sweeps" / name / f"{scale}_{stamp}"
 
@@ -491,8 +489,6 @@ def default_sweep_dir(name: str, scale: str) -> Path:
 def sweep_values(key: str, value: str, conf_dir: Path = ROOT / "conf") -> list[str]:
     """What one `hydra.sweeper.params` entry expands to, with Hydra's own override grammar: a comma list,
     a range, or `glob(...)` over the options of config group `key` (read from conf/<key>/*.yaml)."""
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     ovr = OverridesParser.create().parse_overrides([f"{key}={value}"])[0]
     if not ovr.is_sweep_override():
         return [str(ovr.value())]
@@ -528,7 +524,6 @@ def run_image_config(run: Run, default=None):
     config), or `default` when the run records none."""
     if not (run.config or {}).get("image"):
         return default
-    from omegaconf import OmegaConf
 
     return OmegaConf.create(run.config).image
 

@@ -19,6 +19,8 @@ from pathlib import Path
 
 from pbc.io import write_text
 from pbc.report import build_report
+from pbc.robustness import build_report as robustness_report
+from pbc.robustness import prepare_bodies
 from pbc.runs import OK, SWEEP_RECORD, ModelKind, _read_yaml, default_sweep_dir, load_runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -144,7 +146,6 @@ def _run_in_process(step: str, overrides: list[str], sweep_dir: Path) -> tuple[i
     """An `IN_PROCESS_STEPS` step; -> (0, None) or (1, its error), the traceback printed."""
     try:
         if step == "bodies":
-            from pbc.robustness import prepare_bodies
 
             prepare_bodies(sweep_dir, [f"+scale={_scale_of(overrides)}", *data_overrides(overrides)], overrides)
         else:
@@ -159,7 +160,6 @@ def build_sweep_report(name: str, sweep_dir: Path, report_dir: Path | None = Non
     """The report of a sweep dir: the wrong-body study's (robustness.md, Figs. 9-10) or the tables and
     claims of pbc.report (report.md)."""
     if name == "robustness":
-        from pbc.robustness import build_report as robustness_report
 
         return robustness_report(sweep_dir, report_dir)
     return build_report(sweep_dir, report_dir)

@@ -35,11 +35,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 import traceback
 from pathlib import Path
 
 import lightning as L
+import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -74,7 +76,7 @@ def ensure_dataset(cfg: DictConfig) -> Path:
     train on what it made, instead of failing with LockHeld."""
     data_dir = Path(cfg.data.dir)
     if not (data_dir / "manifest.json").is_file():
-        from pbc.data.generate import generate  # heavy (newton/warp): only when data must be made
+        from pbc.data.generate import generate  # noqa: PLC0415 - newton/warp load in seconds; only when data must be made
 
         log.info("no dataset at %s: making it first (python -m pbc.generate)", data_dir)
         generate(cfg, wait_s=float(OmegaConf.select(cfg, "data.lock_wait_s", default=0) or 0))
@@ -233,7 +235,7 @@ def record_failure(cfg: DictConfig, err: BaseException) -> Path | None:
     Nothing is written when the run dir belongs to another training (RunDirTaken: the other job's
     metrics.json stays as it is) or cannot be written (the one clear error, not a second one chained)."""
     out = output_dir(cfg)
-    if isinstance(err, RunDirTaken) or not is_writable_dir(out):
+    if isinstance(err, RunDirTaken) or not is_rank_zero() or not is_writable_dir(out):
         return None
     return write_metrics(out, RunRecord.failure(err, OmegaConf.to_container(cfg, resolve=False),
                                                 "".join(traceback.format_exception(err))))
@@ -248,7 +250,6 @@ class KeepBestOfResumedRun(L.Callback):
     this puts the checkpoint's top-k, those files still on disk, back into the trainer's monitored
     callback: a later epoch replaces them only when it is better, and Lightning never deletes a file
     outside its own dirpath. Chained resumes carry it on, as every checkpoint records the top-k."""
-
     def __init__(self, ckpt_path: str | Path):
         self.ckpt_path = str(ckpt_path)
 
@@ -259,8 +260,6 @@ class KeepBestOfResumedRun(L.Callback):
 def carry_best(mc, ckpt: dict) -> str | None:
     """Put the top-k of checkpoint dict `ckpt` (ModelCheckpoint `mc`'s state in it) into `mc` when it was
     written in another dirpath; returns the best path carried, or None (same dir, no state, files gone)."""
-    import torch
-
     state = (ckpt.get("callbacks") or {}).get(getattr(mc, "state_key", None)) if mc is not None else None
     if not state or not mc.monitor or state.get("dirpath") == mc.dirpath:
         return None  # same dir: Lightning restored all of it
@@ -297,6 +296,8 @@ def train(cfg: DictConfig) -> dict:
     t0, out = time.time(), output_dir(cfg)
     check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3
     require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
+    if not is_rank_zero():  # DDP starts ranks > 0 as copies of this command in rank 0's (held) run dir
+        return fit_and_test(cfg, out, t0)
     with run_dir_lock(out):
         check_run_dir_free(out, cfg.get("ckpt_path"))
         return fit_and_test(cfg, out, t0)
@@ -333,12 +334,20 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float) -> dict:
         # best_checkpoint may lie in the resumed run's dir (KeepBestOfResumedRun)
         extra={"resumed_from": ckpt} if ckpt else {},
     )
+    if not trainer.is_global_zero:  # one record, one export: rank 0's
+        return record.to_dict()
     if hasattr(module, "export_runs") and best_path:  # all patches in one job -> P single-patch run dirs
         record.exported_runs = module.export_runs(best_path, out, record, dm.data)
     metrics = record.to_dict()
     log_final(trainer, summary, metrics)
     write_metrics(out, record)
     return metrics
+
+
+def is_rank_zero() -> bool:
+    """This process is the job's first (or only) one. Lightning's DDP launcher sets LOCAL_RANK / NODE_RANK
+    in the processes it starts; a SLURM job step sets SLURM_PROCID."""
+    return all(os.environ.get(k, "0") == "0" for k in ("LOCAL_RANK", "NODE_RANK", "SLURM_PROCID"))
 
 
 def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
@@ -353,7 +362,7 @@ def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
         # made by hand or imported, not by pbc.generate: no generation record to compare with
         log.info("dataset %s records no generation settings: not compared with the config", dm.data.dir)
         return
-    from pbc.data.generate import check_matches_config  # pulls in the sim: only once data is open
+    from pbc.data.generate import check_matches_config  # noqa: PLC0415 - it pulls in newton/warp; only once data is open
 
     check_matches_config(cfg, dm.data)
 

@@ -22,12 +22,12 @@ from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
 from pbc.config import load_config
-from pbc.io import LockHeld
+from pbc.io import DiskFull, LockHeld
 from pbc.paths import CONF_DIR
 from pbc.validate import suggest_config_key
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, LockHeld,
-               HydraException, OmegaConfBaseException)
+               DiskFull, HydraException, OmegaConfBaseException)
 # OSErrors that are the machine's state, not pbc's bug: say which path and what to free or change
 USER_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EDQUOT}
 DEBUG_FLAG = "--debug"

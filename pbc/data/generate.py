@@ -53,6 +53,7 @@ from pbc.io import (
     save_npy,
     write_json,
 )
+from pbc.sim.batched import batched_drape_for_garment
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 from pbc.validate import check_config, identity_diff, moving_joints
@@ -63,7 +64,6 @@ log = logging.getLogger(__name__)
 @dataclass
 class Scene:
     """Everything a worker needs to drape any pose; built once per process."""
-
     body: Body
     garment: Garment
     cage: Cage
@@ -194,7 +194,6 @@ def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
     if scene.batched is None:
-        from pbc.sim.batched import batched_drape_for_garment
 
         scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
                                                   batch_worlds(scene.sim), starts[0], bodies[0])
@@ -486,7 +485,6 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
 
 class _LogLines:
     """A file-like sink for tqdm that turns each refresh into one log line (no carriage returns)."""
-
     def write(self, text: str) -> None:
         text = text.strip("\r\n\x1b[A ")
         if text:

@@ -47,8 +47,12 @@ import logging
 import math
 import time
 
+import newton
 import numpy as np
 import warp as wp
+from newton._src.solvers.style3d.collision import Collision
+from newton._src.solvers.style3d.linear_solver import PcgSolver
+from newton.solvers import SolverStyle3D
 
 from pbc.sim.drape import (
     DrapeResult,
@@ -278,8 +282,6 @@ def _shift(q: wp.array(dtype=wp.vec3), world: wp.array(dtype=wp.int32), offsets:
 
 def _world_collision_class():
     """Style3D's cloth self-collision, with each world moved to its own place for the broad phase only."""
-    from newton._src.solvers.style3d.collision import Collision
-
     class _WorldCollision(Collision):
         """The BVHs and candidate searches see every world shifted by its offset, so no candidate pair
         crosses worlds; the contact forces then use the true (unshifted) positions, which are bit for
@@ -307,8 +309,6 @@ def _world_collision_class():
 
 def _world_pcg_class():
     """`PcgSolver` with per-world inner products and step sizes (built lazily: newton imports warp)."""
-    from newton._src.solvers.style3d.linear_solver import PcgSolver
-
     class _WorldPcg(PcgSolver):
         """Style3D's PCG, but each world's CG runs on its own: rTz and pTAp are (iterations, K)."""
 
@@ -358,7 +358,6 @@ class _PartTopology:
     """What `_part_meshes` derives from the body's faces and part masks alone, kept so that a new pose
     costs a gather and a few means (`vertices`), not a connected-components search per part. The
     result is bit for bit `_part_meshes`'s (same float64 means over the same sorted index sets)."""
-
     def __init__(self, body_vertices, body_faces, part_masks):
         bf = np.asarray(body_faces, dtype=np.int64)
         self.parts = []
@@ -417,7 +416,6 @@ class BatchedDrape:
     (P, Vb): as `pbc.sim.drape.drape`. template_start (V, 3) and template_body (Vb, 3): any valid pose
     (the model's arrays do not depend on it; positions and body meshes are replaced by every `run`).
     """
-
     def __init__(self, rest_pattern_triangles, faces, body_faces, vertex_part, part_masks, cfg, n_worlds: int,
                  template_start, template_body):
         if int(n_worlds) < 1:
@@ -445,8 +443,6 @@ class BatchedDrape:
     # --- model ---------------------------------------------------------------------------------------
     def _build(self, rest_pattern_triangles, start, body):
         wp_ = init_warp(_get(self.cfg, "kernel_cache_dir"))
-        import newton
-        from newton.solvers import SolverStyle3D
 
         cfg = self.cfg
         if int(newton.ParticleFlags.ACTIVE) != _PARTICLE_ACTIVE:

@@ -26,7 +26,6 @@ from pbc.config import load_config
 from pbc.data.generate import generate
 
 ROOT = Path(__file__).resolve().parents[2]
-pytestmark = pytest.mark.slow  # whole commands in subprocesses
 SMOKE = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128"]
 
 
