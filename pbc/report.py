@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 
 from pbc.io import save_figure, write_text
-from pbc.paths import CONF_DIR
+from pbc.paths import CONF_DIR, SHIPPED_ROOT
 from pbc.runs import (
     FAILED,
     INCOMPLETE,
@@ -42,7 +42,7 @@ from pbc.runs import (
     scoped_name,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = SHIPPED_ROOT  # the checkout (or the installed package): its paths are shown relative to it
 PAPER_FILE = CONF_DIR / "paper.yaml"  # the paper's own numbers, shipped with the configs
 
 # Metric names as pbc.train logs them, per split (pbc.runs defines them)...

@@ -31,6 +31,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
 from pbc.io import read_json, write_json
+from pbc.paths import CONF_DIR
 
 # ------------------------------------------------------------------------------------------ metric names
 # What pbc.models logs and metrics.json holds, per split ("test/vertex_error_cm"); the one definition.
@@ -62,7 +63,6 @@ OK, FAILED, INCOMPLETE = "ok", "failed", "incomplete"
 # Jobs that leave a run dir but are no experiment (the runner's data step).
 IGNORED_JOBS = ("generate",)
 
-ROOT = Path(__file__).resolve().parents[1]
 SWEEP_RECORD = "sweep.json"
 
 
@@ -486,7 +486,7 @@ def default_sweep_dir(name: str, scale: str) -> Path:
     return Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "sweeps" / name / f"{scale}_{stamp}"
 
 
-def sweep_values(key: str, value: str, conf_dir: Path = ROOT / "conf") -> list[str]:
+def sweep_values(key: str, value: str, conf_dir: Path = CONF_DIR) -> list[str]:
     """What one `hydra.sweeper.params` entry expands to, with Hydra's own override grammar: a comma list,
     a range, or `glob(...)` over the options of config group `key` (read from conf/<key>/*.yaml)."""
     ovr = OverridesParser.create().parse_overrides([f"{key}={value}"])[0]

@@ -18,14 +18,14 @@ import traceback
 from pathlib import Path
 
 from pbc.io import write_text
+from pbc.paths import CONF_DIR
 from pbc.report import build_report
 from pbc.robustness import build_report as robustness_report
 from pbc.robustness import prepare_bodies
 from pbc.runs import OK, SWEEP_RECORD, ModelKind, _read_yaml, default_sweep_dir, load_runs
 
-ROOT = Path(__file__).resolve().parents[1]
 # the sweep group lives with the other config groups: `python -m pbc.train -m +sweep=NAME`
-SWEEP_NAMES = tuple(sorted(p.stem for p in (ROOT / "conf" / "sweep").glob("*.yaml")))
+SWEEP_NAMES = tuple(sorted(p.stem for p in (CONF_DIR / "sweep").glob("*.yaml")))
 DEFAULT_SCALE = "cpu"  # the `- /scale:` default of every conf/sweep/*.yaml
 # Overrides that decide the data set: the data step gets these and no others (launcher keys, losses...
 # are not in a single run's config).
@@ -40,7 +40,7 @@ def _scale_of(overrides: list[str]) -> str:
     return vals[-1] if vals else DEFAULT_SCALE
 
 
-def scale_data(scale: str, conf_dir: Path = ROOT / "conf") -> str:
+def scale_data(scale: str, conf_dir: Path = CONF_DIR) -> str:
     """The data set a scale selects (its `override /data:` default). The data step asks for that data set
     alone: the samples do not depend on the image sizes or the trainer the scale also sets."""
     cfg = _read_yaml(conf_dir / "scale" / f"{scale}.yaml") or {}
@@ -131,7 +131,7 @@ def _run_logged(argv: list[str], log: Path) -> tuple[int, str | None]:
     last_err = None
     with (
         open(log, "w") as f,
-        subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
+        subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
     ):
         for line in proc.stdout:
             sys.stdout.write(line)
