@@ -26,7 +26,6 @@ from dataclasses import dataclass, field, fields
 from enum import Enum
 from pathlib import Path
 
-import yaml
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
@@ -330,10 +329,10 @@ class Run:
 
 
 def _read_yaml(path: Path):
+    """A YAML file as plain containers (Hydra's .hydra/*.yaml, unresolved), or None when unreadable."""
     try:
-        with open(path) as f:
-            return yaml.safe_load(f)
-    except (OSError, yaml.YAMLError):
+        return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    except Exception:  # a missing or corrupt side file: the run is still listed, without it
         return None
 
 

@@ -17,13 +17,17 @@ from __future__ import annotations
 
 import difflib
 import functools
+import inspect
 import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import torch
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from torch import Tensor
+
+from pbc.runs import ModelKind
 
 # Matrices stored as float32 drift ~1e-6 from orthonormal; 1e-3 (0.06 deg) admits any honest rotation
 # and refuses scaled, sheared, reflected or zero matrices by orders of magnitude.
@@ -169,9 +173,8 @@ def check_pose_joints(poses: Any, names: Sequence[str], read: Sequence[str] | No
 
 
 # ------------------------------------------------------------------------------------------ config
-# What a model predicts (the cloth target's kinds, pbc.pixels.target, which reads them from here): one whole
-# garment image, one patch's crop, every patch's crop in one job, or per-vertex values (the FC baselines)
-KINDS = ("whole", "patch", "patches", "fc")
+# What a model predicts: pbc.runs.ModelKind decides (the cloth target, pbc.pixels.target, reads it from here)
+KINDS = tuple(k.value for k in ModelKind)
 SPACES = ("local", "root", "position")
 NORMS = ("l1", "l2")
 
@@ -285,9 +288,7 @@ TRAINER_TARGETS = ("lightning.pytorch.Trainer", "lightning.Trainer", "lightning.
 @functools.lru_cache(maxsize=1)
 def trainer_options() -> tuple[str, ...]:
     """The keyword arguments of ``lightning.pytorch.Trainer.__init__`` (imported here only: ~3 s)."""
-    import inspect
-
-    from lightning.pytorch import Trainer
+    from lightning.pytorch import Trainer  # noqa: PLC0415 - lightning loads in ~3 s; only a trainer key check needs it
 
     return tuple(n for n, p in inspect.signature(Trainer.__init__).parameters.items()
                  if n != "self" and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD))
@@ -393,13 +394,8 @@ FULL_IMAGE_WINDOW = {"whole_sides": (0, 1), "whole_rows": (0.0, 1.0)}
 
 
 def _plain(v: Any) -> Any:
-    try:
-        from omegaconf import DictConfig, ListConfig, OmegaConf
-
-        if isinstance(v, DictConfig | ListConfig):
-            return OmegaConf.to_container(v, resolve=True)
-    except ImportError:  # pragma: no cover - omegaconf ships with hydra
-        pass
+    if isinstance(v, DictConfig | ListConfig):
+        return OmegaConf.to_container(v, resolve=True)
     return v
 
 
