@@ -23,7 +23,7 @@ import matplotlib as mpl
 import numpy as np
 import yaml
 
-from pbc.io import save_figure, write_text
+from pbc.io import read_json, save_figure, write_text
 from pbc.paths import CONF_DIR, SHIPPED_ROOT
 from pbc.runs import (
     FAILED,
@@ -566,7 +566,7 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     )
     rec = sweep_dir / SWEEP_RECORD
     if rec.exists():
-        r = json.loads(rec.read_text())
+        r = read_json(rec, "sweep record")
         md.append(
             f"Command: `{' '.join(r['argv'])}` (started {r['started']}, wall time "
             f"{r['seconds'] / 60:.1f} min; steps: "
