@@ -2,7 +2,7 @@
 
     python docs/figures/fig4_cage_basis.py [docs/figures/fig4_cage_basis.png]
 
-The figure `python -m pbc.stitch.cage_study <dataset>` draws depends only on the garment, its cage and the
+The figure `pbc cage-study <dataset>` draws depends only on the garment, its cage and the
 two diffusion tensors, not on the dataset's poses, so this script builds the full shirt (conf/garment/tshirt.yaml,
 3,153 vertices, as the 30-pose tshirt_small the study ran on) and draws the same patch: the one with the most
 interior vertices, the anisotropic tensor the study states (ratio 0.05 at 90 deg, conf/stitch/cage.yaml being

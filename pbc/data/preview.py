@@ -4,7 +4,7 @@ and (with an image config) the pixels stage's cloth images, crop windows and rou
 Everything is written under `<dataset>/preview/` (PNG via matplotlib, meshes via pbc.geometry.meshio),
 atomically.
 
-    python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3]    # the cloth-image figures only
+    pbc preview DATASET_DIR [OUT_DIR] [--samples 3]    # the cloth-image figures only
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from matplotlib.cm import ScalarMappable  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
 
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
 from pbc.geometry.body import pose_body  # noqa: E402
@@ -95,8 +96,6 @@ def plot_samples(ds: ClothDataset, indices: list[int], path: Path, gap_max_cm: f
     shared by every panel (0..`gap_max_cm`, default the 98th percentile over the shown samples); all panels
     share one frame that holds every point of every sample, raised arms included.
     """
-    from scipy.spatial import cKDTree
-
     rot = torch.from_numpy(np.asarray(ds.poses[indices])).float()
     body_v = pose_body(ds.body, rot).numpy()
     bf, gf = ds.body.faces.numpy(), ds.garment.faces.numpy()

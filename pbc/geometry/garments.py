@@ -5,7 +5,7 @@ One job: choose and build. The garment data and pbc's own OBJ format live in `ga
 tools' OBJ files in `obj_import.py`, the automatic cage in `autocage.py`, the tie in `necktie.py`;
 this module sits above them all (so none of them imports another's door).
 
-    python -m pbc.geometry.garments garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
+    pbc cage garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
         writes the automatic cage of a garment as editable JSON (patches/ format)
 """
 

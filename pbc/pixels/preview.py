@@ -5,7 +5,7 @@ per channel, symmetric about 0), the padded chart mask, the patch crop windows o
 the round-trip error map of plain bilinear sampling (per vertex, at its UV).
 
 Takes a loaded dataset (this stage never reads one from disk); the command is
-`python -m pbc.data.preview DATASET_DIR [OUT_DIR] [--samples 3] [config overrides, e.g. +experiment=necktie]`.
+`pbc preview DATASET_DIR [OUT_DIR] [--samples 3] [config overrides, e.g. +experiment=necktie]`.
 """
 
 from __future__ import annotations
