@@ -29,11 +29,26 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-import torch
-from torch import Tensor
+import matplotlib
 
-from pbc.io import save_figure, save_npy, write_json
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from matplotlib.collections import PolyCollection  # noqa: E402
+from skimage.io import imread  # noqa: E402
+from skimage.transform import resize  # noqa: E402
+from skimage.util import img_as_float  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from pbc.config import load_config  # noqa: E402
+from pbc.data.dataset import load_dataset  # noqa: E402
+from pbc.geometry.garment import save_garment_obj  # noqa: E402
+from pbc.io import save_figure, save_npy, write_json  # noqa: E402
+from pbc.pixels.reconstruct import images_to_positions  # noqa: E402
+from pbc.pixels.target import make_target  # noqa: E402
+from pbc.predict import load_decoder  # noqa: E402
+from pbc.runs import read_run, run_image_config  # noqa: E402
 
 CM = 100.0
 
@@ -89,13 +104,10 @@ def rect_mask(res: int, side: int, uv_rect: tuple[float, float, float, float]) -
 
 def read_gray_png(path: str | Path) -> np.ndarray:
     """A grayscale (or RGB, averaged) PNG -> (h, w) float64 in [0, 1], white = 1."""
-    from skimage import io
-    from skimage.util import img_as_float
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no image at {path}: give a grayscale PNG (white = full effect)")
-    img = img_as_float(io.imread(path))
+    img = img_as_float(imread(path))
     if img.ndim == 3:
         img = img[..., :3].mean(-1) if img.shape[-1] >= 3 else img[..., 0]
     if img.ndim != 2:
@@ -108,8 +120,6 @@ def png_mask(path: str | Path, res: int, side: int | None = None) -> Tensor:
 
     Resized to the image resolution (nearest, so unpainted pixels stay exactly 0) -> (2, H, W) in [0, 1].
     """
-    from skimage.transform import resize
-
     img = read_gray_png(path)
     out = torch.zeros(2, res, res)
     if side is None:
@@ -141,8 +151,6 @@ def patch_mask(ops, patch) -> Tensor:
 
 def place_feature(img: np.ndarray, res: int, side: int, uv_rect: tuple[float, float, float, float]) -> np.ndarray:
     """A grayscale feature (h, w) resized (bilinear) into a UV rectangle of chart `side` -> (2, H, W)."""
-    from skimage.transform import resize
-
     m = rect_mask(res, side, uv_rect)[side].numpy().astype(bool)
     rows, cols = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
     if not len(rows) or not len(cols):
@@ -187,8 +195,6 @@ def apply_edit(images: Tensor, mask: Tensor, spec: EditSpec, chart: Tensor | Non
 
 def reconstruct(images: Tensor, ops, anchors: Tensor, frames: Tensor, space: str = "local") -> Tensor:
     """Edited images (B, 6, H, W) -> garment positions (B, V, 3): the project's sample + skin + offset."""
-    from pbc.pixels.reconstruct import images_to_positions
-
     return images_to_positions(images, ops, anchors, frames, space)
 
 
@@ -215,8 +221,6 @@ def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> So
     under the run's own image config (recorded by pbc.train), `image_cfg` only when the run has none.
     Operators and skinning come from the whole-shirt cloth target (`pbc.pixels.target.make_target`).
     """
-    from pbc.pixels.target import make_target
-
     if not 0 <= index < len(ds):
         raise ValueError(f"sample {index} is out of range: the dataset {ds.dir} has {len(ds)} samples")
     pose = torch.from_numpy(np.array(ds.poses[index], np.float32))[None]
@@ -227,9 +231,6 @@ def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> So
         image, anchors, frames = t["image"], t["anchors"], t["frames"]
         what = f"dataset sample {index}"
     else:
-        from pbc.predict import load_decoder
-        from pbc.runs import read_run, run_image_config
-
         info = read_run(run)
         if info.kind != "whole":
             raise ValueError(f"{run}: a {info.kind.value!r} run; image editing needs a whole-shirt run "
@@ -251,9 +252,6 @@ def source_from_dataset(ds, index: int, image_cfg, run: str | None = None) -> So
 def draw_mesh(ax, verts: np.ndarray, faces: np.ndarray, values: np.ndarray | None = None, vmax: float = 1.0,
               cmap: str = "viridis") -> None:
     """Front view (along -z) of a mesh, shaded by its normal, or coloured by per-vertex `values`."""
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-
     tri = verts[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
@@ -286,11 +284,6 @@ def edit_figure(path: Path, images: list[Tensor], positions: list[Tensor], title
                 chart: Tensor) -> Path:
     """Fig. 2 of the appendix: cloth images (top), their garments (middle), one column per image, and the
     displacement from the first column colour-coded in cm (bottom)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     n = len(images)
     scale = max(float(images[0].abs().max()), 1e-6)
     fig, axes = plt.subplots(3, n, figsize=(2.9 * n, 7.6), squeeze=False)
@@ -332,10 +325,6 @@ def _mask_from_args(args, src: Source) -> Tensor:
 
 
 def run_edit(args) -> dict:
-    from pbc.config import load_config
-    from pbc.data.dataset import load_dataset
-    from pbc.geometry.garment import save_garment_obj
-
     # the numbers first (EditSpec checks them), before the dataset is opened or anything written
     EditSpec(args.shift_u, args.shift_v, args.normal, args.normal_gain, None, args.feature_amplitude)
     cfg = load_config(args.overrides + ([f"image.whole_resolution={args.resolution}"] if args.resolution else []))

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import trimesh
+from skimage.measure import marching_cubes
 from torch import Tensor
 
 from pbc.geometry.skeleton import (
@@ -188,9 +190,6 @@ def _bounds(prims: Primitives) -> tuple[np.ndarray, np.ndarray]:
 
 def _mesh_rest_surface(prims: Primitives, voxel: float, padding: int):
     """Watertight, outward-oriented trimesh of the rest smooth union (marching cubes)."""
-    import trimesh
-    from skimage.measure import marching_cubes
-
     lo, hi = _bounds(prims)
     lo = lo - (padding * voxel)
     counts = np.ceil((hi + padding * voxel - lo) / voxel).astype(int) + 1

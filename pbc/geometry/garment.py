@@ -19,6 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import torch
+from omegaconf import OmegaConf
 from scipy.sparse.csgraph import connected_components
 from torch import Tensor
 
@@ -529,8 +530,6 @@ def load_garment_obj(path) -> Garment:
 def load_garment_config(garment_yaml, image_yaml=None):
     """The garment config node from its YAML file, its ``${image.*}`` keys filled from the image config
     (default: conf/image/default.yaml next to it). For scripts and tests outside a Hydra run."""
-    from omegaconf import OmegaConf
-
     garment_yaml = resolve_path(garment_yaml)
     if image_yaml is None:
         image_yaml = garment_yaml.parents[1] / "image" / "default.yaml"
@@ -542,8 +541,6 @@ def load_garment_config(garment_yaml, image_yaml=None):
 def _load_with_defaults(path):
     """A config file merged over the sibling files its ``defaults:`` list names (as Hydra composes a group
     option that inherits from another, e.g. tshirt_coarse.yaml over tshirt.yaml)."""
-    from omegaconf import OmegaConf
-
     node = OmegaConf.load(path)
     defaults = list(node.pop("defaults", None) or [])
     if "_self_" not in defaults:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from skimage.draw import polygon
 
 from pbc.geometry.garment import Garment, sample_corners, uv_islands
 
@@ -189,8 +190,6 @@ def overlapping_charts(tri: np.ndarray, chart: np.ndarray, resolution: int = 512
     charts count, beyond ``tolerance`` of the smaller chart's pixels (charts that only touch share
     a few boundary pixels).
     """
-    from skimage.draw import polygon
-
     owner = -np.ones((resolution, resolution), np.int64)
     count = np.zeros((resolution, resolution), np.int64)
     hits: dict[tuple[int, int], int] = {}

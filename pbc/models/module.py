@@ -18,21 +18,25 @@ import logging
 import math
 from pathlib import Path
 
-import lightning as L
-import torch
-from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
-from torch import Tensor
+import matplotlib
 
-from pbc.geometry.meshio import submesh, write_garment_mesh
-from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
-from pbc.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose
-from pbc.models.decoder import pose_features
-from pbc.models.fc import fit_pca as fit_pca_values
-from pbc.pixels.reconstruct import edge_lengths, vertex_normals
-from pbc.pixels.target import KINDS, VertexTarget
-from pbc.runs import monitor, scoped_name
-from pbc.validate import as_poses
+matplotlib.use("Agg")
+import lightning as L  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+from hydra.utils import instantiate  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from pbc.geometry.meshio import submesh, write_garment_mesh  # noqa: E402
+from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss  # noqa: E402
+from pbc.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose  # noqa: E402
+from pbc.models.decoder import pose_features  # noqa: E402
+from pbc.models.fc import fit_pca as fit_pca_values  # noqa: E402
+from pbc.pixels.reconstruct import edge_lengths, vertex_normals  # noqa: E402
+from pbc.pixels.target import KINDS, VertexTarget  # noqa: E402
+from pbc.runs import monitor, scoped_name  # noqa: E402
+from pbc.validate import as_poses  # noqa: E402
 
 log = logging.getLogger(__name__)
 # the identity keys a checkpoint must share with the run that loads it
@@ -338,11 +342,6 @@ def panel_figure(pred: Tensor, gt: Tensor, mask: Tensor, error_scale_cm: float, 
     (grey = 0); the error column is the per-pixel offset error on 0..``error_scale_cm`` (colour bar), so
     brightness means the same across poses and epochs.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     pred, gt, mask = pred.detach().float().cpu(), gt.detach().float().cpu(), mask.detach().float().cpu()
     mask = mask.expand(pred.shape[0], -1, -1, -1)  # a target's mask is one for the batch, (1, C, H, W)
     err = panel_error_cm(pred, gt, mask)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import math
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,7 +34,7 @@ import torch
 from scipy import ndimage
 from torch import Tensor
 
-from pbc.io import atomic_path
+from pbc.io import atomic_path, is_writable_dir, out_of_space, user_cache_dir
 from pbc.validate import FULL_IMAGE_WINDOW
 
 OPERATOR_VERSION = 1
@@ -218,8 +219,6 @@ CACHE_KEYS = ("R_indptr", "R_indices", "R_data", "S_pix", "S_w", "chart", "mask"
 
 def _read_cache(path: Path, resolution: int) -> dict[str, np.ndarray] | None:
     """The cached operators at `path`, or None when absent, unreadable, truncated or incomplete."""
-    import zipfile
-
     if not path.is_file():
         return None
     try:
@@ -236,8 +235,6 @@ def cache_dirs(cache_dir: str | Path | None) -> list[Path]:
     """Where operators are looked for, in order: `cache_dir` (e.g. `<dataset>/operators`), then the user
     cache dir (pbc.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators),
     which also takes them when `cache_dir` cannot (read-only, or a full disk that still looks writable)."""
-    from pbc.io import user_cache_dir
-
     if cache_dir is None:
         return []
     user = user_cache_dir("operators")
@@ -257,8 +254,6 @@ def load_or_build(
     instead (`$PBC_CACHE_DIR/operators`, else ~/.cache/pbc/operators) and found there by later runs; when
     neither can, they are built in memory, with one warning per process.
     """
-    from pbc.io import is_writable_dir, out_of_space
-
     dirs = cache_dirs(cache_dir)
     name = f"operators_{operator_key(garment, resolution, pad, exact)}.npz"
     for d in dirs:

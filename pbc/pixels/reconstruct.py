@@ -9,6 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from pbc.geometry.skeleton import forward_kinematics, linear_blend_skinning
 from pbc.pixels.frames import FrameBuilder, embedded_anchors, embedded_body_normals, from_offsets
 
 
@@ -39,8 +40,6 @@ class Skinner:
 
     def __call__(self, rotations: Tensor) -> tuple[Tensor, Tensor]:
         """rotations (B, J, 3, 3) -> anchors (B, V, 3), frames (B, V, 3, 3) (rows t, b, n)."""
-        from pbc.geometry.skeleton import forward_kinematics, linear_blend_skinning
-
         if self.points.device != rotations.device:
             self.to(rotations.device)
         transforms = forward_kinematics(self.skeleton, rotations)

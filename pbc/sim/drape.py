@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 PART_NAMES = ("torso", "left_arm", "right_arm")
 
@@ -75,7 +77,7 @@ def init_warp(cache_dir: str | os.PathLike | None = None):
     reused by later processes and CI. A second call with another dir keeps the first (warp cannot
     switch caches after init).
     """
-    import warp as wp
+    import warp as wp  # noqa: PLC0415 - warp loads in ~0.3 s; the discard rule and part capping here need no warp
 
     if not _WARP_STATE.get("ready"):
         # warp 1.19 replaced `config.quiet` by `log_level`; ERROR also hides the "no CUDA driver"
@@ -159,9 +161,6 @@ def _cap_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     watertight: the sign is exact and the part simply ends in a flat lid inside the neighbouring part.
     vertices (n, 3), faces (m, 3) -> capped (n + loops, 3), (m + boundary edges, 3).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     he = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = he[:, 0] * len(vertices) + he[:, 1]
     rev = he[:, 1] * len(vertices) + he[:, 0]
@@ -226,8 +225,8 @@ def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
     K worlds, so both simulate exactly the same scene.
     """
     wp = init_warp(_get(cfg, "kernel_cache_dir"))
-    import newton
-    from newton.solvers import SolverStyle3D, style3d
+    import newton  # noqa: PLC0415 - newton loads in ~2 s; only building a drape needs it
+    from newton.solvers import SolverStyle3D, style3d  # noqa: PLC0415 - as above: only a drape needs newton
 
     n_faces = faces.shape[0]
     builder = newton.ModelBuilder(up_axis=newton.Axis.Y)
@@ -280,8 +279,8 @@ def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_fa
     Split out of `drape` so tests and benchmarks can inspect the model (masses, contact pairs).
     """
     wp = init_warp(_get(cfg, "kernel_cache_dir"))
-    import newton
-    from newton.solvers import SolverStyle3D
+    import newton  # noqa: PLC0415 - newton loads in ~2 s; only building a drape needs it
+    from newton.solvers import SolverStyle3D  # noqa: PLC0415 - as above: only a drape needs newton
 
     _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks)
     device = _get(cfg, "device") or None

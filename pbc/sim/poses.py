@@ -17,13 +17,17 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 
-import numpy as np
-import torch
-from torch import Tensor
+import matplotlib
 
-from pbc.geometry.body import Body, body_sdf
-from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
-from pbc.io import save_figure
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from pbc.geometry.body import Body, body_sdf  # noqa: E402
+from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning  # noqa: E402
+from pbc.io import save_figure  # noqa: E402
 
 TORSO, LEFT_ARM, RIGHT_ARM = 0, 1, 2
 X, Y, Z = 0, 1, 2
@@ -205,11 +209,6 @@ def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
 
     angles (n, J, 3) degrees. Written atomically (pbc.io.save_figure).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     a = np.asarray(torch.as_tensor(angles).detach().cpu())
     J = skel.num_joints
     if a.ndim != 3 or a.shape[1:] != (J, 3):

@@ -12,11 +12,20 @@ offsets from a target's skinner, as in training.
 
 from __future__ import annotations
 
-import numpy as np
-import torch
-from torch import Tensor
+import matplotlib
 
-from pbc.stitch.cage_basis import PatchBasis
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from torch import Tensor  # noqa: E402
+
+from pbc.io import save_figure  # noqa: E402
+from pbc.pixels.reconstruct import mesh_edges  # noqa: E402
+from pbc.pixels.target import image_operators, make_target, patch_crops  # noqa: E402
+from pbc.stitch.cage_basis import PatchBasis  # noqa: E402
+from pbc.stitch.pca import fit_pca  # noqa: E402
+from pbc.stitch.seams import build_stitcher, edge_jump, seam_edges  # noqa: E402
 
 
 def dataset_offsets(ds, indices: np.ndarray, space: str = "local", batch: int = 32, target=None) -> Tensor:
@@ -25,8 +34,6 @@ def dataset_offsets(ds, indices: np.ndarray, space: str = "local", batch: int = 
     target: a cloth target of `ds` (`pbc.pixels.target.make_target`) whose skinner and space are used;
     None: the per-vertex ("fc") target, which builds no operators.
     """
-    from pbc.pixels.target import make_target
-
     target = target if target is not None else make_target(ds, None, "fc", space=space)
     out = []
     with torch.inference_mode():
@@ -41,13 +48,6 @@ def dataset_offsets(ds, indices: np.ndarray, space: str = "local", batch: int = 
 def figure4(path, basis_iso: PatchBasis, basis_aniso: PatchBasis, label: str) -> None:
     """Appendix Figs. 4-6: boundary perturbations (two bumps; a sine wave) carried into one patch by the
     isotropic and the anisotropic basis, drawn as height fields over the patch's flat pattern."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from pbc.io import save_figure
-
     pts, faces, c = basis_iso.points, basis_iso.faces, len(basis_iso.cage)
     cage = pts[:c]
     centre, span = cage.mean(0), np.ptp(cage, 0).max()
@@ -88,11 +88,6 @@ def seam_study(ds, image_cfg, stitch_cfg, bias_cm: float = 0.5, seed: int = 0, m
     Known disagreement, no model: what each method does with crops that disagree at the seams.
     -> {method: {vertex_error_cm, seam_jump_cm, interior_jump_cm}} over the val + test samples.
     """
-    from pbc.pixels.reconstruct import mesh_edges
-    from pbc.pixels.target import image_operators, make_target, patch_crops
-    from pbc.stitch.pca import fit_pca
-    from pbc.stitch.seams import build_stitcher, edge_jump, seam_edges
-
     ops = image_operators(ds, image_cfg, "patch")
     crops = patch_crops(ds, image_cfg, ops)
     target = make_target(ds, image_cfg, "fc")

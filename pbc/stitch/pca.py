@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from pbc.data.dataset import dataset_fingerprint, fingerprint_diff
 from pbc.io import atomic_path
 from pbc.models.fc import principal_components
 
@@ -92,8 +93,6 @@ def load_pca(path: str | Path, expected_hash: str | None = None) -> PCABasis:
 def check_pca_matches(basis: PCABasis, data) -> None:
     """Refuse a basis fitted on another dataset than `data` (a pbc.data.dataset.ClothDataset): the
     fingerprints' differing keys, one line each; an older basis without a fingerprint by its hash."""
-    from pbc.data.dataset import dataset_fingerprint, fingerprint_diff
-
     if basis.fingerprint is not None:
         diff = fingerprint_diff(basis.fingerprint, dataset_fingerprint(data))
         if diff:

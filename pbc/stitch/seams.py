@@ -27,7 +27,7 @@ from skimage.draw import line
 from skimage.restoration import inpaint_biharmonic
 from torch import Tensor
 
-from pbc.stitch.assemble import Assembler
+from pbc.stitch.assemble import Assembler, feather_weights
 from pbc.stitch.cage_basis import CageSeams, tensor_from_config
 from pbc.stitch.crops import sample_crops, uv_to_pixel
 from pbc.stitch.pca import PCABasis, project
@@ -362,8 +362,6 @@ def build_stitcher(ops, crops, garment, cage, cfg, pca: PCABasis | None = None) 
     cfg: a `conf/stitch/*.yaml` node (feather_ramp, band_width, pca_components, pca_band_only,
     detail_sigma).
     """
-    from pbc.stitch.assemble import feather_weights
-
     H = W = ops.res
     masks = torch.stack([c.mask for c in crops])
     windows = torch.tensor([c.window[:2] for c in crops])
