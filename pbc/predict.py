@@ -17,25 +17,33 @@ convolution unless `layer_modes` says otherwise. Every weight is a parameter or 
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 from torch import Tensor, nn
+from tqdm.auto import tqdm
 
 import pbc.data.dataset as datasets
-from pbc.io import load_checkpoint
+from pbc.config import CONF_DIR
+from pbc.data.dataset import dataset_fingerprint
+from pbc.geometry.body import pose_body
+from pbc.geometry.meshio import write_garment_mesh, write_mesh
+from pbc.io import load_checkpoint, require_writable_dir, save_figure, save_npy, write_json
 from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.pixels.frames import from_offsets, to_offsets
+from pbc.pixels.operators import image_sizes
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import image_operators, make_target, patch_crops
-from pbc.runs import ModelKind, Run, find_runs, read_run, select_patch_runs
-from pbc.stitch.pca import check_pca_matches
-from pbc.stitch.seams import NEEDS_WHOLE, build_stitcher
+from pbc.runs import ModelKind, Run, find_runs, read_run, run_image_config, select_patch_runs
+from pbc.stitch.pca import check_pca_matches, dataset_hash, fit_pca
+from pbc.stitch.seams import METHODS, NEEDS_WHOLE, build_stitcher
 from pbc.validate import as_poses
 
 # measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
@@ -116,8 +124,6 @@ def open_run_dataset(run: Run, directory: str | Path | None = None) -> datasets.
 
 
 def _patch_sizes(image_cfg) -> dict:
-    from pbc.pixels.operators import image_sizes
-
     sizes = image_sizes(image_cfg)
     return {k: sizes[k] for k in PATCH_SIZE_KEYS}
 
@@ -130,8 +136,6 @@ def check_patch_sizes(first: Run, patch_runs: Sequence[Run]) -> None:
     """Refuse patch runs whose crops differ from `first`'s image config (the run whose config the
     predictor's operators and stitcher are built from: the whole run, else the first patch run), naming
     both runs and their sizes; the stitcher otherwise fails deep inside with a shape error."""
-    from pbc.runs import run_image_config
-
     if not patch_runs or not (first.config or {}).get("image"):
         return
     want = _patch_sizes(run_image_config(first))
@@ -475,9 +479,6 @@ GARMENT_LIFT = 0.02  # m, contact sheet depth bias of the garment over the body
 def stitch_config(method: str):
     """The seam method's node: conf/stitch/<method>.yaml merged over the options its ``defaults`` list names,
     as Hydra composes the group (without composing a whole root config: a second instead of several)."""
-    from pbc.config import CONF_DIR
-    from pbc.stitch.seams import METHODS
-
     if method not in METHODS:
         raise ValueError(f"unknown seam method {method!r}; choose one of {METHODS}")
     node = OmegaConf.load(CONF_DIR / "stitch" / f"{method}.yaml")
@@ -488,9 +489,6 @@ def stitch_config(method: str):
 
 def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: int, batch: int = 64):
     """PCA of the training split's per-vertex offsets (in the models' space), tagged with the dataset hash."""
-    from pbc.data.dataset import dataset_fingerprint
-    from pbc.stitch.pca import dataset_hash, fit_pca
-
     ds = predictor.dataset
     idx = ds.split("train")[:max_samples]
     offs = []
@@ -506,10 +504,6 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
     """Poses to predict: an .npy of (N, J, 3, 3) / (N, J*9) / (J, 3, 3) rotations, or the name of a split of
     `dataset` (train / val / test). Returns (poses (N, J, 3, 3), a name per pose, the split's simulated
     vertices (N, V, 3) or None). Raises ValueError naming what is wrong (shape, non-rotations, no file)."""
-    import numpy as np
-
-    from pbc.validate import as_poses
-
     J = int(dataset.poses.shape[1])
     names = tuple(getattr(dataset.body.skeleton, "names", ())) or None
     path = Path(source)
@@ -560,8 +554,6 @@ def first_poses(poses: Tensor, names: Sequence[str], truth: Tensor | None, n) ->
 def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16, model: str | None = None,
                   progress: bool = True) -> Tensor:
     """poses (N, J, 3, 3) -> garment vertices (N, V, 3), in batches, with a progress bar for long runs."""
-    from tqdm.auto import tqdm
-
     out = []
     starts = range(0, poses.shape[0], max(1, int(batch_size)))
     for i in tqdm(starts, desc="predict", unit="batch", disable=not progress or len(starts) < 2, mininterval=2):
@@ -572,14 +564,11 @@ def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16
 def contact_sheet(path: Path, garment_faces, verts, titles: Sequence[str], body_verts=None, body_faces=None) -> Path:
     """Front views (x-y, depth-sorted, shaded faces) of garments verts (n, V, 3) (on their posed bodies
     (n, Vb, 3) when given), SHEET_COLUMNS per row, one shared frame so sizes compare across panels."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415 - pyplot loads in ~0.5 s; a ClothPredictor never draws a sheet
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-    from matplotlib.collections import PolyCollection
-
-    from pbc.io import save_figure
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - as above: only the contact sheet plots
+    from matplotlib.collections import PolyCollection  # noqa: PLC0415 - as above: only the contact sheet plots
 
     n = len(verts)
     cols = min(n, SHEET_COLUMNS)
@@ -634,14 +623,6 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
     <name>_body.<fmt> with `body`), vertices.npy (N, V, 3) float32 metres, poses.npy (N, J, 3, 3),
     contact_sheet.png (the first `sheet` poses), predict.json (what was run, files, and with `truth`
     the vertex error against it). Returns predict.json's content."""
-    import time
-
-    import numpy as np
-
-    from pbc.geometry.body import pose_body
-    from pbc.geometry.meshio import write_garment_mesh, write_mesh
-    from pbc.io import require_writable_dir, save_npy, write_json
-
     t0 = time.time()
     model = predictor.check_model(model)  # before the output dir is made
     out = require_writable_dir(out, "prediction output directory")
