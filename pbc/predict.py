@@ -37,6 +37,10 @@ from pbc.geometry.body import pose_body
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
 from pbc.io import load_checkpoint, require_writable_dir, save_figure, save_npy, write_json
 from pbc.models.decoder import ConvDecoder, pose_features
+from pbc.motion.bvh import read_bvh
+from pbc.motion.ranges import angle_range, clamp_to_range, range_report
+from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, motion_settings, parse_frames
+from pbc.motion.writers import FrameObjWriter, VideoWriter, camera, render_frames, write_glb
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.operators import image_sizes
 from pbc.pixels.reconstruct import Skinner
@@ -652,6 +656,105 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
         contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[:m].numpy(), titles[:m],
                       bodies[:m].numpy(), ds.body.faces.numpy())
         result["files"]["contact_sheet"] = "contact_sheet.png"
+    result["seconds"] = round(time.time() - t0, 2)
+    write_json(out / "predict.json", result)
+    return result
+
+
+# ----------------------------------------------------------------------------- motion (sequences)
+# `pbc predict RUN --poses clip.bvh`: a BVH clip -> the body's poses -> a mesh per frame, a video, a GLB.
+
+
+def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frames: str | None = None,
+                fps: float | None = None) -> Motion:
+    """A BVH clip as the body's poses (Motion.poses (N, J, 3, 3)): its joints mapped by `joint_map` (a table
+    of conf/motion or a YAML file; "auto": the shipped table knowing most of its joints), `frames` a
+    START:STOP:STEP slice of its frames, resampled at `fps` (None: as selected). Bad files: one ValueError
+    naming the line and the fix (pbc.motion.bvh)."""
+    bvh = read_bvh(path)
+    return bvh_to_poses(bvh, dataset.body.skeleton, choose_joint_map(bvh, joint_map), parse_frames(frames), fps)
+
+
+def training_pose_range(dataset) -> np.ndarray:
+    """(J, 3, 2) per joint and axis [min, max] degrees of the body's Euler angles over the dataset's training
+    split: the poses a run trained on it saw (the run records its dataset; pbc.motion.ranges)."""
+    idx = np.asarray(dataset.split("train"))
+    return angle_range(np.asarray(dataset.poses)[idx] if len(idx) else np.asarray(dataset.poses))
+
+
+def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
+                     glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
+                     model: str | None = None, info: dict | None = None, progress: bool = True) -> dict:
+    """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
+    with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera; None:
+    none), garment.glb (the garment animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy
+    (N, J, 3, 3), predict.json (the mapping, the frames outside the training poses' range, the seconds of
+    each stage). `clamp`: joint angles clamped into the training range before predicting (the flags are
+    taken before). Returns predict.json's content."""
+    t0 = time.time()
+    model = predictor.check_model(model)
+    settings = motion_settings()
+    ds = predictor.dataset
+    names = list(ds.body.skeleton.names)
+    rng = training_pose_range(ds)
+    tol = float(settings.range_tolerance_deg)
+    report = range_report(motion.poses, rng, names, tol)
+    poses_np = clamp_to_range(motion.poses, rng, tol) if clamp else motion.poses
+    report["clamped"] = bool(clamp)
+    poses, _ = as_poses(poses_np.astype(np.float32), len(names), joint_names=names, what="motion poses")
+    out = require_writable_dir(out, "prediction output directory")
+    stages = {"read": round(t0 - (info or {}).get("started", t0), 3)} if info and "started" in info else {}
+    t = time.time()
+    verts = predict_poses(predictor, poses, batch_size, model, progress)
+    stages["predict"] = round(time.time() - t, 3)
+    frame_names = [f"frame_{k:05d}" for k in range(len(poses))]
+    t = time.time()
+    bodies = torch.cat([pose_body(ds.body, poses[i:i + 64]) for i in range(0, len(poses), 64)])
+    stages["pose_body"] = round(time.time() - t, 3)
+    t = time.time()
+    files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
+    head = f"predicted by pbc.predict from {motion.table.name} motion ({model} model)"
+    if fmt == "obj":
+        writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
+                                header=[f"{frame_names[0]}: {head}"])
+        for k in range(1, len(poses)):
+            writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k], header=[f"{frame_names[k]}: {head}"])
+    else:
+        for k, name in enumerate(frame_names):
+            write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k], header=[f"{name}: {head}"])
+    if body:
+        for k, name in enumerate(frame_names):
+            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+    stages["meshes"] = round(time.time() - t, 3)
+    if video:
+        t = time.time()
+        v = settings.video
+        cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
+        vw = VideoWriter(out / f"motion.{video}", motion.fps, int(v.crf))
+        try:
+            for i in range(0, len(poses), 8):
+                vw.append(render_frames([(bodies[i:i + 8], ds.body.faces, list(v.body_colour), 0.0, True),
+                                         (verts[i:i + 8], ds.garment.faces, list(v.garment_colour),
+                                          float(v.garment_lift), False)], cam, list(v.light), list(v.background)))
+        except BaseException as e:
+            vw.close(e)
+            raise
+        vw.close()
+        files["video"] = f"motion.{video}"
+        stages["video"] = round(time.time() - t, 3)
+    if glb:
+        t = time.time()
+        write_glb(out / "garment.glb", ds.garment, verts.numpy(), motion.times)
+        files["glb"] = "garment.glb"
+        stages["glb"] = round(time.time() - t, 3)
+    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+    result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
+                  method=predictor.method if model == "patches" else None, num_poses=len(poses),
+                  num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
+                  motion=motion.summary(), notes=list(motion.notes), pose_range=report,
+                  pose_range_source=f"training split of {ds.dir}")
+    result["seconds_by_stage"] = stages
     result["seconds"] = round(time.time() - t0, 2)
     write_json(out / "predict.json", result)
     return result

@@ -4,17 +4,22 @@ from trained runs, the whole model alone or the patch models stitched (pbc.predi
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
+from pbc.motion.ranges import range_summary
+from pbc.motion.retarget import shipped_joint_maps
 from pbc.predict import (
     ClothPredictor,
     check_max_poses,
     first_poses,
     fit_training_pca,
+    predict_sequence,
     predict_to_dir,
+    read_motion,
     read_poses,
     stitch_config,
 )
@@ -25,7 +30,12 @@ EXAMPLES = """examples:
   pbc predict runs/main/latest/whole --poses test                  # the dataset's test poses
   pbc predict runs/main/latest/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
   pbc predict runs/main/latest/whole --patches runs/patches --method pca --poses test --format ply
+  pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: meshes, video, GLB
+  pbc predict runs/main/latest/whole --poses walk.bvh --fps 30 --clamp-to-range --bvh-map my_rig.yaml
 """
+# the options that only a BVH clip takes, and their defaults
+MOTION_OPTIONS = {"bvh_map": "auto", "frames": None, "fps": None, "clamp_to_range": False, "video": "mp4",
+                  "no_glb": False}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -42,14 +52,25 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--pca", metavar="FILE", help="PCA basis for --method pca (pbc evaluate's pca.pt); "
                                                    "default: fitted on the training split")
     ap.add_argument("--model", choices=("patches", "whole"), help="default: patches when given, else whole")
-    ap.add_argument("--poses", required=True, help="an .npy of rotations, (N, 10, 3, 3) or (N, 90), or a split "
-                                                   "of the run's dataset: train, val or test")
+    ap.add_argument("--poses", required=True, help="an .npy of rotations, (N, 10, 3, 3) or (N, 90), a .bvh motion "
+                                                   "clip, or a split of the run's dataset: train, val or test")
     ap.add_argument("--max", type=int, metavar="N", help="the first N poses only (N >= 1)")
     ap.add_argument("--out", help="output dir (default $PBC_ROOT/runs/predict/<date>_<time>)")
     ap.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh format (default obj)")
     ap.add_argument("--body", action="store_true", help="also write each posed body mesh")
     ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png (0: none)")
     ap.add_argument("--batch-size", type=int, default=16)
+    motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): a mesh per frame, motion.mp4, garment.glb")
+    motion.add_argument("--bvh-map", default="auto", metavar="TABLE",
+                        help="the joint map: a table of conf/motion (" + ", ".join(shipped_joint_maps())
+                        + ") or a YAML file of that layout; auto (default): the shipped table knowing most joints")
+    motion.add_argument("--frames", metavar="START:STOP:STEP", help="the clip's frames (a Python slice), e.g. 0:300:4")
+    motion.add_argument("--fps", type=float, help="resample the selected frames at this rate (slerp)")
+    motion.add_argument("--clamp-to-range", action="store_true", help="clamp joint angles into the training poses' "
+                        "range before predicting (frames outside are flagged either way)")
+    motion.add_argument("--video", choices=("mp4", "gif", "none"), default="mp4", help="body + garment video "
+                        "(default mp4)")
+    motion.add_argument("--no-glb", action="store_true", help="no animated garment.glb")
     return ap
 
 
@@ -59,6 +80,11 @@ def run(argv: list[str]) -> int:
     if not args.whole_run and not args.patches:
         ap.error("give a whole-shirt run dir, or --patches with the patch runs")
     check_max_poses(args.max)  # before any model is loaded: --max 0 is a mistake, not "all"
+    is_bvh = Path(args.poses).suffix.lower() == ".bvh"
+    given = [k for k, v in MOTION_OPTIONS.items() if getattr(args, k) != v]
+    if given and not is_bvh:
+        raise ValueError(f"{', '.join('--' + k.replace('_', '-') for k in given)}: only for a BVH clip "
+                         "(--poses clip.bvh)")
     stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
     out = Path(args.out or Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "predict" / stamp)
     stitch = stitch_config(args.method) if args.patches else None
@@ -66,13 +92,34 @@ def run(argv: list[str]) -> int:
     if predictor.stitcher is not None and args.method == "pca":
         predictor.stitcher.pca = (load_pca(args.pca, dataset_hash(predictor.dataset.dir)) if args.pca else
                                   fit_training_pca(predictor, int(stitch.pca_components), 4096))
-    poses, names, truth = first_poses(*read_poses(args.poses, predictor.dataset), args.max)
     info = {"whole_run": args.whole_run, "patch_runs": args.patches, "poses": str(args.poses)}
+    if is_bvh:
+        return run_motion(args, predictor, out, info)
+    poses, names, truth = first_poses(*read_poses(args.poses, predictor.dataset), args.max)
     res = predict_to_dir(predictor, poses, names, out, args.format, args.body, args.sheet, args.batch_size,
                          args.model, truth, info)
     err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
     print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format} ({res['model']} model{err}), "
           f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
+    return 0
+
+
+def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
+    """--poses clip.bvh: the clip read and checked whole before anything is written."""
+    motion = read_motion(args.poses, predictor.dataset, args.bvh_map, args.frames, args.fps)
+    if args.max is not None:
+        motion = dataclasses.replace(motion, poses=motion.poses[:args.max], times=motion.times[:args.max],
+                                     source_frames=motion.source_frames[:args.max])
+    res = predict_sequence(predictor, motion, out, args.format, None if args.video == "none" else args.video,
+                           not args.no_glb, args.body, args.clamp_to_range, args.batch_size, args.model,
+                           dict(info, frames=args.frames, fps=args.fps))
+    for note in motion.notes:
+        print(note)
+    print(range_summary(res["pose_range"]))
+    extra = ", ".join(res["files"][k] for k in ("video", "glb") if k in res["files"])
+    print(f"{res['num_poses']} frames ({motion.table.name} joint map, {motion.units}, {motion.fps:g} fps) -> "
+          f"{out}/meshes/frame_*.{args.format} ({res['model']} model){', ' + extra if extra else ''}, "
+          f"predict.json ({res['seconds']:.1f} s)")
     return 0
 
 

@@ -18,6 +18,7 @@ STAGES = [
     ("pbc.data",),
     ("pbc.losses", "pbc.metrics", "pbc.models"),
     ("pbc.stitch",),
+    ("pbc.motion",),
     ("pbc.predict",),
     ("pbc.evaluate", "pbc.train", "pbc.edit", "pbc.view"),
     ("pbc.report",),
