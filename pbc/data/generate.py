@@ -24,7 +24,7 @@ import multiprocessing as mp
 import shutil
 import sys
 import time
-from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -282,7 +282,10 @@ def map_in_workers(fn, jobs: list, workers: int, initializer=None, initargs: tup
         try:
             pending = {ex.submit(fn, job) for job in jobs}
             while pending:
-                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+                # FIRST_COMPLETED, not FIRST_EXCEPTION: that one waits for every job when none fails, so
+                # nothing (progress included) came back before the last drape; a failure still surfaces as
+                # soon as its future completes
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     try:
                         yield fut.result()
