@@ -106,3 +106,22 @@ def unit_tier_rules(request, monkeypatch):
     monkeypatch.setattr(multiprocessing.context.BaseContext, "Pool", _refuse("starts a process pool"))
     monkeypatch.setattr(pbc.sim.drape, "build_drape_sim", _refuse("drapes cloth"))
     monkeypatch.setattr(pbc.sim.batched.BatchedDrape, "__init__", _refuse("drapes cloth"))
+
+
+# --- the Anny body (conf/body/anny.yaml): built once per session. On a machine without Anny's asset cache
+# ($PBC_CACHE_DIR/anny, else ~/.cache/pbc/anny) the first build takes 1.5-3 min and 790 MB on 2 cores; CI
+# keeps that folder between runs. Later sessions load it in about 6 s.
+@pytest.fixture(scope="session")
+def anny_cfg():
+    """The Anny body config; shared, so copy it before changing it."""
+    from pbc.config import load_config
+
+    return load_config(["body=anny"]).body
+
+
+@pytest.fixture(scope="session")
+def anny_body(anny_cfg):
+    """The Anny body (13,718 vertices, 20 posable joints); treat as read-only."""
+    from pbc.geometry.bodies import body_from_config
+
+    return body_from_config(anny_cfg)

@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sweeps": ("sweeps", "a named sweep end to end: data, multirun, evaluation, report"),
     "report": ("report", "the report (tables, figures) of a sweep dir"),
     "preview": ("preview", "cloth-image figures of a dataset"),
+    "body": ("body", "the body a config builds: show (joints, limits, girths) or export (rest OBJ)"),
     "cage": ("cage", "a garment's automatic cage as an editable JSON; regenerate committed cages"),
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
 }

@@ -35,7 +35,8 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
-from pbc.geometry.body import Body, build_body, pose_body, save_body
+from pbc.geometry.bodies import body_from_config
+from pbc.geometry.body import Body, pose_body, save_body
 from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
 from pbc.geometry.garments import garment_from_config
@@ -150,7 +151,7 @@ def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
-    body = build_body(cfg.body)
+    body = body_from_config(cfg.body)
     garment, cage = garment_from_config(cfg.garment)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
     return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats

@@ -1,0 +1,96 @@
+"""The Anny body against Anny itself: pbc's forward kinematics and skinning with the merged weights equal
+Anny's own forward pass for poses that move only pbc's posed joints; the body works in every stage's door
+(pose pruning, the inside test, body.npz). Needs Anny's asset cache (built once per machine, see the
+`anny_body` fixture in tests/conftest.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from pbc.geometry.anny_body import (
+    ANNY_TO_PBC,
+    anny_rest,
+    arm_angle_deg,
+    check_phenotype,
+    joint_table,
+    load_anny_model,
+)
+from pbc.geometry.bodies import body_from_config
+from pbc.geometry.body import body_sdf, load_body, pose_body, save_body
+from pbc.geometry.skeleton import forward_kinematics
+from pbc.sim.poses import SamplingSettings, euler_xzy_to_matrix, sample_angles, sample_poses
+
+
+def _anny_world_orient(cfg, body, rotations):
+    """Anny's own forward pass for pbc rotations (B, J, 3, 3): its 'world-orient' parameterization takes each
+    bone's world orientation and places the heads itself (Anny's kinematic chain), so pbc's rest heads and
+    pivots are checked too. Returns (B, V, 3) in pbc's frame."""
+    model = load_anny_model(str(cfg.rig), str(cfg.topology))
+    phen = check_phenotype(cfg.phenotype, cfg.phenotype_ranges)
+    rest = anny_rest(model, phen)
+    column, _ = joint_table(cfg, list(model.bone_labels), list(model.bone_parents))
+    C = ANNY_TO_PBC
+    G = forward_kinematics(body.skeleton, rotations.double())[..., :3, :3]  # (B, J+1, 3, 3) pbc axes
+    A = C.T @ G @ C  # the same rotations in Anny's axes
+    R = rest["rest_bone_poses"][:, :3, :3]  # (NB, 3, 3) rest orientations
+    W = rest["rest_bone_poses"].expand(rotations.shape[0], -1, -1, -1).clone()
+    W[..., :3, :3] = A[:, column] @ R
+    with torch.no_grad():
+        out = model(W, phenotype_kwargs=phen, pose_parameterization="world-orient")
+    origin = rest["rest_bone_heads"][list(model.bone_labels).index(str(cfg.root_bones[0]))]
+    return (out["vertices"] - origin) @ C.T
+
+
+def test_skinning_equals_anny_forward(anny_cfg, anny_body):
+    B = 8
+    settings = SamplingSettings(halfnormal_joints=("lower_back", "spine", "spine1", "neck", "neck1", "head"))
+    angles = sample_angles(anny_body.skeleton, B, np.random.default_rng(7), settings)  # every joint posed
+    rot = euler_xzy_to_matrix(torch.from_numpy(angles))  # float64
+    ours = pose_body(anny_body, rot)
+    theirs = _anny_world_orient(anny_cfg, anny_body, rot)
+    moved = (theirs - anny_body.vertices.double()).norm(dim=-1).max()
+    assert moved > 0.3  # the poses really move the body (limbs by tens of cm)
+    assert (ours - theirs).abs().max() < 1e-5
+
+
+def test_rest_is_anny_bind_pose_in_pbc_frame(anny_cfg, anny_body):
+    model = load_anny_model(str(anny_cfg.rig), str(anny_cfg.topology))
+    rest = anny_rest(model, check_phenotype(anny_cfg.phenotype, anny_cfg.phenotype_ranges))
+    v = anny_body.vertices
+    # y up, z forward, x left: the head is above the feet, the nose in front, the left hand at +x
+    head, feet = v[:, 1].max(), v[:, 1].min()
+    assert 1.5 < float(head - feet) < 2.0
+    labels = list(model.bone_labels)
+    assert float(anny_body.skeleton.rest_heads[anny_body.skeleton.index("l_hand"), 0]) > 0.3
+    assert torch.allclose(v.double(), (rest["rest_vertices"] - rest["rest_bone_heads"][labels.index("root")])
+                          @ ANNY_TO_PBC.T, atol=1e-6)
+    # merged weights: rows sum to 1, at most 6 joints per vertex
+    assert torch.allclose(anny_body.weights.sum(1), torch.ones(v.shape[0]), atol=1e-5)
+    assert int((anny_body.weights > 0).sum(1).max()) <= 6
+
+
+def test_anny_body_through_the_stages(anny_cfg, anny_body, tmp_path):
+    # pose pruning with the fitted inside test: some poses pruned, the kept ones within the limits
+    settings = SamplingSettings(posed_joints=tuple(anny_cfg.sampling.posed_joints), block_size=64)
+    poses, stats = sample_poses(anny_body.skeleton, 16, 0, anny_body, settings)
+    assert poses.shape == (16, 20, 3, 3) and stats["kept"] == 16
+    legs = [anny_body.skeleton.index(n) for n in ("l_hip", "r_knee", "l_ankle")]
+    assert torch.equal(poses[:, legs], torch.eye(3).expand(16, 3, 3, 3))  # unposed joints stay at rest
+    # the inside test: the pelvis centre is inside, a point 30 cm in front of it outside
+    rest = torch.eye(3).expand(1, 20, 3, 3)
+    d = body_sdf(anny_body, rest, torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.3]]))
+    assert d[0, 0] < 0 < d[0, 1]
+    save_body(anny_body, tmp_path / "body.npz")
+    back = load_body(tmp_path / "body.npz")
+    assert back.skeleton.names == anny_body.skeleton.names and torch.equal(back.weights, anny_body.weights)
+
+
+def test_turned_rest_pose_is_config(anny_cfg):
+    cfg = OmegaConf.merge(anny_cfg, {"rest": {"arm_angle_deg": 0.0, "legs_apart_deg": 10.0}})
+    t_pose = body_from_config(cfg)
+    assert abs(arm_angle_deg(t_pose.skeleton, "l")) < 0.5 and abs(arm_angle_deg(t_pose.skeleton, "r")) < 0.5
+    sk = t_pose.skeleton
+    shin = sk.rest_heads[sk.index("l_knee")] - sk.rest_heads[sk.index("l_hip")]
+    assert float(shin[0]) > 0.05  # the left thigh turned outward
