@@ -160,15 +160,15 @@ def test_sample_figure_holds_raised_arms(tmp_path, body):
 
 # ------------------------------------------------------------------------------------------- reports
 def test_report_paths_are_relative(tmp_path):
-    from test_report import make_run, ok_metrics
+    from test_report import make_run, patch_metrics
 
     from pbc import report
 
     sweep = tmp_path / "sweep"
     for i in range(6):
         make_run(sweep, f"{i}_experiment=patch_{i:02d}", {"experiment": f"patch_{i:02d}", "loss": "l1"},
-                 ok_metrics(0.2, 0.02, 0.3 + 0.01 * i, 0.03)
-                 | {"test": {"vertex_error_cm": 0.3 + 0.01 * i, "vertex_error_cm_std": 0.05}},
+                 patch_metrics(i, 0.2, 0.02, 0.3 + 0.01 * i, 0.03)
+                 | {"test": {"patch_vertex_error_cm": 0.3 + 0.01 * i, "patch_vertex_error_cm_std": 0.05}},
                  {"train/loss_step": [1.0, 0.5], "val/vertex_error_cm": [3.0, 2.0]})
     make_run(sweep, "9_experiment=whole", {"experiment": "whole", "loss": "l2"},
              {"status": "failed", "error": f"FileNotFoundError: {sweep}/9_experiment=whole/x.ckpt and "
