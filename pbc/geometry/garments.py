@@ -31,7 +31,7 @@ def load_any_obj(path, **options) -> Garment:
 def obj_options(gcfg) -> dict:
     """The import options of a user's garment OBJ from its config node (conf/garment/obj.yaml)."""
     out = {}
-    for key in ("uv_unit", "position_unit", "uv_padding"):
+    for key in ("uv_unit", "position_unit", "uv_padding", "uv_unit_tolerance"):
         if gcfg.get(key) is not None:
             out[key] = gcfg[key]
     if gcfg.get("position_offset") is not None:

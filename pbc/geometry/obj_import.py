@@ -22,10 +22,11 @@ import numpy as np
 import torch
 from skimage.draw import polygon
 
+from pbc.geometry.fit import check_uv_unit, fitted_uv_unit
 from pbc.geometry.garment import Garment, sample_corners, uv_islands
 
 # metres per unit of a stated length unit
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
+UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 # OBJ statements that carry nothing a garment needs (materials, smoothing, normals, objects, lines)
 IGNORED = {"usemtl", "mtllib", "s", "o", "vn", "vp", "l", "p", "#"}
 
@@ -228,7 +229,8 @@ def metres_per_unit(unit, what: str) -> float:
 
 
 def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto", position_unit="m",
-                   position_offset=(0.0, 0.0, 0.0), uv_padding: float = 0.1, overlap_resolution: int = 512):
+                   position_offset=(0.0, 0.0, 0.0), uv_padding: float = 0.1, overlap_resolution: int = 512,
+                   uv_unit_tolerance: float | None = None):
     """Read a garment OBJ exported by another tool into a Garment (see the module docstring).
 
     path: the OBJ file. charts: chart name -> image side (0 front image, 1 back image); None maps
@@ -238,6 +240,8 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
     UVs normalised to [0, 1] as Blender writes them). position_unit / position_offset: the unit of
     the ``v`` lines and a shift (m) placing the garment on the T-posed mannequin (root at the waist,
     y up, x the body's left). uv_padding: fraction of each side's image left empty at every border.
+    uv_unit_tolerance: a stated uv_unit whose pattern area is off the 3D area by more than this factor
+    is refused, naming the unit that fits (the config's ``garment.uv_unit_tolerance``; None: not checked).
     Returns (Garment, chart_names list, face_chart (F,) int64).
     """
 
@@ -282,12 +286,15 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
     face_side = sides[island]
 
     # UV -> metres on the pattern, y up
+    p3 = mesh.vertices[mesh.faces] * metres_per_unit(position_unit, "garment.position_unit")
+    a3 = 0.5 * np.linalg.norm(np.cross(p3[:, 1] - p3[:, 0], p3[:, 2] - p3[:, 0]), axis=1).sum()
     if uv_unit == "auto":
-        p3 = mesh.vertices[mesh.faces] * metres_per_unit(position_unit, "garment.position_unit")
-        a3 = 0.5 * np.linalg.norm(np.cross(p3[:, 1] - p3[:, 0], p3[:, 2] - p3[:, 0]), axis=1).sum()
-        scale = float(np.sqrt(a3 / max(np.abs(area).sum(), 1e-30)))
+        scale = fitted_uv_unit(a3, np.abs(area).sum())
     else:
         scale = metres_per_unit(uv_unit, "garment.uv_unit")
+        if uv_unit_tolerance is not None:  # both areas are at hand: a wrong unit is named here, not after drapes
+            check_uv_unit(scale, a3, np.abs(area).sum(), str(uv_unit), float(uv_unit_tolerance), where,
+                          float(np.ptp(mesh.uv[np.unique(mesh.face_uv)], axis=0).max()))
     pattern = corners * scale
     # one uv_scale for all sides; each side centred in its image with uv_padding left empty
     extent = []

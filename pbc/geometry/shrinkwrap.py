@@ -21,8 +21,18 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from pbc.geometry.body import Body, body_sdf
+from pbc.geometry.fit import (
+    chart_names_from_cage,
+    check_far,
+    check_sleeves,
+    check_stretch,
+    face_areas,
+    face_patches,
+    patch_stretch,
+    sleeve_axes,
+)
 from pbc.geometry.garment import Garment, solve_dirichlet
-
+from pbc.geometry.obj_import import face_charts
 
 # a joint (or a point of a spine bone) this close to x = 0 is on the body's centre line (m); not exactly 0:
 # a measured body is not perfectly symmetric (Anny's neck02 sits 0.2 mm off the mid-plane)
@@ -318,15 +328,17 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     surface = _RestSurface(body, int(sw.nearest_triangles))
     part = vertex_parts(cage, garment.num_vertices)  # rays start from the bone under each patch
     x0 = garment.vertices.double().cpu().numpy()
+    faces = garment.faces.cpu().numpy()
+    face_chart = face_charts(garment)
+    chart_names = chart_names_from_cage(cage, face_chart, faces)
+    # the checks before any drape (pbc.geometry.fit): each names the part, the number and the fix, where a
+    # drape would only say minutes later that every sample was discarded
     far = sw.get("max_start_distance")
     if far is not None:
-        gap = surface.sdf(x0)
-        if gap.max() > float(far):
-            k = int(gap.argmax())
-            raise ValueError(f"shrink-wrap: garment vertex {k} at {np.round(x0[k], 3).tolist()} is {gap[k]:.3f} m "
-                             f"from the body (more than shrinkwrap.max_start_distance = {float(far)} m): the "
-                             "garment is not around the T-posed mannequin. Place it there (metres, y up, root at "
-                             "the waist, x to the body's left): garment.position_offset / garment.position_unit")
+        check_far(surface.sdf(x0), x0, faces, body, float(far), chart_names, face_chart)
+    max_angle = sw.get("max_sleeve_angle_deg")
+    sleeves = (sleeve_axes(x0, faces, body) if max_angle is None
+               else check_sleeves(x0, faces, body, float(max_angle)))
     # (a) cage-guided Laplace morph of the displacements
     ids, targets = cage_targets(garment, cage, body, surface, part, int(sw.ray_bisection_steps))
     lap = pattern_laplacian(garment)
@@ -340,10 +352,22 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
                                 float(sw.relax_tol))
     after = area_ratio(garment, x)
+    pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
+    stretch = patch_stretch(face_areas(x, faces), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3)),
+                            face_patches(cage, faces), len(cage.patches))
     stats = {"cage_vertices": int(len(ids)), "morph_inside": morph_inside, "relax_iterations": int(iters),
              "max_abs_sdf": float(np.abs(surface.sdf(x)).max())}
     stats.update(_ratio_stats(before, "area_before"))
     stats.update(_ratio_stats(after, "area_after"))
+    worst = int(stretch.argmax())
+    stats.update(patch_stretch_max=float(stretch[worst]), patch_stretch_worst=cage.patches[worst].name)
+    stats.update({f"sleeve_{side}_angle_deg": a["angle_deg"] for side, a in sleeves.items()})
+    limit = sw.get("max_patch_stretch")
+    if limit is not None:
+        fp = face_patches(cage, faces)
+        patch_chart = [chart_names[int(np.bincount(face_chart[fp == p.id]).argmax())] if (fp == p.id).any() else "?"
+                       for p in cage.patches]
+        check_stretch(stretch, [p.name for p in cage.patches], patch_chart, float(limit), sleeves)
     stats["wrap_seconds"] = time.perf_counter() - t0
     return x, stats
 

@@ -1,0 +1,146 @@
+"""Issue 24: a garment's checks before any drape (UV unit, sleeves against the rest arms, the shrink-wrap's
+stretch, far from the body), `pbc garment inspect`'s table and `split`, and generate's discard summary.
+The garments are written here as an asset library would hand them over (tests/helpers/a_pose.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from helpers.a_pose import IMPORT, outfit_obj  # noqa: E402
+
+from pbc.cli import COMMANDS  # noqa: E402
+from pbc.config import load_config  # noqa: E402
+from pbc.data.generate import discard_summary  # noqa: E402
+from pbc.geometry.fit import check_uv_unit, sleeve_axes  # noqa: E402
+from pbc.geometry.garments import garment_from_config  # noqa: E402
+from pbc.geometry.inspect import inspect_garment, split_outfit  # noqa: E402
+from pbc.geometry.shrinkwrap import shrinkwrap  # noqa: E402
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _wrap(body, overrides):
+    cfg = load_config(IMPORT + overrides)
+    garment, cage = garment_from_config(cfg.garment)
+    return shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
+
+
+def test_uv_unit_cm_on_a_unit_atlas_is_refused_at_the_import_naming_the_unit_that_fits(tmp_path):
+    path = _write(tmp_path, "shirt.obj", outfit_obj(0.0, trousers=False))
+    with pytest.raises(ValueError) as err:
+        garment_from_config(load_config(IMPORT + [f"garment.obj={path}", "garment.uv_unit=cm"]).garment)
+    msg = str(err.value)
+    assert "garment.uv_unit=cm" in msg and "a [0, 1] atlas" in msg and "set garment.uv_unit=auto" in msg
+    assert "3.1" in msg and "garment.uv_unit_tolerance = 2x" in msg  # the fitted metres per unit: 3.148
+    # within the tolerance: accepted; a named unit is named when it fits
+    check_uv_unit(0.01, area_3d=1.5e-4, area_uv=1.0, unit_text="cm", tolerance=2.0, where="x")
+    with pytest.raises(ValueError, match=r"the unit that fits is 0.1 m per UV unit: set garment.uv_unit=dm"):
+        check_uv_unit(0.01, area_3d=1.0e-2, area_uv=1.0, unit_text="cm", tolerance=2.0, where="x", uv_range=10.0)
+
+
+def test_a_posed_sleeves_are_refused_with_the_angle_and_the_setting(tmp_path, body):
+    path = _write(tmp_path, "a.obj", outfit_obj(40.0, trousers=False))
+    with pytest.raises(ValueError) as err:
+        _wrap(body, [f"garment.obj={path}"])
+    msg = str(err.value)
+    assert "sleeve is 37 degrees off the body's rest arm" in msg  # turned 40 about the sleeve root: 37.4 measured
+    assert "garment.shrinkwrap.max_sleeve_angle_deg = 20" in msg and "rotate the sleeves 37 degrees up" in msg
+    # the T-posed shirt's sleeves lie along the rest arms
+    cfg = load_config(IMPORT + [f"garment.obj={_write(tmp_path, 't.obj', outfit_obj(0.0, trousers=False))}"])
+    g, _ = garment_from_config(cfg.garment)
+    axes = sleeve_axes(g.vertices.double().numpy(), g.faces.numpy(), body)
+    assert set(axes) == {"left", "right"} and max(a["angle_deg"] for a in axes.values()) < 2.0
+
+
+def test_the_wrap_stretch_is_refused_naming_the_chart_the_stretch_and_the_rest_pose(tmp_path, body):
+    path = _write(tmp_path, "a.obj", outfit_obj(40.0, trousers=False))
+    with pytest.raises(ValueError) as err:
+        _wrap(body, [f"garment.obj={path}", "garment.shrinkwrap.max_sleeve_angle_deg=null"])
+    msg = str(err.value)
+    assert "the shrink-wrap stretches chart 'default'" in msg and "max_patch_stretch = 2" in msg
+    stretch = float(msg.split(") to ")[1].split("x")[0])
+    assert stretch > 2.0 and "match the rest pose" in msg
+    # the same shirt T-posed wraps within the limit, and its stats say so
+    _, stats = _wrap(body, [f"garment.obj={_write(tmp_path, 't.obj', outfit_obj(0.0, trousers=False))}"])
+    assert stats["patch_stretch_max"] < 1.0 < stretch
+
+
+def test_far_from_the_body_names_the_piece_the_distance_and_that_the_body_has_no_legs(tmp_path, body):
+    path = _write(tmp_path, "outfit.obj", outfit_obj(0.0))
+    with pytest.raises(ValueError) as err:
+        _wrap(body, [f"garment.obj={path}"])
+    msg = str(err.value)
+    assert "chart 'default_3'" in msg and "piece 1 of the 2 separate pieces" in msg
+    assert "0.74 m from the body" in msg and "this body has no legs there" in msg and "pbc garment split" in msg
+
+
+def test_inspect_table_matches_hand_computed_areas(tmp_path, body):
+    # two quads: a 0.2 x 0.3 m panel in front of the chest, UVs a unit square (area 1); a 0.1 x 0.1 m panel
+    # behind it, UVs 0.5 x 0.5 (area 0.25): uv_unit sqrt(0.06) and sqrt(0.01 / 0.25) = 0.2 m per unit
+    obj = """v -0.1 0.1 0.25
+v 0.1 0.1 0.25
+v 0.1 0.4 0.25
+v -0.1 0.4 0.25
+v -0.05 0.2 -0.2
+v 0.05 0.2 -0.2
+v 0.05 0.3 -0.2
+v -0.05 0.3 -0.2
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+vt 2 0
+vt 2.5 0
+vt 2.5 0.5
+vt 2 0.5
+g front
+f 1/1 2/2 3/3 4/4
+g back
+f 5/5 8/8 7/7 6/6
+"""
+    path = _write(tmp_path, "two.obj", obj)
+    report = inspect_garment(path, load_config(["garment=obj", f"garment.obj={path}"]).garment, body, wrap=False)
+    front, back = report.rows
+    assert (front.name, back.name) == ("front", "back") and (front.facing, back.facing) == ("front", "back")
+    assert front.area_3d == pytest.approx(0.06) and front.area_uv == pytest.approx(1.0)
+    assert back.area_3d == pytest.approx(0.01) and back.area_uv == pytest.approx(0.25)
+    assert front.uv_unit == pytest.approx(np.sqrt(0.06)) and back.uv_unit == pytest.approx(0.2)
+    np.testing.assert_allclose(front.centroid, [0.0, 0.25, 0.25], atol=1e-9)
+    assert report.suggest_charts == {"front": 0, "back": 1} and report.sleeves == {}
+    assert front.distance_max > 0.0 and "torso" in front.region
+
+
+def test_split_cuts_an_outfit_into_pieces_named_by_where_they_sit(tmp_path, body):
+    path = _write(tmp_path, "outfit.obj", outfit_obj(40.0))
+    pieces = split_outfit(path, tmp_path / "pieces", position_unit="dm")
+    assert [(n, p.name) for n, p, _ in pieces] == [("top", "top.obj"), ("bottom", "bottom.obj")]
+    assert pieces[1][2] == 480  # the trousers' 480 triangles
+    # the top alone imports and meets the next check (its A-posed sleeves), not "far from the body"
+    with pytest.raises(ValueError, match="sleeve is 37 degrees off"):
+        _wrap(body, [f"garment.obj={pieces[0][1]}"])
+    bottom = load_config(IMPORT + [f"garment.obj={pieces[1][1]}"]).garment
+    g, _ = garment_from_config(bottom)
+    assert g.faces.shape[0] == 480
+
+
+def test_discard_summary_names_the_dominant_reason_what_it_measures_and_the_cause():
+    sim = OmegaConf.create({"discard": {"max_area_compression": 0.75, "max_area_expansion": 1.0}})
+    text = discard_summary({"area_stretched": 5, "nan": 1}, sim)
+    assert text.startswith("area_stretched 5, nan 1; mostly area_stretched")
+    assert "max_area_expansion (2x)" in text and "garment.uv_unit" in text and "rest pose" in text
+    text = discard_summary({"not_converged": 2, "area_compressed": 3}, sim)
+    assert "mostly area_compressed" in text and "(0.25x)" in text
+
+
+def test_the_garment_command_is_on_the_entry_floor():
+    assert COMMANDS["garment"][0] == "garment"
