@@ -402,6 +402,10 @@ def _generate(cfg: DictConfig) -> Path:
     log.info("building the scene: body, garment, cage and the rest-pose shrink-wrap")
     scene, wrap_stats = build_scene(cfg)
     timings["scene"] = time.perf_counter() - t0
+    # the wrap's distortion, which decides whether drapes can pass the discard check: said, not only stored
+    log.info("shrink-wrap: wrapped/pattern area per face mean %.2f, max %.2f; most stretched patch %s (%.2fx)",
+             wrap_stats["area_after_mean"], wrap_stats["area_after_max"], wrap_stats.get("patch_stretch_worst"),
+             wrap_stats.get("patch_stretch_max", float("nan")))
     log.info("scene built in %.1f s (%d body, %d garment vertices)", timings["scene"],
              scene.body.vertices.shape[0], scene.garment.vertices.shape[0])
     work = out / "work"
@@ -554,6 +558,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         )
     kept, reasons, residuals, stage = [], {}, [], {"skin": 0.0, "drape": 0.0}
     positions = []
+    first_discarded = None
     for i in range(len(poses)):
         pos, meta = _read_sample(_sample_path(work, i))
         stage["skin"] += meta["t_skin"]
@@ -564,8 +569,15 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
             positions.append(pos)
         else:
             reasons[meta["reason"]] = reasons.get(meta["reason"], 0) + 1
+            if first_discarded is None:
+                first_discarded = (i, pos, meta["reason"])
     if not kept:
-        raise RuntimeError(f"every sample of {out} was discarded ({reasons}); check the sim config")
+        preview = write_discard_preview(out, scene, *first_discarded)
+        raise ValueError(f"every sample of {out} was discarded: {discard_summary(reasons, scene.sim)}; "
+                         f"the first discarded drape (sample {first_discarded[0]}) is in {preview}")
+    if reasons:
+        log.warning("%d of %d drapes discarded: %s", sum(reasons.values()), len(poses),
+                    discard_summary(reasons, scene.sim))
     rng = np.random.default_rng(fp["seed"])
     order = rng.permutation(len(kept))
     n_train, n_val = split_sizes(len(kept))
@@ -610,6 +622,59 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
                 (out / name).unlink()
         raise
     shutil.rmtree(work, ignore_errors=True)
+
+
+# a discard reason (pbc.sim.drape.check_sample) -> what it measures and its likely cause, for the user
+DISCARD_REASONS = {
+    "area_stretched": ("a face's draped area over its flat-pattern area passed 1 + sim.discard.max_area_expansion "
+                       "({limit_stretch:g}x)",
+                       "the pattern is smaller than the garment (a wrong garment.uv_unit) or the shrink-wrap "
+                       "stretched a part onto the body (sleeves modelled on another rest pose); `pbc garment "
+                       "inspect` shows both before any drape"),
+    "area_compressed": ("a face's draped area over its flat-pattern area fell below 1 - "
+                        "sim.discard.max_area_compression ({limit_compress:g}x)",
+                        "the pattern is larger than the garment (a wrong garment.uv_unit: `pbc garment inspect` "
+                        "names the unit that fits) or cloth caught between body parts"),
+    "not_converged": ("the drape still moved after sim's last frame",
+                      "too few frames for this garment (sim settings), or cloth caught in a collision"),
+    "nan": ("the drape's positions became NaN or infinite",
+            "the simulation blew up: a garment far from the body, degenerate pattern triangles, or too large "
+            "a time step (sim settings)"),
+}
+
+
+def discard_summary(reasons: dict[str, int], sim) -> str:
+    """One sentence on why drapes were discarded: the counts, the dominant reason, what it measures and its
+    likely cause (`DISCARD_REASONS`)."""
+    top = max(reasons, key=reasons.get)
+    d = (sim.get("discard") or {}) if hasattr(sim, "get") else {}
+    limits = {"limit_stretch": 1.0 + float(d.get("max_area_expansion", 1.0)),
+              "limit_compress": 1.0 - float(d.get("max_area_compression", 0.75))}
+    measures, cause = DISCARD_REASONS.get(top, ("an unknown check", "see pbc.sim.drape.check_sample"))
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
+    return f"{counts}; mostly {top}: {measures.format(**limits)}; likely cause: {cause}"
+
+
+def write_discard_preview(out: Path, scene: Scene, sample: int, positions: np.ndarray, reason: str) -> Path:
+    """The first discarded drape as an OBJ beside the dataset (``discarded_<sample>.obj``, the garment's
+    faces at the draped positions, the faces past the discard limits listed in a comment) to open in
+    any viewer. Returns its path."""
+    p = np.asarray(positions, np.float64)
+    f = scene.garment.faces.cpu().numpy()
+    pattern = scene.garment.pattern().double().cpu().numpy()
+    e1, e2 = pattern[:, 1] - pattern[:, 0], pattern[:, 2] - pattern[:, 0]
+    rest = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    t = p[f]
+    ratio = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1) / np.maximum(rest, 1e-30)
+    worst = np.argsort(-np.abs(np.log(np.maximum(np.nan_to_num(ratio, nan=1e9), 1e-9))))[:10]
+    path = out / f"discarded_{sample:06d}.obj"
+    lines = [f"# pbc: drape of sample {sample}, discarded ({reason}); area ratio of the worst faces: "
+             + ", ".join(f"face {k}: {ratio[k]:.2f}" for k in worst)]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in np.nan_to_num(p)]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+    with atomic_path(path, suffix=".obj") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+    return path
 
 
 def _scene_bytes(scene: Scene) -> int:

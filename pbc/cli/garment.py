@@ -1,0 +1,58 @@
+"""`pbc garment inspect|split`: what a garment OBJ is before anything is draped, and an outfit in one mesh
+cut into its pieces (issue 24).
+
+    pbc garment inspect my.obj [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
+        one table of charts (id, name, centroid, facing, 3D and UV area, the uv_unit that fits, distance to
+        the body, shrink-wrap stretch), the sleeves against the body's rest arms, the settings to paste;
+        --out writes uv_layout.png and on_body.png
+    pbc garment split outfit.obj --out DIR [--position-unit dm]
+        one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pbc.cli.errors import entry_point
+from pbc.config import load_config
+from pbc.geometry.body import build_body
+from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture, split_outfit
+
+
+def run(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="pbc garment", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True)
+    ins = sub.add_parser("inspect", help="the charts, fit and settings of a garment OBJ")
+    ins.add_argument("obj", help="the garment OBJ")
+    ins.add_argument("overrides", nargs="*", help="Hydra overrides: garment.position_unit=dm, body=..., ...")
+    ins.add_argument("--out", help="folder for uv_layout.png and on_body.png")
+    ins.add_argument("--no-wrap", action="store_true", help="skip the shrink-wrap (its stretch per chart)")
+    spl = sub.add_parser("split", help="one OBJ per connected piece of an outfit, named by where it sits")
+    spl.add_argument("obj", help="the outfit OBJ")
+    spl.add_argument("--out", required=True, help="folder for the pieces' OBJs")
+    spl.add_argument("--position-unit", default="m", help="unit of the v lines (m, dm, cm, mm, in)")
+    args = ap.parse_args(argv)
+    path = Path(args.obj)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such garment OBJ")
+    if args.command == "split":
+        unit = float(args.position_unit) if args.position_unit.replace(".", "", 1).isdigit() else args.position_unit
+        for name, target, n in split_outfit(path, args.out, position_unit=unit):
+            print(f"{name:<10} {n:>6} polygons  {target}")
+        return 0
+    cfg = load_config(["garment=obj", f"garment.obj={path}", *args.overrides])
+    report = inspect_garment(path, cfg.garment, build_body(cfg.body), wrap=not args.no_wrap)
+    print(format_report(report, dict(cfg.garment.shrinkwrap)))
+    if args.out:
+        for target in (save_uv_picture(report, Path(args.out) / "uv_layout.png"),
+                       save_body_picture(report, Path(args.out) / "on_body.png")):
+            print(f"wrote {target}")
+    return 0
+
+
+main = entry_point("garment", run)
+
+if __name__ == "__main__":
+    main()

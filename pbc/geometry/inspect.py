@@ -1,0 +1,338 @@
+"""What a user's garment OBJ is, before anything is draped (issue 24): its charts (where each sits and faces,
+its 3D and UV areas, the uv_unit that makes them agree), its distance to the body and the shrink-wrap's
+stretch per chart, the sleeves' angle against the body's rest arms, the settings to paste, and two
+pictures; and an outfit in one mesh cut into its pieces, one OBJ each, named by where they sit.
+
+    pbc garment inspect my.obj [body=... garment.uv_unit=...] --out figures/
+    pbc garment split outfit.obj --out pieces/
+
+The measurements are pbc.geometry.fit's, the ones the import and the shrink-wrap check.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import torch
+from matplotlib.collections import PolyCollection
+from omegaconf import OmegaConf
+
+from pbc.geometry.autocage import auto_cage
+from pbc.geometry.body import Body, body_sdf
+from pbc.geometry.fit import (
+    body_region,
+    droop_deg,
+    face_areas,
+    face_patches,
+    fitted_uv_unit,
+    mesh_pieces,
+    name_unit,
+    patch_stretch,
+    rest_arm_directions,
+    sleeve_axes,
+)
+from pbc.geometry.garment import uv_islands
+from pbc.geometry.obj_import import chart_names, check_mesh, import_garment, metres_per_unit, parse_obj
+from pbc.geometry.shrinkwrap import wrap_positions
+from pbc.io import atomic_path
+
+# the body frame (metres, y up, root at the waist): a piece centred above HEAD_Y sits on the head, above
+# TOP_Y on the torso, above FEET_Y on the legs, below on the feet
+HEAD_Y, TOP_Y, FEET_Y = 0.60, -0.05, -0.80
+# a direction whose share of a chart's summed outward normal is below this faces no one way ("all round")
+FACING_MIN = 0.35
+
+
+@dataclass
+class ChartRow:
+    id: int
+    name: str
+    centroid: np.ndarray  # (3,) m, body frame
+    facing: str  # front / back / left / right / up / down / all round
+    area_3d: float  # m^2
+    area_uv: float  # UV units^2 (the file's)
+    uv_unit: float  # metres per UV unit that makes the two agree
+    distance_max: float  # m, the farthest vertex from the rest body (negative: inside)
+    region: str  # the body region at that vertex
+    stretch: float | None = None  # the shrink-wrap's largest patch stretch in this chart
+
+
+@dataclass
+class Report:
+    path: Path
+    rows: list[ChartRow]
+    sleeves: dict
+    arm_droop_deg: float
+    uv_range: float
+    stated_unit: str
+    suggest_charts: dict[str, int]
+    suggest_unit: str
+    suggest_pose: str
+    notes: list[str] = field(default_factory=list)
+    # for the pictures
+    positions: np.ndarray | None = None
+    faces: np.ndarray | None = None
+    face_chart: np.ndarray | None = None
+    uv_corners: np.ndarray | None = None
+    body_vertices: np.ndarray | None = None
+
+
+def _facing(normal_sum: np.ndarray, area: float) -> str:
+    k = int(np.abs(normal_sum).argmax())
+    if np.linalg.norm(normal_sum) < FACING_MIN * area:
+        return "all round"
+    return (("right", "left"), ("down", "up"), ("back", "front"))[k][int(normal_sum[k] > 0)]
+
+
+def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
+    """Measure a garment OBJ against the rest body (see the module docstring). gcfg: the garment config
+    node (position_unit / position_offset / uv_unit / charts / shrinkwrap); wrap: also run the shrink-wrap
+    (seconds) for its stretch per chart. Nothing is refused here: the numbers are what the checks read."""
+    path = Path(path)
+    mesh = parse_obj(path.read_text(), str(path))
+    check_mesh(mesh, str(path))
+    p = mesh.vertices * metres_per_unit(gcfg.get("position_unit", "m"), "garment.position_unit")
+    p = p + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0), np.float64)
+    f = mesh.faces
+    corners = mesh.uv[mesh.face_uv]
+    island = uv_islands(f, corners)
+    names = chart_names(island, mesh.face_group, mesh.groups)
+    a3 = face_areas(p, f)
+    auv = face_areas(corners.reshape(-1, 2), np.arange(3 * len(f)).reshape(-1, 3))
+    # outward normals: away from the body's vertical axis (x = z = 0 in the body frame), whatever way the
+    # file winds its faces: right for a panel alone, and a tube's (sleeve, leg) sum to "all round"
+    t = p[f]
+    n = 0.5 * np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    out = t.mean(1)
+    out[:, 1] = 0.0
+    n = n * np.sign(np.einsum("fk,fk->f", n, out))[:, None]
+    with torch.no_grad():
+        gap = body_sdf(body, torch.eye(3).expand(1, body.skeleton.num_joints, 3, 3),
+                       torch.as_tensor(p, dtype=torch.float32)[None])[0].double().numpy()
+    rows = []
+    for c, name in enumerate(names):
+        sel = island == c
+        vid = np.unique(f[sel])
+        k = vid[int(gap[vid].argmax())]
+        rows.append(ChartRow(id=c, name=name, centroid=np.average(t[sel].mean(1), axis=0, weights=a3[sel]),
+                             facing=_facing(n[sel].sum(0), a3[sel].sum()), area_3d=float(a3[sel].sum()),
+                             area_uv=float(auv[sel].sum()), uv_unit=fitted_uv_unit(a3[sel].sum(), auv[sel].sum()),
+                             distance_max=float(gap[k]), region=body_region(body, p[k])))
+    uv_range = float(np.ptp(mesh.uv[np.unique(mesh.face_uv)], axis=0).max())
+    stated = str(gcfg.get("uv_unit", "auto"))
+    fit_all = fitted_uv_unit(a3.sum(), auv.sum())
+    if stated != "auto" and max(metres_per_unit(_number(stated), "garment.uv_unit") / fit_all,
+                                fit_all / metres_per_unit(_number(stated), "garment.uv_unit")) <= 1.25:
+        unit = stated
+    else:
+        unit = "auto" if uv_range <= 1.0 else name_unit(fit_all)
+    charts = {r.name: int(r.facing == "back") for r in rows}
+    sleeves = sleeve_axes(p, f, body)
+    arms = rest_arm_directions(body)
+    arm_droop = droop_deg(arms["left"])
+    if sleeves:
+        droop = float(np.mean([a["droop_deg"] for a in sleeves.values()]))
+        pose = (f"the garment's sleeves point {droop:.0f} degrees below the horizontal, the body's rest arms "
+                f"{arm_droop:.0f}: " + ("they match (keep the body's rest pose)" if abs(droop - arm_droop) <= 10 else
+                                        f"rest pose with the arms {droop:.0f} degrees down (l_arm and r_arm lowered "
+                                        f"{droop - arm_droop:.0f} degrees), or rotate the sleeves onto the rest arms"))
+    else:
+        pose = "no sleeves found beyond the body's arm joints: the body's rest pose does not matter for them"
+    report = Report(path=path, rows=rows, sleeves=sleeves, arm_droop_deg=arm_droop, uv_range=uv_range,
+                    stated_unit=stated, suggest_charts=charts, suggest_unit=unit, suggest_pose=pose,
+                    positions=p, faces=f, face_chart=island, uv_corners=corners,
+                    body_vertices=body.vertices.double().cpu().numpy())
+    if wrap:
+        _wrap_stretch(report, path, gcfg, body, charts, unit, mesh, island)
+    return report
+
+
+def _number(unit: str):
+    try:
+        return float(unit)
+    except ValueError:
+        return unit
+
+
+def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, unit: str, mesh, island) -> None:
+    """The shrink-wrap's largest patch stretch per chart, with the suggested charts and unit and every
+    check off (inspect reports; the import and the wrap refuse)."""
+    g = (OmegaConf.create(OmegaConf.to_container(gcfg, resolve=True)) if OmegaConf.is_config(gcfg)
+         else copy.deepcopy(gcfg))
+    try:
+        garment, _, face_chart = import_garment(
+            path, charts=charts, uv_unit=_number(unit), position_unit=_number(str(g.get("position_unit", "m"))),
+            position_offset=tuple(g.get("position_offset") or (0.0, 0.0, 0.0)),
+            uv_padding=float(g.get("uv_padding", 0.1)))
+        cage = auto_cage(garment, int(g.patch_resolution), int(g.crop_size), int(g.margin),
+                         chart_names=[r.name for r in report.rows], face_chart=face_chart,
+                         **dict(g.get("autocage") or {}))
+        sw = dict(g.shrinkwrap)
+        sw.update(max_start_distance=None, max_sleeve_angle_deg=None, max_patch_stretch=None)
+        x, _ = wrap_positions(garment, cage, body, OmegaConf.create(sw))
+    except ValueError as err:
+        report.notes.append(f"shrink-wrap stretch not measured: {err}")
+        return
+    f = garment.faces.cpu().numpy()
+    pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
+    fp = face_patches(cage, f)
+    stretch = patch_stretch(face_areas(x, f), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3)), fp,
+                            len(cage.patches))
+    # a patch belongs to the chart of most of its faces (a seam face can sit in the other chart's patch)
+    owner = np.array([np.bincount(face_chart[fp == k]).argmax() if (fp == k).any() else -1
+                      for k in range(len(cage.patches))])
+    for r in report.rows:
+        mine = np.flatnonzero(owner == r.id)
+        r.stretch = float(stretch[mine].max()) if len(mine) else None
+
+
+def format_report(report: Report, limits: dict) -> str:
+    """The table and the settings to paste, as `pbc garment inspect` prints them."""
+    head = (f"{'id':>3}  {'chart':<14} {'centroid (m)':<22} {'faces':<9} {'3D m^2':>8} {'UV u^2':>9} "
+            f"{'uv_unit':>9} {'dist m':>7} {'stretch':>7}  body region at the farthest vertex")
+    lines = [f"{report.path}: {len(report.rows)} charts (UV islands), UVs span {report.uv_range:.3g} units", head]
+    for r in report.rows:
+        c = "[" + ", ".join(f"{v:+.2f}" for v in r.centroid) + "]"
+        st = "-" if r.stretch is None else f"{r.stretch:.2f}x"
+        lines.append(f"{r.id:>3}  {r.name:<14} {c:<22} {r.facing:<9} {r.area_3d:>8.4f} {r.area_uv:>9.4g} "
+                     f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7}  {r.region}")
+    for side, a in sorted(report.sleeves.items()):
+        lines.append(f"{side} sleeve: {a['angle_deg']:.1f} degrees off the body's rest arm (sleeve "
+                     f"{a['droop_deg']:.1f} below the horizontal, arm {a['arm_droop_deg']:.1f}); limit "
+                     f"garment.shrinkwrap.max_sleeve_angle_deg = {limits.get('max_sleeve_angle_deg')}")
+    far = [r for r in report.rows if limits.get("max_start_distance") is not None
+           and r.distance_max > float(limits["max_start_distance"])]
+    for r in far:
+        lines.append(f"chart {r.id} '{r.name}' is {r.distance_max:.2f} m from the body (limit "
+                     f"garment.shrinkwrap.max_start_distance = {limits['max_start_distance']}): {r.region}")
+    lines += report.notes
+    charts = ",".join(f"{k}:{v}" for k, v in report.suggest_charts.items())
+    lines += ["", "suggested settings:", f"  'garment.charts={{{charts}}}'", f"  garment.uv_unit={report.suggest_unit}",
+              f"  body rest pose: {report.suggest_pose}"]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------------
+# pictures
+
+
+def _colours(n: int):
+    return matplotlib.colormaps["tab20"](np.arange(n) % 20)
+
+
+def save_uv_picture(report: Report, path) -> Path:
+    """The UV layout (the file's UVs, v up) with each chart filled in its colour and its id at its centre."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - pyplot is heavy; only the pictures need it
+
+    col = _colours(len(report.rows))
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.add_collection(PolyCollection(report.uv_corners, facecolors=col[report.face_chart], edgecolors="none"))
+    for r in report.rows:
+        c = report.uv_corners[report.face_chart == r.id].reshape(-1, 2).mean(0)
+        ax.text(c[0], c[1], f"{r.id} {r.name}", ha="center", va="center", fontsize=9, weight="bold")
+    ax.autoscale()
+    ax.set_aspect("equal")
+    ax.set_title(f"{report.path.name}: UV layout, chart ids")
+    ax.set_xlabel("u")
+    ax.set_ylabel("v")
+    return _save(fig, path)
+
+
+def save_body_picture(report: Report, path) -> Path:
+    """The garment on the rest body from the front and the back, coloured by chart, ids at the centroids."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - pyplot is heavy; only the pictures need it
+
+    col = _colours(len(report.rows))
+    t = report.positions[report.faces]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 8))
+    for ax, sgn, title in ((axes[0], 1.0, "front (+z towards you)"), (axes[1], -1.0, "back")):
+        b = report.body_vertices
+        ax.scatter(sgn * b[:, 0], b[:, 1], s=0.3, c="0.75", zorder=0)
+        order = np.argsort(sgn * t.mean(1)[:, 2])  # far faces first, near faces painted over them
+        poly = np.stack([sgn * t[order][..., 0], t[order][..., 1]], -1)
+        ax.add_collection(PolyCollection(poly, facecolors=col[report.face_chart[order]], edgecolors="none",
+                                         alpha=0.9, zorder=1))
+        for r in report.rows:
+            ax.text(sgn * r.centroid[0], r.centroid[1], str(r.id), ha="center", va="center", fontsize=10,
+                    weight="bold", zorder=2)
+        ax.autoscale()
+        ax.set_aspect("equal")
+        ax.set_title(title + " (x mirrored)" * (sgn < 0))
+    fig.suptitle(f"{report.path.name} on the rest body, by chart: "
+                 + ", ".join(f"{r.id} {r.name}" for r in report.rows), fontsize=9)
+    return _save(fig, path)
+
+
+def _save(fig, path) -> Path:
+    import matplotlib.pyplot as plt  # noqa: PLC0415 - pyplot is heavy; only the pictures need it
+
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------------------------------
+# an outfit in one mesh -> its pieces
+
+
+def piece_name(centre_y: float) -> str:
+    """Where a piece centred at height centre_y (m, body frame) sits."""
+    if centre_y > HEAD_Y:
+        return "head"
+    if centre_y > TOP_Y:
+        return "top"
+    if centre_y > FEET_Y:
+        return "bottom"
+    return "feet"
+
+
+def split_outfit(path, out_dir, position_unit="m", position_offset=(0.0, 0.0, 0.0)) -> list[tuple[str, Path, int]]:
+    """Cut an OBJ holding several separate pieces (connected through no vertex) into one OBJ each, in the
+    file's own units and polygons (v, vt, `g` groups kept; indices renumbered), named by where each sits
+    (`piece_name` of its centre in the body frame; `top_2` when two sit alike). Returns (name, path,
+    polygons) per piece, highest first."""
+    path, out_dir = Path(path), Path(out_dir)
+    mesh = parse_obj(path.read_text(), str(path))
+    piece = mesh_pieces(mesh.faces, len(mesh.vertices))
+    p = mesh.vertices * metres_per_unit(position_unit, "garment.position_unit") + np.asarray(position_offset)
+    ids = sorted(range(int(piece.max()) + 1), key=lambda k: -p[piece == k, 1].mean())
+    if len(ids) < 2:
+        raise ValueError(f"{path}: one connected piece only; nothing to split (pbc garment inspect shows its charts)")
+    # each `f` line's polygon back from its fan triangles: (v0, v1, v2), (v0, v2, v3), ...
+    polys: dict[int, tuple[list[int], list[int], int]] = {}
+    for k, line in enumerate(mesh.face_line):
+        if line not in polys:
+            polys[line] = (list(mesh.faces[k]), list(mesh.face_uv[k]), int(mesh.face_group[k]))
+        else:
+            polys[line][0].append(int(mesh.faces[k, 2]))
+            polys[line][1].append(int(mesh.face_uv[k, 2]))
+    out, seen = [], {}
+    for k in ids:
+        base = piece_name(float(p[piece == k, 1].mean()))
+        seen[base] = seen.get(base, 0) + 1
+        name = base if seen[base] == 1 else f"{base}_{seen[base]}"
+        mine = [v for v in polys.values() if piece[v[0][0]] == k]
+        vids = np.unique(np.concatenate([m[0] for m in mine]))
+        tids = np.unique(np.concatenate([m[1] for m in mine]))
+        vmap = {int(v): i + 1 for i, v in enumerate(vids)}
+        tmap = {int(v): i + 1 for i, v in enumerate(tids)}
+        lines = [f"# {name}: piece of {path.name} cut by pbc garment split"]
+        lines += ["v " + " ".join(f"{x:.6g}" for x in mesh.vertices[v]) for v in vids]
+        lines += ["vt " + " ".join(f"{x:.6g}" for x in mesh.uv[t]) for t in tids]
+        group = None
+        for fv, ft, g in mine:
+            if g != group:
+                lines.append(f"g {mesh.groups[g]}")
+                group = g
+            lines.append("f " + " ".join(f"{vmap[int(a)]}/{tmap[int(b)]}" for a, b in zip(fv, ft, strict=True)))
+        target = out_dir / f"{name}.obj"
+        with atomic_path(target, suffix=".obj") as tmp:
+            Path(tmp).write_text("\n".join(lines) + "\n")
+        out.append((name, target, len(mine)))
+    return out
