@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "body": ("body", "the body a config builds: show (joints, limits, girths) or export (rest OBJ)"),
     "cage": ("cage", "a garment's automatic cage as an editable JSON; regenerate committed cages"),
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
+    "garment": ("garment", "a garment OBJ before any drape: inspect (charts, fit, settings), split (an outfit)"),
 }
 
 
