@@ -122,3 +122,22 @@ def test_a_patch_id_outside_the_garments_cage_is_refused(foreign):
     assert r.returncode != 0 and not (run / "checkpoints").exists()
     # the dataset's target refuses it as it opens (pbc.pixels.target.make_target), before any model is built
     assert re.search(rf"unknown patch_id {P}: dataset \S+ has patches 0\.\.{P - 1}\n", r.stderr), r.stderr[-3000:]
+
+
+def test_the_stacked_job_keeps_one_best_weights_file_and_one_last_file(trained):
+    """Issue 24 item 4: checkpoints a user can afford. The stacked job's checkpoints/ holds the best epoch
+    (weights only: tested, exported, predicted from, never resumed) and last.ckpt (with the optimizer's
+    state, for ckpt_path=last); every exported patch run holds its patch's weights only."""
+    _, _, patches = trained
+    files = sorted(p.name for p in (patches / "checkpoints").glob("*.ckpt"))
+    assert len(files) == 2 and "last.ckpt" in files, files
+    best = torch.load(patches / "checkpoints" / next(f for f in files if f != "last.ckpt"), map_location="cpu",
+                      weights_only=False)
+    last = torch.load(patches / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert "optimizer_states" not in best and last["optimizer_states"]
+    weights = sum(v.numel() * v.element_size() for v in best["state_dict"].values())
+    size = (patches / "checkpoints" / files[0]).stat().st_size
+    assert size < 1.2 * weights + 200_000  # the weights and the hparams, no Adam moments (2x the weights)
+    for ck in (patches / "patches").glob("patch_*/checkpoints/*.ckpt"):
+        exported = torch.load(ck, map_location="cpu", weights_only=False)
+        assert not {"optimizer_states", "lr_schedulers", "loops", "callbacks"} & set(exported), ck
