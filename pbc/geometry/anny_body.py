@@ -213,12 +213,31 @@ def arm_angle_deg(skel: Skeleton, side: str = "l") -> float:
     return float(torch.rad2deg(torch.atan2(-d[1], d[[0, 2]].norm())))
 
 
-def rest_turn(skel: Skeleton, arm_angle: float | None, legs_apart: float | None) -> Tensor:
+def _align(a: Tensor, b: Tensor) -> Tensor:
+    """(3, 3) the smallest rotation taking direction a (3,) onto direction b (3,)."""
+    a, b = a / a.norm(), b / b.norm()
+    axis = torch.linalg.cross(a, b)
+    if float(axis.norm()) < 1e-9:
+        return torch.eye(3, dtype=torch.float64)
+    return _axis_angle(axis / axis.norm(), float(torch.rad2deg(torch.atan2(axis.norm(), a @ b))))
+
+
+def rest_turn(skel: Skeleton, arm_angle: float | None, legs_apart: float | None,
+              straight_forearms: bool = False) -> Tensor:
     """(1, J, 3, 3) pose turning the arms to `arm_angle` degrees below horizontal and each thigh outward by
-    `legs_apart` degrees, both about the forward axis (None: unchanged)."""
+    `legs_apart` degrees, both about the forward axis (None: unchanged); `straight_forearms` turns each
+    forearm in line with its upper arm (Anny's bind pose bends them forward), as a T-pose has them."""
     rot = torch.eye(3, dtype=torch.float64).repeat(1, skel.num_joints, 1, 1)
     frames = skel.frames().double()
+    heads = skel.rest_heads.double()
     forward = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    if straight_forearms:
+        # about the forearm's rest head, before the arm's own turn (pbc's forward kinematics composes it
+        # below the arm's), so it is found in rest coordinates
+        for side in ("l", "r"):
+            arm, fore, hand = (skel.index(f"{side}_{n}") for n in ("arm", "forearm", "hand"))
+            world = _align(heads[hand] - heads[fore], heads[fore] - heads[arm])
+            rot[0, fore] = frames[fore].T @ world @ frames[fore]
     turns = []
     if arm_angle is not None:
         for side, sign in (("l", 1.0), ("r", -1.0)):  # raising turns the left arm about +z, the right about -z
@@ -336,9 +355,11 @@ def build_anny_body(cfg) -> Body:
     weights = merge_weights(model.vertex_bone_weights.double(), model.vertex_bone_indices, column, len(names) + 1)
     skel = _skeleton(cfg, heads, parents)
     turn = cfg.get("rest") or {}
-    if turn.get("arm_angle_deg") is not None or turn.get("legs_apart_deg") is not None:
+    if turn.get("arm_angle_deg") is not None or turn.get("legs_apart_deg") is not None or turn.get(
+            "straight_forearms"):
         # a re-rest: pbc's own skinning turns the limbs, and the result becomes the rest pose
-        rot = rest_turn(skel, turn.get("arm_angle_deg"), turn.get("legs_apart_deg"))
+        rot = rest_turn(skel, turn.get("arm_angle_deg"), turn.get("legs_apart_deg"),
+                        bool(turn.get("straight_forearms")))
         transforms = forward_kinematics(skel, rot.float()).double()
         vertices = linear_blend_skinning(vertices, weights, transforms)[0]
         # each joint is now at its parent's turned position (its own turn does not move its head)
