@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "cage": ("cage", "a garment's automatic cage as an editable JSON; regenerate committed cages"),
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
     "garment": ("garment", "a garment OBJ before any drape: inspect (charts, fit, settings), split (an outfit)"),
+    "view": ("view", "a local web viewer: body + predicted garment under joint sliders, in the browser"),
 }
 
 
