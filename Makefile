@@ -3,7 +3,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: venv main test test-fast lint bench
+.PHONY: venv main test test-fast lint bench chromium
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -18,7 +18,12 @@ venv: $(BIN)/python
 main: venv
 	$(BIN)/python -m pbc.main
 
-test: venv
+# the browser test (tests/integration/test_view_browser.py) opens `pbc view` in Debian's Chromium; playwright
+# downloads no browser of its own
+chromium:
+	@command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium)
+
+test: venv chromium
 	$(BIN)/python -m pytest -x
 
 # the quick tier: tests/unit (synthetic data, no drape, no subprocess); `test` runs every tier
