@@ -2,12 +2,15 @@
 
     pbc body show                                   # the mannequin: joints, limits, height, girths
     pbc body show body=anny body.phenotype.weight=0.7
-    pbc body export body=anny body.rest.arm_angle_deg=0 --out tpose.obj   # place a garment on it in Blender
+    pbc body export body=anny_tpose --out tpose.obj   # the rest body, to place a garment on it in Blender
+    pbc body cache [--trim]                         # Anny's asset cache: folder, files, sizes; trim to the built models
 
 `show` prints the joints (parent, rest head, limits), the phenotype (Anny), the height, the chest / waist /
 hip girths (conf/measure.yaml) and how closely the inside test's primitives follow the mesh. `export`
 writes the rest body (the rest pose and phenotype chosen) as OBJ or PLY, in pbc's frame: metres, y up,
-z forward, the root joint (pelvis) at the origin.
+z forward, the root joint (pelvis) at the origin. `cache` lists Anny's asset cache ($PBC_CACHE_DIR/anny,
+else ~/.cache/pbc/anny); `--trim` keeps only the built models (~51 MB each) and frees the ~740 MB of
+intermediates (building another rig, topology or phenotype set makes them again).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import argparse
 
 from pbc.cli.errors import entry_point
 from pbc.config import load_config
+from pbc.geometry.anny_body import anny_cache_dir, cache_files, trim_anny_cache
 from pbc.geometry.bodies import body_from_config
 from pbc.geometry.measure import inside_fit, measurements
 from pbc.geometry.meshio import write_mesh
@@ -45,13 +49,27 @@ def show(cfg, body) -> str:
     return "\n".join(lines)
 
 
+def cache(trim: bool) -> int:
+    if trim:
+        removed, freed = trim_anny_cache()
+        print(f"{anny_cache_dir()}: removed {len(removed)} files, freed {freed / 2**20:.0f} MB")
+    files = cache_files()
+    print(f"{anny_cache_dir()}: {len(files)} files, {sum(p.stat().st_size for p in files) / 2**20:.0f} MB")
+    for p in files:
+        print(f"  {p.stat().st_size / 2**20:8.1f} MB  {p.relative_to(anny_cache_dir())}")
+    return 0
+
+
 def run(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="pbc body", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("action", choices=("show", "export"))
+    ap.add_argument("action", choices=("show", "export", "cache"))
     ap.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. body=anny body.phenotype.age=0.8")
     ap.add_argument("--out", help="export: the file to write (.obj or .ply)")
+    ap.add_argument("--trim", action="store_true", help="cache: delete all but the built models")
     args = ap.parse_args(argv)
+    if args.action == "cache":
+        return cache(args.trim)
     if args.action == "export" and not args.out:
         ap.error("export needs --out FILE.obj (or .ply)")
     if args.out and not args.out.lower().endswith((".obj", ".ply")):

@@ -46,6 +46,25 @@ def anny_cache_dir():
     return user_cache_dir("anny")
 
 
+def cache_files() -> list:
+    """Every file of Anny's asset cache (anny_cache_dir()), sorted; [] when none was built."""
+    root = anny_cache_dir()
+    return sorted(p for p in root.rglob("*") if p.is_file()) if root.is_dir() else []
+
+
+def trim_anny_cache() -> tuple[list, int]:
+    """Delete all but the built models from Anny's cache: (the files removed, bytes freed).
+
+    A body loads only its configuration's compacted model (~51 MB, `_BUILT_MARK`); the ~740 MB of
+    intermediates only serve building another rig, topology or phenotype set, which then rebuilds them.
+    """
+    removed = [p for p in cache_files() if not p.match(_BUILT_MARK)]
+    freed = sum(p.stat().st_size for p in removed)
+    for p in removed:
+        p.unlink()
+    return removed, freed
+
+
 # ------------------------------------------------------------------------------------------ input checks
 
 

@@ -105,3 +105,16 @@ def test_body_show_and_export_mannequin(body, body_cfg, capsys, tmp_path):
     assert len(mesh.faces) == len(body.faces) and mesh.is_watertight
     head = load_config([]).body.primitives[6]  # the head ellipsoid: its top is the body's top
     assert abs(mesh.vertices[:, 1].max() - (head.centre[1] + head.radii[1])) < 0.02
+
+
+def test_cache_trim_keeps_only_the_built_models(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("PBC_CACHE_DIR", str(tmp_path))
+    v = tmp_path / "anny" / "v14"
+    v.mkdir(parents=True)
+    (v / "build_compact_model_data_abc.safetensors").write_bytes(b"m" * 10)
+    (v / "build_model_data_def.safetensors").write_bytes(b"i" * 1000)
+    (v / "load_data_123.safetensors").write_bytes(b"i" * 500)
+    with pytest.raises(SystemExit) as e:
+        body_cli.main(["cache", "--trim"])
+    assert e.value.code == 0 and "removed 2 files" in capsys.readouterr().out
+    assert [p.name for p in v.iterdir()] == ["build_compact_model_data_abc.safetensors"]
