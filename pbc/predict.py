@@ -686,11 +686,11 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
                      glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
                      model: str | None = None, info: dict | None = None, progress: bool = True) -> dict:
     """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
-    with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera; None:
-    none), garment.glb (the garment animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy
-    (N, J, 3, 3), predict.json (the mapping, the frames outside the training poses' range, the seconds of
-    each stage). `clamp`: joint angles clamped into the training range before predicting (the flags are
-    taken before). Returns predict.json's content."""
+    with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
+    k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
+    animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
+    the frames outside the training poses' range, the seconds of each stage). `clamp`: joint angles clamped
+    into the training range before predicting (the flags are taken before). Returns predict.json's content."""
     t0 = time.time()
     model = predictor.check_model(model)
     settings = motion_settings()
@@ -730,17 +730,22 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
         t = time.time()
         v = settings.video
         cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
-        vw = VideoWriter(out / f"motion.{video}", motion.fps, int(v.crf))
+        every = max(1, round(motion.fps / float(v.max_fps)))
+        shown = torch.arange(0, len(poses), every)
+        vw = VideoWriter(out / f"motion.{video}", motion.fps / every, int(v.crf))
         try:
-            for i in range(0, len(poses), 8):
-                vw.append(render_frames([(bodies[i:i + 8], ds.body.faces, list(v.body_colour), 0.0, True),
-                                         (verts[i:i + 8], ds.garment.faces, list(v.garment_colour),
-                                          float(v.garment_lift), False)], cam, list(v.light), list(v.background)))
+            for i in shown.split(8):
+                # the garment's back faces culled as the body's: the body fills its openings, so its inside
+                # hardly shows, and culling halves the faces to draw
+                vw.append(render_frames([(bodies[i], ds.body.faces, list(v.body_colour), 0.0, True),
+                                         (verts[i], ds.garment.faces, list(v.garment_colour),
+                                          float(v.garment_lift), True)], cam, list(v.light), list(v.background)))
         except BaseException as e:
             vw.close(e)
             raise
         vw.close()
         files["video"] = f"motion.{video}"
+        files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4)}
         stages["video"] = round(time.time() - t, 3)
     if glb:
         t = time.time()

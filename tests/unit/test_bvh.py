@@ -291,8 +291,9 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
     assert "ignored: LeftForeArm, RightForeArm, LeftUpLeg" in printed
     from PIL import Image
 
-    gif = Image.open(out / "motion.gif")
-    assert gif.n_frames == 6
+    gif = Image.open(out / "motion.gif")  # the clip's 60 fps (120 / step 2) shown at 30: every other frame
+    assert gif.n_frames == 3
+    assert res["files"]["video_frames"] == {"count": 3, "every": 2, "fps": pytest.approx(30, 1e-3)}
     g = pygltflib.GLTF2().load(str(out / "garment.glb"))
     prim = g.meshes[0].primitives[0]
     assert len(prim.targets) == 6 and prim.attributes.TEXCOORD_0 is not None
