@@ -2,16 +2,15 @@
 the coarse mannequin, and the test tiers. Synthetic garments for fast tests live in tests/helpers/.
 
 Tiers are folders: tests/unit (synthetic data, no drape, no subprocess; `make test-fast`), tests/integration
-(drapes real data, runs whole jobs), tests/gpu (needs CUDA; skipped elsewhere). (the fixture `unit_tier_rules` here) refuses a unit test that drapes or starts a process, so the quick
-tier stays quick.
+(drapes real data, runs whole jobs), tests/gpu (needs CUDA; skipped elsewhere). The fixture
+`unit_tier_rules` here refuses a unit test that drapes or starts a process, so the quick tier stays quick.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import multiprocessing.context
 import subprocess
+from pathlib import Path
 
 import pytest
 

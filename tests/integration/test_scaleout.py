@@ -19,7 +19,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 from conftest import tiny_overrides
 
 from pbc.config import load_config

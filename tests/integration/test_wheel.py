@@ -11,10 +11,10 @@ import shutil
 import subprocess
 import sys
 import sysconfig
-import tomllib
 from pathlib import Path
 
 import pytest
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = sorted(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"])
@@ -90,3 +90,17 @@ def test_user_errors_outside_a_project_are_one_line(installed):
     r = run([bin_dir / "pbc", "preview", "data/tshirt_small_seed0"], work)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "pbc generate" in r.stderr and str(work / "data") in r.stderr
+
+
+def test_the_shipped_model_predicts_from_the_wheel(installed):
+    """pbc/pretrained ships in the wheel: `--pretrained tshirt` predicts outside any project, and writes
+    nothing into the installed package (its operators go to the user cache)."""
+    bin_dir, work = installed
+    r = run([bin_dir / "pbc", "predict", "--pretrained", "tshirt", "--poses", "test", "--max", "2", "--sheet", "0",
+             "--out", work / "pred"], work)
+    assert r.returncode == 0, r.stderr
+    assert "2 poses" in r.stdout and "vertex error vs simulation" in r.stdout
+    r = run([bin_dir / "python", "-c", "import pbc.pretrained as p; print(p.SHIPPED_DIR)"], work)
+    shipped = Path(r.stdout.strip())
+    assert str(ROOT) not in str(shipped) and not (shipped / "tshirt" / "data" / "operators").exists()
+    assert list((work / ".cache" / "pbc" / "operators").glob("*.npz"))
