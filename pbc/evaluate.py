@@ -28,6 +28,7 @@ from matplotlib.collections import PolyCollection
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.data.dataset import run_data_record
+from pbc.data.trimmed import recorded_mean_offsets
 from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
 from pbc.pixels.frames import from_offsets
@@ -67,13 +68,18 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
     pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch, data_dir=cfg.get("data_dir"))
     ds = pred.dataset
     patches = pred.stitcher is not None  # else the whole model alone: no stitch, no patch floor
+    # a shipped model's data (whole_run=pretrained:NAME) has no training split, only its mean offsets
+    shipped_mean = recorded_mean_offsets(ds)
     if cfg.pca_path:
         basis = load_pca(cfg.pca_path, dataset_hash(ds.dir))
+    elif shipped_mean is not None and not patches:
+        basis = None
     else:  # its mean is the no-model baseline even without patches
         basis = fit_training_pca(pred, int(cfg.stitch.pca_components), int(cfg.pca_fit_max))
         save_pca(basis, out / "pca.pt")
     if patches:
         pred.use_pca(basis)
+    train_mean = basis.mean if basis is not None else shipped_mean[0]
 
     faces = pred.faces
     # the cage's seams: where a stitch would show; scored for the whole model too, for comparison
@@ -119,7 +125,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
             if patches:
                 batch["floor_512"] = pos_of(pred.ops_patch.sample(pred.ops_patch.render(gt_off)))
             # the no-model baseline: every pose gets the training split's mean offsets
-            batch["train_mean"] = pos_of(basis.mean.view(1, -1, 3).expand(len(j), -1, -1).to(gt_off))
+            batch["train_mean"] = pos_of(train_mean.view(1, -1, 3).expand(len(j), -1, -1).to(gt_off))
             whole_off = pred.whole_offsets(poses) if pred.whole_net is not None else None
             if whole_off is not None:
                 batch["whole"] = pos_of(whole_off)
@@ -143,8 +149,8 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
         "split": cfg.split, "num_samples": len(idx), "dataset": str(ds.dir), "data": run_data_record(ds),
         "whole_run": str(cfg.whole_run), "patch_runs": patch_runs if isinstance(patch_runs, list) or patch_runs is None
         else str(patch_runs),
-        "stitch": OmegaConf.to_container(cfg.stitch), "pca": {"components": basis.num_components,
-                                                               "dataset_hash": basis.dataset_hash},
+        "stitch": OmegaConf.to_container(cfg.stitch), "pca": None if basis is None else {
+            "components": basis.num_components, "dataset_hash": basis.dataset_hash},
         "seam_edges": int(seam.shape[0]),
         "patch_disagreement_before_blend_cm": float(torch.cat(disagreement).mean()) if disagreement else None,
         "entries": entries, "seconds": round(time.time() - t0, 2),

@@ -33,9 +33,10 @@ from tqdm.auto import tqdm
 import pbc.data.dataset as datasets
 from pbc.config import CONF_DIR
 from pbc.data.dataset import dataset_fingerprint
+from pbc.data.trimmed import recorded_training_range
 from pbc.geometry.body import pose_body
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
-from pbc.io import load_checkpoint, require_writable_dir, save_figure, save_npy, write_json
+from pbc.io import load_checkpoint, require_writable_dir, save_figure, save_npy, user_cache_dir, write_json
 from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.motion.bvh import read_bvh
 from pbc.motion.ranges import angle_range, clamp_to_range, range_report
@@ -45,6 +46,7 @@ from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.operators import image_sizes
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import image_operators, make_target, patch_crops
+from pbc.pretrained import pretrained_dir, resolve_run
 from pbc.runs import ModelKind, Run, find_runs, read_run, run_image_config, select_patch_runs
 from pbc.stitch.pca import check_pca_matches, dataset_hash, fit_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, build_stitcher
@@ -117,12 +119,23 @@ def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
     return net.eval(), hp
 
 
+def pretrained_run(name: str) -> Path:
+    """The run dir of the model shipped with pbc as `name` (`pbc.pretrained.shipped_models()`), for any
+    reader of runs (`ClothPredictor.from_runs`, `pbc view --pretrained`); an unknown name is refused listing
+    the shipped ones. `whole_run="pretrained:NAME"` in from_runs / pbc evaluate is the same."""
+    return pretrained_dir(name)
+
+
 def open_run_dataset(run: Run, directory: str | Path | None = None) -> datasets.ClothDataset:
     """The dataset `run` was trained on: its recorded resolved dir and fingerprint (metrics.json "data"),
     or `directory` (a moved copy), refused with both fingerprints' differences when it is other data.
     Runs written before the record existed fall back to their config's data.dir (or `directory`)."""
     if run.data:
-        return datasets.open_recorded_dataset(run.data, directory)
+        record = run.data
+        if directory is None and not Path(record["dir"]).is_absolute():
+            # a shipped model carries its data inside its run dir (pbc.pretrained): relative to the run
+            record = dict(record, dir=str(Path(run.path) / record["dir"]))
+        return datasets.open_recorded_dataset(record, directory)
     d = directory if directory is not None else OmegaConf.select(OmegaConf.create(run.config), "data.dir")
     return datasets.load_dataset(d)
 
@@ -389,12 +402,17 @@ class ClothPredictor:
         if not whole_run and not has_patches:
             raise ValueError("from_runs needs a whole-shirt run dir, or the patch run dirs (one per cage patch) / "
                              "their sweep dir")
+        whole_run = resolve_run(whole_run)  # "pretrained:NAME": a shipped model (pbc.pretrained)
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind is not ModelKind.WHOLE:
             raise ValueError(f"{whole.path}: a {whole.kind.value!r} run, not a whole-shirt run")
         first = whole or read_run(find_runs(patch_runs)[0])
         cfg = OmegaConf.create(first.config)
         dataset = open_run_dataset(first, data_dir)
+        if data_dir is None and first.data and not Path(first.data["dir"]).is_absolute():
+            # a shipped model's folder may be read-only (a wheel) or tracked (a checkout): operators go to
+            # the user cache, not beside its data
+            kw.setdefault("cache_dir", user_cache_dir("operators"))
         ghash = str(dataset.manifest.get("garment_hash", ""))
         if whole is not None and whole.garment_hash != ghash:
             raise ValueError(f"{whole.path}: trained on garment {whole.garment_hash!r}, the dataset is {ghash!r}")
@@ -413,6 +431,12 @@ class ClothPredictor:
         if len(spaces) > 1:
             raise ValueError(f"the runs use different offset spaces {sorted(spaces)}")
         return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
+
+    @classmethod
+    def from_pretrained(cls, name: str, **kw) -> ClothPredictor:
+        """The whole-shirt model shipped with pbc as `name` (`pbc.pretrained.shipped_models()`;
+        pbc/pretrained/<name>/MODEL_CARD.md says what it is); kw as `from_runs` (device, threads, ...)."""
+        return cls.from_runs(pretrained_run(name), **kw)
 
     def check_model(self, model: str | None) -> str:
         """The model a call answers with: `model` ("patches" or "whole"), or None = the patches when there
@@ -678,6 +702,9 @@ def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frame
 def training_pose_range(dataset) -> np.ndarray:
     """(J, 3, 2) per joint and axis [min, max] degrees of the body's Euler angles over the dataset's training
     split: the poses a run trained on it saw (the run records its dataset; pbc.motion.ranges)."""
+    recorded = recorded_training_range(dataset)
+    if recorded is not None:  # a shipped model's data holds its training split's range, not its poses
+        return recorded
     idx = np.asarray(dataset.split("train"))
     return angle_range(np.asarray(dataset.poses)[idx] if len(idx) else np.asarray(dataset.poses))
 

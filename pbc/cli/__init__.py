@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
     "garment": ("garment", "a garment OBJ before any drape: inspect (charts, fit, settings), split (an outfit)"),
     "view": ("view", "a local web viewer: body + predicted garment under joint sliders, in the browser"),
+    "pretrained": ("pretrained", "the models shipped with pbc (--pretrained NAME): list them, pack a run as one"),
 }
 
 

@@ -19,6 +19,7 @@ from pbc.predict import (
     fit_training_pca,
     predict_sequence,
     predict_to_dir,
+    pretrained_run,
     read_motion,
     read_poses,
     stitch_config,
@@ -28,6 +29,7 @@ from pbc.stitch.seams import METHODS
 
 EXAMPLES = """examples:
   pbc predict runs/main/latest/whole --poses test                  # the dataset's test poses
+  pbc predict --pretrained tshirt --poses test                     # the model shipped with pbc, no training
   pbc predict runs/main/latest/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
   pbc predict runs/main/latest/whole --patches runs/patches --method pca --poses test --format ply
   pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: meshes, video, GLB
@@ -46,6 +48,8 @@ def parser() -> argparse.ArgumentParser:
                     "meshes/ (OBJ with the garment's UVs and normals, or PLY), vertices.npy, poses.npy, "
                     "contact_sheet.png and predict.json.")
     ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/latest/whole)")
+    ap.add_argument("--pretrained", metavar="NAME", help="a model shipped with pbc (pbc pretrained list; e.g. "
+                    "tshirt) instead of a run dir")
     ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
                     "dir holding them, or a stacked +experiment=patches run dir")
     ap.add_argument("--method", default="pca", choices=METHODS, help="seam method for --patches (default pca)")
@@ -77,8 +81,12 @@ def parser() -> argparse.ArgumentParser:
 def run(argv: list[str]) -> int:
     ap = parser()
     args = ap.parse_args(argv)
+    if args.pretrained and args.whole_run:
+        ap.error("give a run dir or --pretrained NAME, not both")
+    if args.pretrained:
+        args.whole_run = str(pretrained_run(args.pretrained))  # an unknown name: the shipped ones listed
     if not args.whole_run and not args.patches:
-        ap.error("give a whole-shirt run dir, or --patches with the patch runs")
+        ap.error("give a whole-shirt run dir (or --pretrained NAME), or --patches with the patch runs")
     check_max_poses(args.max)  # before any model is loaded: --max 0 is a mistake, not "all"
     is_bvh = Path(args.poses).suffix.lower() == ".bvh"
     given = [k for k, v in MOTION_OPTIONS.items() if getattr(args, k) != v]
@@ -92,7 +100,8 @@ def run(argv: list[str]) -> int:
     if predictor.stitcher is not None and args.method == "pca":
         predictor.stitcher.pca = (load_pca(args.pca, dataset_hash(predictor.dataset.dir)) if args.pca else
                                   fit_training_pca(predictor, int(stitch.pca_components), 4096))
-    info = {"whole_run": args.whole_run, "patch_runs": args.patches, "poses": str(args.poses)}
+    info = {"whole_run": args.whole_run, "pretrained": args.pretrained, "patch_runs": args.patches,
+            "poses": str(args.poses)}
     if is_bvh:
         return run_motion(args, predictor, out, info)
     poses, names, truth = first_poses(*read_poses(args.poses, predictor.dataset), args.max)

@@ -11,7 +11,8 @@ PKG = Path(__file__).resolve().parents[2] / "pbc"
 # The data flow, lowest first; a module may import its own stage or an earlier one. The longest matching
 # prefix names a module's stage. The ground floor (io, config, runs) reads and writes files only.
 STAGES = [
-    ("pbc.paths", "pbc.io", "pbc.config", "pbc.runs", "pbc.validate"),
+    # pbc.pretrained finds the shipped models (files only); pbc.pretrained.pack is a job
+    ("pbc.paths", "pbc.io", "pbc.config", "pbc.runs", "pbc.validate", "pbc.pretrained"),
     ("pbc.geometry",),
     ("pbc.sim",),
     ("pbc.pixels",),
@@ -20,7 +21,7 @@ STAGES = [
     ("pbc.stitch",),
     ("pbc.motion",),
     ("pbc.predict",),
-    ("pbc.evaluate", "pbc.train", "pbc.edit", "pbc.view"),
+    ("pbc.evaluate", "pbc.train", "pbc.edit", "pbc.view", "pbc.pretrained.pack"),
     ("pbc.report",),
     ("pbc.sweeps", "pbc.robustness"),
     ("pbc.generate", "pbc.main", "pbc.cli", "pbc.__main__"),
