@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 
 from pbc.data.dataset import dataset_fingerprint, load_dataset
 from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
-from pbc.io import load_checkpoint, write_json, write_text
+from pbc.io import load_checkpoint, write_text
 from pbc.pixels.frames import from_offsets
 from pbc.predict import ClothPredictor, training_pose_range
 from pbc.pretrained import SHIPPED_DIR
@@ -115,11 +115,12 @@ def this_machine() -> str:
 
 
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,
-             trained_on: str | None = None, command: str | None = None) -> dict:
+             trained_on: str | None = None, command: str | None = None, commit: str | None = None) -> dict:
     """Pack the whole-shirt run `run_dir` as shipped model `name` under `out` (default pbc/pretrained/<name>,
     replaced). data_dir: the run's dataset when it moved; trained_on: the training machine in words (the
     run records none; default: its trainer.accelerator and this machine); command: how the run was made
-    (for the card). Returns the card's numbers (also metrics.json's "pretrained" block)."""
+    (for the card); commit: the code the run was trained with (the run records none; default: this
+    checkout's, which packs it). Returns the card's numbers (also metrics.json's "pretrained" block)."""
     t0 = time.time()
     if not name or not name.replace("_", "").replace("-", "").isalnum():
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
@@ -153,7 +154,8 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
                      ("trainer.max_epochs", "model.optimizer.lr", "datamodule.batch_size", "model.scheduler")},
         "trained_on": trained_on or f"trainer.accelerator={run.cfg('trainer.accelerator', '?')} (the run records "
                                     f"no machine; packed on {this_machine()})",
-        "commit": git_commit(Path(__file__).parent), "command": command,
+        "commit": commit or f"{git_commit(Path(__file__).parent)} (the checkout that packed it)",
+        "command": command,
         # every float the state dict holds: weights and BatchNorm statistics, and the standardisation buffers
         "parameters": int(sum(v.numel() for v in net_state.values() if v.is_floating_point())),
         "recorded_fp32_test_vertex_error_cm": record.metric("test", VERTEX_ERROR),
@@ -189,7 +191,6 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     rec.write(out)
     write_text(out / CARD, model_card(info))
     info["bytes"]["total"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    write_json(out / "pack.json", {"bytes": info["bytes"], "pack_seconds": info["pack_seconds"]})
     return info
 
 
@@ -205,7 +206,7 @@ def model_card(i: dict) -> str:
                      f"{sch['model.optimizer.lr']}, batch {sch['datamodule.batch_size']}, scheduler {sched}; "
                      f"{_time(i['train_seconds'])}"),
         ("device", i["trained_on"]),
-        ("commit", f"`{i['commit']}` (the checkout that packed it)"),
+        ("commit", i["commit"]),
         ("weights", f"{i['parameters']:,} parameter and buffer values in float16, a deflated torch file: "
                     f"{i['bytes']['weights'] / 1e6:.2f} MB"),
         ("test vertex error", f"**{i['test_vertex_error_cm']:.3f} cm** (std {i['test_vertex_error_cm_std']:.3f}) "
