@@ -1,0 +1,186 @@
+"""Shipped models (pbc.pretrained): packing a run, loading it by name, what it predicts, and the model that
+ships with pbc.
+
+The stand-in is test_evaluate's synthetic dataset written out as a full dataset dir (real coarse shirt and
+cage, the shrunk-garment "body") and an untrained whole run on it; packing it exercises the same code as the
+real model (fp16 weights, the trimmed data, the record, the card).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+import pbc.pretrained
+import pbc.pretrained.pack as pack
+from pbc.cli import predict as predict_cli
+from pbc.cli import pretrained as pretrained_cli
+from pbc.data.dataset import load_dataset, save_embedding
+from pbc.data.trimmed import recorded_mean_offsets
+from pbc.geometry.body import save_body
+from pbc.geometry.cage import save_cage
+from pbc.geometry.garment import save_garment_obj
+from pbc.predict import ClothPredictor, pretrained_run, training_pose_range
+from tests.unit.test_evaluate import _rotations, _stitch_cfg, fake_dataset, save_run
+
+# fp16 weights against the fp32 checkpoint they came from, positions in cm: half precision keeps ~3 digits
+# of each weight, so a prediction moves by ~1e-3 of its offsets (a few mm here, a few cm on the shirt)
+FP16_TOL_CM = 0.05
+HEAD_STD = 0.02  # the stand-in's head weights: offsets of about a centimetre
+
+
+def exit_code(main, argv) -> int:
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    return int(e.value.code or 0)
+
+
+@pytest.fixture(scope="module")
+def standin(tmp_path_factory, body):
+    """(shipped dir holding the packed stand-in, the source run, its full dataset, pack's numbers)."""
+    root = tmp_path_factory.mktemp("pretrained")
+    ds = fake_dataset(root / "data" / "fake")
+    V = len(ds.garment.vertices)
+    save_garment_obj(ds.garment, ds.dir / "garment.obj")
+    save_cage(ds.cage, ds.dir / "cage.json", V)
+    # the body file carries collision primitives: the mannequin's (same skeleton), unused by prediction
+    save_body(dataclasses.replace(ds.body, primitives=body.primitives), ds.dir / "body.npz")
+    save_embedding(ds.embedding, ds.dir / "embedding.npz")
+    manifest = dict(ds.manifest, seed=0)
+    (ds.dir / "manifest.json").write_text(json.dumps(manifest))
+    full = load_dataset(ds.dir)
+    whole = save_run(root / "runs" / "whole", ds.dir, "whole", None)
+    with torch.no_grad():  # offsets of centimetres, as a trained model's: the fp16 rounding is then visible
+        ck = torch.load(whole / "checkpoints" / "epoch_000.ckpt", weights_only=False)
+        # an untrained decoder outputs its mean image (dead ReLUs, a tiny head): BatchNorm shifts that keep
+        # the ReLUs alive and a random head, as if trained
+        sd = ck["state_dict"]
+        for k in [k for k in sd if k.endswith(".bias") and k.replace(".bias", ".running_mean") in sd]:
+            sd[k] = torch.full_like(sd[k], 0.5)
+        g = torch.Generator().manual_seed(0)
+        sd["net.head.weight"] = torch.randn(sd["net.head.weight"].shape, generator=g) * HEAD_STD
+        torch.save(ck, whole / "checkpoints" / "epoch_000.ckpt")
+    shipped = root / "shipped"
+    mp = pytest.MonkeyPatch()
+    mp.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    mp.setenv("PBC_CACHE_DIR", str(root / "cache"))
+    try:
+        info = pack.pack_run(whole, "standin", shipped / "standin", command="(test stand-in)")
+    finally:
+        mp.undo()
+    return shipped, whole, full, info
+
+
+@pytest.fixture
+def shipped(standin, monkeypatch, tmp_path):
+    """pbc.pretrained looking in the stand-in's shipped dir (the real one holds the real model)."""
+    monkeypatch.setattr(pbc.pretrained, "SHIPPED_DIR", standin[0])
+    monkeypatch.setenv("PBC_CACHE_DIR", str(tmp_path / "cache"))
+    return standin
+
+
+def test_packed_model_predicts_what_its_fp32_checkpoint_does(shipped):
+    _, whole, full, info = shipped
+    ck = torch.load(pretrained_run("standin") / "checkpoints" / pack.WEIGHTS, weights_only=False)
+    assert ck["state_dict"]["net.head.weight"].dtype == torch.float16
+    assert all(v.dtype == torch.float16 for v in ck["state_dict"].values() if v.is_floating_point())
+    packed = ClothPredictor.from_pretrained("standin")
+    fp32 = ClothPredictor.from_runs(whole)
+    poses = torch.from_numpy(_rotations(5, full.poses.shape[1], seed=7))
+    a, b = packed(poses, model="whole"), fp32(poses, model="whole")
+    assert a.shape == (5, len(full.garment.vertices), 3) and torch.isfinite(a).all()
+    offsets = (b - fp32.skinner(poses)[0]).norm(dim=-1)
+    assert float(offsets.mean()) > 0.005  # the comparison means something: offsets of centimetres
+    diff_cm = float((a - b).norm(dim=-1).max()) * 100
+    assert 0 < diff_cm < FP16_TOL_CM
+    assert info["fp16_vs_fp32_max_vertex_cm"] == pytest.approx(round(diff_cm, 4), abs=2e-3)
+
+
+def test_packed_data_is_the_test_split_with_the_training_summary(shipped):
+    _, _, full, info = shipped
+    ds = ClothPredictor.from_pretrained("standin").dataset
+    test = full.split("test")
+    assert len(ds) == len(test) and list(ds.split("test")) == list(range(len(test)))
+    assert len(ds.split("train")) == 0 and ds.manifest["trimmed_from"]["splits"]["train"] == 7
+    np.testing.assert_array_equal(ds.verts, full.verts[test])
+    # the training range and mean shape of the full data, though its training poses are not shipped
+    np.testing.assert_allclose(training_pose_range(ds), training_pose_range(full), atol=1e-9)
+    mean, space = recorded_mean_offsets(ds)
+    pred = ClothPredictor.from_runs(shipped[1])
+    idx = full.split("train")
+    want = pred.offsets_of(torch.from_numpy(np.asarray(full.poses[idx])), torch.from_numpy(np.asarray(full.verts[idx])))
+    assert space == "local" and torch.allclose(mean, want[0].mean(0), atol=1e-6)
+    assert info["test_poses"] == len(test) and info["dataset"]["splits"] == {"train": 7, "val": 1, "test": 2}
+
+
+def test_the_record_and_card_carry_the_measured_numbers(shipped):
+    d = pretrained_run("standin")
+    rec = json.loads((d / "metrics.json").read_text())
+    info = rec["pretrained"]
+    assert rec["kind"] == "whole" and rec["data"]["dir"] == "data"
+    assert rec["test"]["vertex_error_cm"] == info["test_vertex_error_cm"]
+    card = (d / "MODEL_CARD.md").read_text()
+    for text in (f"{info['test_vertex_error_cm']:.3f} cm", f"{info['mean_shape_test_vertex_error_cm']:.3f} cm",
+                 "0123abc", "(test stand-in)", "train 7 / val 1 / test 2"):
+        assert text in card, text
+    assert info["bytes"]["weights"] < 0.6 * (shipped[1] / "checkpoints" / "epoch_000.ckpt").stat().st_size
+
+
+def test_unknown_names_are_refused_listing_the_shipped_ones(shipped, capsys):
+    with pytest.raises(ValueError, match=r"no shipped model named 'shirt'; pbc ships standin"):
+        pretrained_run("shirt")
+    with pytest.raises(ValueError, match="pbc ships standin"):
+        ClothPredictor.from_runs("pretrained:shirt")
+    assert exit_code(predict_cli.main, ["--pretrained", "shirt", "--poses", "test"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pbc predict: error: no shipped model named 'shirt'") and "standin" in err
+
+
+def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
+    out = tmp_path / "pred"
+    assert exit_code(predict_cli.main, ["--pretrained", "standin", "--poses", "test", "--out", str(out),
+                                        "--sheet", "0"]) == 0
+    res = json.loads((out / "predict.json").read_text())
+    assert res["num_poses"] == 2 and res["pretrained"] == "standin"
+    assert res["vertex_error_cm"] == pytest.approx(shipped[3]["test_vertex_error_cm"], abs=1e-3)
+    assert exit_code(predict_cli.main, [str(shipped[1]), "--pretrained", "standin", "--poses", "test"]) == 2
+    from pbc.evaluate import evaluate
+
+    cfg = OmegaConf.create({"whole_run": "pretrained:standin", "patch_runs": None, "methods": ["average"],
+                            "split": "test", "max_samples": None, "batch_size": 8, "num_previews": 1,
+                            "pca_path": None, "pca_fit_max": 100, "stitch": _stitch_cfg("pca")})
+    m = evaluate(cfg, tmp_path / "eval")
+    e = m["entries"]
+    assert e["whole"]["vertex_error_cm"] == pytest.approx(shipped[3]["test_vertex_error_cm"], abs=1e-3)
+    assert e["train_mean"]["vertex_error_cm"] == pytest.approx(shipped[3]["mean_shape_test_vertex_error_cm"],
+                                                               abs=1e-3)
+    assert exit_code(pretrained_cli.main, ["list"]) == 0
+    assert "standin: test vertex error" in capsys.readouterr().out
+
+
+def test_pack_refuses_a_patch_run_and_a_bad_name(shipped, tmp_path):
+    full = shipped[2]
+    patch = save_run(tmp_path / "patch", full.dir, "patch", 3)
+    with pytest.raises(ValueError, match="only a whole-shirt run packs"):
+        pack.pack_run(patch, "p", tmp_path / "out")
+    with pytest.raises(ValueError, match="plain name"):
+        pack.pack_run(shipped[1], "../x", tmp_path / "out")
+
+
+def test_the_shipped_tshirt_loads_and_predicts(tmp_path, monkeypatch):
+    """The model in the repository (pbc/pretrained/tshirt): fp16 weights within budget, finite garments."""
+    monkeypatch.setenv("PBC_CACHE_DIR", str(tmp_path / "cache"))
+    assert "tshirt" in pbc.pretrained.shipped_models()
+    d = pretrained_run("tshirt")
+    assert (d / "checkpoints" / pack.WEIGHTS).stat().st_size <= 8e6
+    pred = ClothPredictor.from_pretrained("tshirt")
+    poses = torch.from_numpy(np.asarray(pred.dataset.poses[:3]))
+    x = pred(poses)
+    assert x.shape == (3, 3153, 3) and torch.isfinite(x).all()
+    err = float((x - torch.from_numpy(np.asarray(pred.dataset.verts[:3]))).norm(dim=-1).mean()) * 100
+    assert err < 10.0  # metres-scale nonsense (a wrong space, a lost mean image) is far above this
