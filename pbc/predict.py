@@ -555,7 +555,9 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
                          f"(its splits: {splits})")
     idx = dataset.split(str(source))
     if len(idx) == 0:
-        raise ValueError(f"split {source!r} of {dataset.dir} is empty")
+        shipped = (f": a shipped model carries only its {dataset.manifest['trimmed_from']['split']} split; use "
+                   "--poses test, or the run's own dataset") if "trimmed_from" in dataset.manifest else ""
+        raise ValueError(f"split {source!r} of {dataset.dir} is empty{shipped}")
     poses = torch.from_numpy(np.asarray(dataset.poses[idx])).float()
     return poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx])).float()
 

@@ -149,6 +149,8 @@ def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
     assert res["num_poses"] == 2 and res["pretrained"] == "standin"
     assert res["vertex_error_cm"] == pytest.approx(shipped[3]["test_vertex_error_cm"], abs=1e-3)
     assert exit_code(predict_cli.main, [str(shipped[1]), "--pretrained", "standin", "--poses", "test"]) == 2
+    assert exit_code(predict_cli.main, ["--pretrained", "standin", "--poses", "train"]) == 2
+    assert "carries only its test split; use --poses test" in capsys.readouterr().err
     from pbc.evaluate import evaluate
 
     cfg = OmegaConf.create({"whole_run": "pretrained:standin", "patch_runs": None, "methods": ["average"],
