@@ -84,8 +84,9 @@ def test_every_config_composes_and_instantiates():
 def test_unknown_experiment_lists_choices():
     r = subprocess.run([sys.executable, "-m", "pbc.train", "+experiment=nope"], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
-    assert r.returncode != 0
-    assert "Available options" in r.stderr and "patch_07" in r.stderr
+    # the users' own command through the entry floor: one line listing the choices, exit 2, no traceback
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "options of experiment:" in r.stderr and "patch_07" in r.stderr and "Traceback" not in r.stderr
 
 
 # ------------------------------------------------------------------------------------ end to end
