@@ -500,9 +500,21 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
 
 # --------------------------------------------------------------------------------------------- markdown
 def label_of(run: Run, runs: list[Run]) -> str:
-    """What distinguishes this run from the others in the sweep: the choices that vary."""
-    varying = sorted({k for k in run.choices if len({r.choices.get(k) for r in runs}) > 1})
-    parts = [f"{k}={run.choices[k]}" for k in varying if k != "sweep"]
+    """What distinguishes this run from the others in the sweep: the choices that vary among the runs that
+    have them (a sweep's evaluate job has none of the training choices), less those the experiment decides
+    (`experiment=patch_07` sets `model=patch`): a 29-run hierarchy reads `experiment=patch_07`."""
+    def values(k):
+        return {r.choices.get(k) for r in runs if k in r.choices}
+
+    varying = sorted(k for k in run.choices if k != "sweep" and len(values(k)) > 1)
+    if "experiment" in varying:
+        by_experiment: dict = {}
+        for r in runs:
+            if "experiment" in r.choices:
+                by_experiment.setdefault(r.choices["experiment"], []).append(r)
+        varying = [k for k in varying if k == "experiment" or any(
+            len({r.choices.get(k) for r in group}) > 1 for group in by_experiment.values())]
+    parts = [f"{k}={run.choices[k]}" for k in varying]
     return ",".join(parts) or run.get("experiment") or run.name
 
 

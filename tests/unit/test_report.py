@@ -272,4 +272,18 @@ def test_patch_metrics_say_their_scope(tmp_path):
     md = (tmp_path / "out" / "report.md").read_text()
     assert "| patch_03 | 0.2 | 0.3 | 0.03 | ok |" in md and "| patch_05 | 0.2 | 0.4 | 0.03 | ok |" in md
     assert "| `new` | experiment=patch_03 | ok | 0.3 (patch) | 0.03 (patch) |" in md
-    assert "| `whole` | experiment=whole,loss=l1 | ok | 0.5 | 0.03 |" in md
+    assert "| `whole` | experiment=whole | ok | 0.5 | 0.03 |" in md  # loss: only this run has the key
+
+
+def test_labels_name_what_the_experiment_varies_even_beside_an_evaluate_job(tmp_path):
+    # a hierarchy sweep: 3 patch runs + the whole run (experiment sets model) + the evaluate job, whose
+    # config has none of the training choices; the curves' labels must read experiment=..., not every key
+    common = {"body": "mannequin", "data": "tshirt_tiny", "loss": "l1"}
+    for i in range(3):
+        make_run(tmp_path, f"{i}_p", {**common, "experiment": f"patch_{i:02d}", "model": "patch"},
+                 patch_metrics(i, 0.2, 0.02, 0.3, 0.03))
+    make_run(tmp_path, "3_w", {**common, "experiment": "whole", "model": "whole"}, ok_metrics(0.2, 0.02, 0.3, 0.03))
+    make_run(tmp_path, "evaluate", {"stitch": "pca"}, None, job="evaluate")
+    runs = load_runs(tmp_path, events=False)
+    labels = {r.name: report.label_of(r, runs) for r in runs}
+    assert labels["0_p"] == "experiment=patch_00" and labels["3_w"] == "experiment=whole"
