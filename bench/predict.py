@@ -61,7 +61,7 @@ def paper_predictor(stitch_cfg):
     from pbc.predict import ClothPredictor
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_evaluate import IMAGE, fake_dataset
+    from helpers.evaluate_world import IMAGE, fake_dataset
 
     ds = fake_dataset(Path(tempfile.mkdtemp()) / "fake")
     patch_cfg = OmegaConf.to_container(OmegaConf.load(ROOT / "conf/model/patch.yaml").net)

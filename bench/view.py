@@ -27,7 +27,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
-sys.path.insert(0, str(ROOT / "tests" / "unit"))  # test_evaluate's stand-in shirt, for bench/predict.py's decoders
+sys.path.insert(0, str(ROOT / "tests"))  # the stand-in shirt: tests/helpers/evaluate_world.py
 
 GOAL_UPDATES_S = 10.0  # issue 25: the whole model on 2 CPU cores
 
@@ -50,7 +50,7 @@ def predictor_from(args):
 
     pred = paper_predictor(stitch_config("average"))
     if args.data:  # the same networks on a real dataset's garment and body
-        from test_evaluate import IMAGE
+        from helpers.evaluate_world import IMAGE
 
         from pbc.data.dataset import load_dataset
 

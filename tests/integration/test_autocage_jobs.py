@@ -5,22 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from helpers.autocage_runs import IMAGE, _check_patches_connected
 
-from pbc.geometry.autocage import _components, _edges
 from pbc.geometry.cage import validate_cage
 from pbc.geometry.garments import garment_from_config
-
-IMAGE = (512, 160, 16)
-
-
-def _check_patches_connected(garment, cage):
-    edges = _edges(garment)
-    for p in cage.patches:
-        assert len(_components(p.vertices, edges, garment.num_vertices)) == 1, p.name
-
-
-
-
 
 
 def test_a_garment_pbc_did_not_make_goes_through(foreign):
@@ -76,7 +64,5 @@ def test_smoke_training_on_a_garment_pbc_did_not_make(foreign, exp):
 
     error = scoped_name("vertex_error_cm", "patch" if exp.startswith("patch") else "whole")  # its scope in its name
     assert metrics["status"] == "ok" and np.isfinite(metrics["test"][error])
-
-
 
 

@@ -14,16 +14,13 @@ import numpy as np
 import pytest
 from conftest import TINY_SAMPLES as N
 from conftest import tiny_overrides
+from helpers.generate_runs import tiny_cfg
 
 from pbc.config import load_config
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import generate
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def tiny_cfg(data_dir: Path, *extra: str):
-    return load_config(tiny_overrides(data_dir, *extra))
 
 
 @pytest.fixture(scope="module")
@@ -102,8 +99,6 @@ def test_corrupt_array_gets_clear_error(reference: Path, tmp_path: Path):
         load_dataset(broken)
 
 
-
-
 def test_manifest_records_provenance(reference: Path):
     m = json.loads((reference / "manifest.json").read_text())
     for key in ("format_version", "seed", "garment_hash", "body_hash", "splits", "counts", "shrinkwrap"):
@@ -111,7 +106,5 @@ def test_manifest_records_provenance(reference: Path):
     assert json.loads((reference / "timings.json").read_text())["drape_wall"] > 0
     # single-world datasets (sim.batch_size=1) keep the fingerprint they had before batching existed
     assert not any(k.startswith("batch_") for k in m["sim"])
-
-
 
 

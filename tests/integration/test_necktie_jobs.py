@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from helpers.necktie_runs import TIE_DATA
 
 from pbc.config import load_config
 from pbc.geometry.garments import garment_from_config
@@ -20,38 +21,12 @@ def tie(cfg):
     return garment_from_config(cfg.garment)
 
 
-
-
-
-
-
-
-
-
-
-
-
-
 # ------------------------------------------------------------------------------------- training the tie
 @pytest.fixture(scope="module")
 def tie_ops(tie, tmp_path_factory):
     from pbc.pixels.operators import ImageOperators
 
     return ImageOperators.for_garment(tie[0], 256, 4, exact=True, cache_dir=tmp_path_factory.mktemp("ops"))
-
-
-
-
-
-
-
-
-
-
-
-
-TIE_DATA = ["+experiment=necktie", "garment.grid_spacing=0.015", "data.num_samples=4", "data.workers=1",
-            "body.mesh.voxel_size=0.03"]
 
 
 def test_the_necktie_trains_and_predicts_end_to_end(tmp_path):

@@ -17,31 +17,11 @@ def _layout():
     return windows, sides, masks
 
 
-
-
-
-
-
-
-
-
-
-
 def _smooth_images(B=1):
     r = torch.linspace(0, 1, H)[:, None]
     c = torch.linspace(0, 1, W)[None, :]
     base = torch.stack([r + c, r * c, torch.sin(3 * r) + c ** 2])
     return torch.stack([torch.cat([base, 2 * base]) * (b + 1) for b in range(B)])
-
-
-
-
-
-
-
-
-
-
 
 
 def test_ground_truth_crops_on_the_real_garment(tmp_path):
@@ -57,7 +37,7 @@ def test_ground_truth_crops_on_the_real_garment(tmp_path):
     from pbc.stitch.seams import build_stitcher
 
     sys.path.insert(0, str(Path(__file__).parents[1] / "unit"))
-    from test_evaluate import IMAGE, fake_dataset
+    from helpers.evaluate_world import IMAGE, fake_dataset
 
     ds = fake_dataset(tmp_path / "ds")
     ops = ImageOperators.for_garment(ds.garment, 512, int(IMAGE.pad))
@@ -81,7 +61,5 @@ def test_ground_truth_crops_on_the_real_garment(tmp_path):
         assert (st(crops, m, sample) - sample).abs().max() < 1e-5, m
     inp = st(crops, "inpaint")
     assert (inp - sample).norm(dim=-1).mean() < 0.1 * sample.norm(dim=-1).mean()
-
-
 
 

@@ -12,14 +12,13 @@ from pathlib import Path
 
 import pytest
 from conftest import TINY_SAMPLES
-from hydra import compose, initialize_config_dir
+from helpers.sweeps_runs import CONF, _compose
+from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
 from pbc.runs import OK, load_runs, sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
-CONF = ROOT / "conf"
-SCALES = sorted(p.stem for p in (CONF / "scale").glob("*.yaml"))
 SEARCH: list[str] = []  # the sweep group is in conf/: no extra search path
 
 
@@ -28,12 +27,6 @@ def _hydra():
     # One initialisation per compose test (not per config); cleared after, so load_config works elsewhere.
     with initialize_config_dir(str(CONF), version_base="1.3"):
         yield
-
-
-def _compose(overrides):
-    return compose("config", overrides=overrides, return_hydra_config=True)
-
-
 
 
 @pytest.mark.usefixtures("_hydra")
@@ -59,16 +52,6 @@ def test_every_sweep_composes_for_every_value(name):
     # The sweep dir names the sweep and the scale (resolved as Hydra does in the launching process).
     sweep_dir = OmegaConf.select(base, "hydra.sweep.dir")
     assert f"sweeps/{name}/smoke_" in sweep_dir
-
-
-
-
-
-
-
-
-
-
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "unit"))
-from test_evaluate import save_run  # noqa: E402
+from helpers.evaluate_world import save_run  # noqa: E402
 from test_view import tiny_predictor  # noqa: E402
 
 from pbc.view import clamp_to_limits, pose_to_angles, start_viewer, url, view_meshes  # noqa: E402

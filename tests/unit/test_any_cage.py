@@ -8,32 +8,15 @@ exact crops of a known offset field returns that field. Slow: the tube top drape
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from helpers.any_cage import SHIRT_PATCHES, _smooth_field, _stitch_cfg, _trained
 from helpers.tube_top import CHARTS, tube_top_obj
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIRT_PATCHES = 28
 # what the smoke jobs train at: small images keep the two jobs to seconds on the 2-core CPU
-SMALL_IMAGES = ["image.whole_resolution=64", "image.patch_resolution=128"]
-
-
-def _stitch_cfg(method: str = "average"):
-    from pbc.predict import stitch_config
-
-    return stitch_config(method)
-
-
-def _smooth_field(rest: torch.Tensor, b: int = 2) -> torch.Tensor:
-    """A smooth per-vertex offset field over rest positions (V, 3) -> (b, V, 3), different per sample."""
-    basis = torch.cat([rest, rest ** 2], 1)  # (V, 6)
-    coef = torch.linspace(-0.05, 0.05, b * 6 * 3).view(b, 6, 3)
-    return torch.einsum("vk,bkc->bvc", basis, coef)
 
 
 def test_a_stitcher_for_a_cage_of_another_patch_count_returns_the_field_of_exact_crops(tmp_path):
@@ -66,30 +49,10 @@ def test_a_stitcher_for_a_cage_of_another_patch_count_returns_the_field_of_exact
     assert torch.allclose(ones, torch.ones_like(ones), atol=1e-5)
 
 
-def _train(root: Path, overrides: list[str], data_dir: Path, name: str, *extra: str):
-    """`python -m pbc.train <extra>` on the tube top's data with trainer=smoke, into <root>/any_cage/<name>
-    -> (run dir, the finished process)."""
-    run = root / "any_cage" / name
-    # the garment overrides the data was made with: training refuses a dataset its config does not describe
-    r = subprocess.run([sys.executable, "-m", "pbc.train", *overrides, "trainer=smoke", *SMALL_IMAGES,
-                        f"data.dir={data_dir}", *extra, f"hydra.run.dir={run}"],
-                       cwd=ROOT, env=dict(os.environ, PBC_ROOT=str(root)), capture_output=True, text=True,
-                       timeout=600)
-    return run, r
-
-
-def _trained(root: Path, overrides: list[str], data_dir: Path, experiment: str) -> Path:
-    run, r = _train(root, overrides, data_dir, experiment, f"+experiment={experiment}")
-    assert r.returncode == 0, r.stderr[-3000:]
-    return run
-
-
 @pytest.fixture(scope="module")
 def trained(foreign):
     """The tube top's whole model and its stacked all-patches job (P single-patch runs exported under it)."""
     root, overrides, data_dir = foreign
     return root, _trained(root, overrides, data_dir, "whole"), _trained(root, overrides, data_dir, "patches")
-
-
 
 

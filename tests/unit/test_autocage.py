@@ -3,21 +3,14 @@
 from __future__ import annotations
 
 import pytest
+from helpers.autocage_runs import IMAGE, _check_patches_connected
 from helpers.tube_top import CHARTS, tube_top_obj
 
-from pbc.geometry.autocage import _components, _edges, auto_cage
+from pbc.geometry.autocage import auto_cage
 from pbc.geometry.cage import load_cage, save_cage
 from pbc.geometry.garment import load_garment_config, make_tshirt
 from pbc.geometry.garments import garment_from_config
 from pbc.geometry.obj_import import import_garment
-
-IMAGE = (512, 160, 16)
-
-
-def _check_patches_connected(garment, cage):
-    edges = _edges(garment)
-    for p in cage.patches:
-        assert len(_components(p.vertices, edges, garment.num_vertices)) == 1, p.name
 
 
 def test_auto_cage_of_the_shirt_is_valid_connected_and_editable(tmp_path):
@@ -49,10 +42,6 @@ def test_a_chart_that_cannot_be_covered_is_refused(tmp_path):
         auto_cage(ok, 512, 30, 16)
     with pytest.raises(ValueError, match=r"past 3 patches"):
         auto_cage(ok, *IMAGE, chart_names=names, face_chart=chart, max_patches=3)
-
-
-
-
 
 
 def test_cli_writes_an_editable_cage(tmp_path, capsys):

@@ -125,7 +125,7 @@ def test_prediction_source_edits_a_models_image(tmp_path):
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
-    from test_evaluate import IMAGE, fake_dataset
+    from helpers.evaluate_world import IMAGE, fake_dataset
 
     from pbc.edit import source_from_dataset
 

@@ -5,16 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import tiny_overrides
+from helpers.generate_runs import tiny_cfg
 
-from pbc.config import load_config
 from pbc.data.dataset import load_dataset
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def tiny_cfg(data_dir: Path, *extra: str):
-    return load_config(tiny_overrides(data_dir, *extra))
 
 
 @pytest.fixture(scope="module")
@@ -23,21 +18,9 @@ def reference(tiny_dataset: Path) -> Path:
     return tiny_dataset
 
 
-
-
-
-
-
-
-
-
-
-
 def test_missing_dataset_names_the_fix(tmp_path: Path):
     with pytest.raises(FileNotFoundError, match="manifest.json is missing"):
         load_dataset(tmp_path)
-
-
 
 
 def test_split_sizes_never_leave_a_split_empty():

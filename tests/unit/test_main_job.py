@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_evaluate import fake_dataset  # noqa: E402
+from helpers.evaluate_world import fake_dataset  # noqa: E402
 
 from pbc.cli import main_job  # noqa: E402
 from pbc.data.baselines import mean_shape_errors  # noqa: E402

@@ -216,7 +216,3 @@ def test_a_dataset_posing_joints_the_model_does_not_read_is_refused(body):
         check_pose_joints(poses.numpy(), names, ["lower_back", "neck"], "d")
 
 
-TIE_DATA = ["+experiment=necktie", "garment.grid_spacing=0.015", "data.num_samples=4", "data.workers=1",
-            "body.mesh.voxel_size=0.03"]
-
-

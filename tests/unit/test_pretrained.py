@@ -14,6 +14,7 @@ import json
 import numpy as np
 import pytest
 import torch
+from helpers.evaluate_world import _rotations, _stitch_cfg, fake_dataset, save_run
 from omegaconf import OmegaConf
 
 import pbc.pretrained
@@ -26,7 +27,6 @@ from pbc.geometry.body import save_body
 from pbc.geometry.cage import save_cage
 from pbc.geometry.garment import save_garment_obj
 from pbc.predict import ClothPredictor, pretrained_run, training_pose_range
-from tests.unit.test_evaluate import _rotations, _stitch_cfg, fake_dataset, save_run
 
 # fp16 weights against the fp32 checkpoint they came from, positions in cm: half precision keeps ~3 digits
 # of each weight, so a prediction moves by ~1e-3 of its offsets (a few mm here, a few cm on the shirt)

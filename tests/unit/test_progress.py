@@ -300,9 +300,9 @@ def test_cpu_flags_without_proc_cpuinfo_asks_torch(monkeypatch):
 def test_predictor_runs_the_precision_the_device_supports(monkeypatch, tmp_path, flags, used):
     import warnings
 
+    from helpers.evaluate_world import IMAGE, ROOT, fake_dataset
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
-    from test_evaluate import IMAGE, ROOT, fake_dataset
 
     import pbc.predict as predict
 

@@ -165,8 +165,6 @@ def test_seam_edges_and_jump_metrics():
     assert torch.isclose(d, torch.full((1,), 0.5 * 3 ** 0.5)).all()
 
 
-
-
 def test_masked_blur_keeps_constants_and_lowers_noise():
     from pbc.stitch.seams import masked_blur
 
@@ -196,7 +194,7 @@ def test_hierarchy_detail_takes_low_frequencies_from_the_whole_model(tmp_path):
 
     root = Path(__file__).parents[2]
     sys.path.insert(0, str(Path(__file__).parent))
-    from test_evaluate import IMAGE, fake_dataset
+    from helpers.evaluate_world import IMAGE, fake_dataset
 
     ds = fake_dataset(tmp_path / "ds")
     ops = ImageOperators.for_garment(ds.garment, 512, int(IMAGE.pad))

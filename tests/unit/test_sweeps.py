@@ -7,7 +7,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
+from helpers.sweeps_runs import CONF, SCALES, _compose
+from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
 import pbc.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
@@ -15,8 +16,6 @@ from pbc import sweeps
 from pbc.runs import sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
-CONF = ROOT / "conf"
-SCALES = sorted(p.stem for p in (CONF / "scale").glob("*.yaml"))
 SEARCH: list[str] = []  # the sweep group is in conf/: no extra search path
 
 
@@ -27,17 +26,11 @@ def _hydra():
         yield
 
 
-def _compose(overrides):
-    return compose("config", overrides=overrides, return_hydra_config=True)
-
-
 def test_sweep_names_and_scales():
     assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
     assert SCALES == ["cpu", "gpu", "paper", "smoke"]
     assert sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
     assert len(sweep_values("experiment", "glob([whole,patch_*])")) == 29
-
-
 
 
 @pytest.mark.usefixtures("_hydra")

@@ -7,35 +7,15 @@ at its rest position with identity frames, so targets are just the stored vertic
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_SAMPLES
-from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
-
-from pbc.models.module import ClothModule
-from pbc.pixels.operators import ImageOperators
-from pbc.pixels.target import WholeTarget
+from helpers.synthetic import batch_for
+from helpers.train_runs import whole_module
 
 ROOT = Path(__file__).resolve().parents[2]
-CONF = ROOT / "conf"
-
-
-def whole_module(norm="l1", normal_weight=0.01, res=32):
-    g = two_chart_garment()
-    ops = ImageOperators.for_garment(g, res, pad=2)
-    net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": 6,
-           "output_size": [res, res], "start_size": [8, 8], "start_channels": 64}
-    ident = {"garment_hash": "g", "num_vertices": len(g.vertices), "kind": "whole", "resolution": res,
-             "patch_id": None, "space": "local"}
-    m = ClothModule(net, "whole", "local", {"norm": norm, "normal_weight": normal_weight, "edge_weight": 0.1},
-                    1e-3, ident)
-    return m.attach(WholeTarget(FakeSkinner(g.vertices), g.faces, ops, "local")), g
 
 
 def test_one_optimisation_step_lowers_the_loss():
@@ -73,36 +53,15 @@ def test_checkpoint_of_other_patch_is_refused():
     m.on_load_checkpoint({"hyper_parameters": {"identity": dict(m.hparams.identity)}})
 
 
-def _group_options(group: str) -> list[str]:
-    return sorted(p.stem for p in (CONF / group).glob("*.yaml"))
-
-
-
-
-
-
 # ------------------------------------------------------------------------------------ end to end
 # crop_size / margin / pad are given at the reference resolution and scale with it: 40 px crops at 128
 # data.num_samples as the session's dataset was made: pbc.train refuses data made with other settings
-TINY = ["data=tshirt_tiny", f"data.num_samples={TINY_SAMPLES}", "trainer=smoke", "image.whole_resolution=64",
-        "image.patch_resolution=128",
-        "callbacks.image_panel.every_n_epochs=1"]
-
-
-def _train(root: Path, data_dir: Path, *args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PBC_ROOT=str(root))
-    return subprocess.run([sys.executable, "-m", "pbc.train", *TINY, f"data.dir={data_dir}", *args], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
 def e2e_root(tmp_path_factory):
     """A run root of its own; the data is the session's real tiny dataset."""
     return tmp_path_factory.mktemp("train_e2e")
-
-
-
-
 
 
 def test_module_optimiser_and_scheduler_come_from_the_config():

@@ -13,15 +13,11 @@ import numpy as np
 import pytest
 import torch
 from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
+from helpers.train_speed_world import IMAGE, N, datamodule, module, reference_normals, targets
 
 from pbc.data.datamodule import ClothDataModule
-from pbc.models.module import ClothModule
 from pbc.pixels.reconstruct import vertex_normals
 from pbc.pixels.target import build_cache, make_target
-
-IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 256,
-         "margin": 16, "pad": 16, "exact_sample": True, "method": "gather"}
-N = 7  # samples; caches are built 3 at a time so chunks (and a ragged last one) are exercised
 
 
 @pytest.fixture
@@ -34,19 +30,6 @@ def world(tmp_path):
                          manifest={"garment_hash": "h"}, poses=b["pose"].reshape(N, -1).numpy(),
                          verts=b["verts"].numpy())
     return ds, FakeSkinner(g.vertices), b
-
-
-def targets(ds, sk):
-    return [make_target(ds, IMAGE, k, patch_id=0, skinner=sk) for k in ("whole", "patch", "fc")]
-
-
-def reference_normals(p, faces):
-    """The textbook formula: area-weighted face normals (torch.cross) summed at their corners."""
-    q = p[:, faces]
-    n_f = torch.cross(q[:, :, 1] - q[:, :, 0], q[:, :, 2] - q[:, :, 0], dim=-1)
-    n = p.new_zeros(p.shape).index_add(1, faces.reshape(-1), n_f[:, :, None].expand(-1, -1, 3, -1)
-                                       .reshape(p.shape[0], -1, 3))
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def test_cached_batch_equals_rendered_batch(world):
@@ -81,14 +64,6 @@ def test_float16_image_cache_is_within_its_rounding(world):
     err = (got["image"] - exact["image"]).abs()
     assert (err <= exact["image"].abs() * 2.0**-11 + 2.0**-25).all() and err.max() > 0
     assert torch.equal(got["offsets"], exact["offsets"]) and torch.equal(got["frames"], exact["frames"])
-
-
-def datamodule(ds, t, **kw) -> ClothDataModule:
-    """A ClothDataModule over the synthetic dataset: setup's loading is replaced by the objects it makes."""
-    dm = ClothDataModule(str(ds.dir), IMAGE, target=t.kind, patch_id=t.patch_id, batch_size=3, **kw)
-    dm.data, dm.target = ds, t
-    dm.splits = {"train": np.array([0, 2, 3, 5]), "val": np.array([1, 6]), "test": np.array([4])}
-    return dm
 
 
 def test_datamodule_serves_cached_targets_equal_to_rendered(world, caplog):
@@ -144,17 +119,6 @@ def test_patch_normals_need_only_the_patch_neighbourhood(world):
                                rtol=0, atol=1e-6)
 
 
-def module(t, normal_weight=0.01):
-    res = t.image_size[0]
-    net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90,
-           "out_channels": 6 if t.kind == "whole" else 3, "output_size": [res, res], "start_size": [8, 8],
-           "start_channels": 32}
-    m = ClothModule(net, t.kind, "local", {"norm": "l1", "normal_weight": normal_weight, "edge_weight": 0.1},
-                    1e-3, {}, patch_id=t.patch_id)
-    m.log_dict = lambda *a, **k: None
-    return m.attach(t)
-
-
 @pytest.mark.parametrize("kind", ["whole", "patch"])
 def test_step_is_the_same_with_cached_targets(world, kind):
     ds, sk, b = world
@@ -189,7 +153,5 @@ def test_bf16_autocast_runs_only_the_network_in_bf16(world):
     # the same positions as decoding the bf16 prediction in float32 outside autocast
     torch.testing.assert_close(out["positions"], t.positions(out["pred"], batch))
     assert (out["positions"] - ref["positions"]).abs().max() < 0.05 and torch.isfinite(loss)
-
-
 
 

@@ -16,7 +16,7 @@ from helpers.cli import exit_code
 from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_evaluate import IMAGE, ROOT, _rotations, fake_dataset  # noqa: E402
+from helpers.evaluate_world import IMAGE, ROOT, _rotations, fake_dataset  # noqa: E402
 
 import pbc.predict  # noqa: E402
 from pbc.cli import view as view_cli  # noqa: E402

@@ -1,10 +1,5 @@
-"""Evaluation, the predictor and patch-run selection, on a stand-in dataset and 29 cheap checkpoints.
-
-The stand-in dataset is the real coarse T-shirt and its cage with a "body" that is the garment shrunk
-10% (no draping, seconds to build). The checkpoints are untrained narrow decoders saved in the
-checkpoint layout `pbc.train` writes (hparams + `net.*` state dict) with a run dir's metrics.json,
-so 28 patch runs cost nothing to make.
-"""
+"""The stand-in world of the evaluation tests: the real coarse T-shirt on a shrunk-garment body, random
+poses, smooth offsets, and cheap untrained run dirs (test_evaluate, predictor, view, pretrained, bench)."""
 
 from __future__ import annotations
 
@@ -12,17 +7,21 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 import torch
 from omegaconf import OmegaConf
 
-import pbc.data.dataset as dsmod
 from pbc.data.dataset import ClothDataset
 from pbc.runs import RunRecord, monitor
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
 IMAGE = OmegaConf.load(ROOT / "conf/image/default.yaml")
+
+
 N = 10
+
+
 GARMENT_HASH = "fakegarment"
 
 
@@ -101,96 +100,6 @@ def save_run(run: Path, data_dir: Path, kind: str, patch_id: int | None, garment
     return run
 
 
-@pytest.fixture(scope="module")
-def world(tmp_path_factory):
-    root = tmp_path_factory.mktemp("eval")
-    ds = fake_dataset(root / "data" / "fake")
-    whole = save_run(root / "runs" / "whole", ds.dir, "whole", None)
-    for k in range(28):
-        save_run(root / "runs" / "patches" / f"{k}_patch_{k:02d}", ds.dir, "patch", k, seed=k)
-    return root, ds, whole
-
-
-@pytest.fixture
-def patched_load(world, monkeypatch):
-    _, ds, _ = world
-    monkeypatch.setattr(dsmod, "load_dataset", lambda d: ds)
-    return ds
-
-
 def _stitch_cfg(method="pca"):
     # every seam method shares average.yaml's keys and only sets `method`
     return OmegaConf.merge(OmegaConf.load(ROOT / "conf/stitch/average.yaml"), {"method": method})
-
-
-
-
-def test_stacked_patch_net_matches_loop(world, patched_load):
-    from pbc.predict import ClothPredictor, LoopPatchNet
-
-    root, ds, whole = world
-    pred = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("average"))
-    pose = torch.from_numpy(ds.poses[:3]).float()
-    ref = LoopPatchNet(pred.patch_nets).eval()
-    with torch.inference_mode():
-        assert torch.allclose(pred.patch_crops(pose), ref(pose.reshape(3, -1)), atol=1e-5)
-        x1 = pred(pose[0])
-        xb = pred(pose)
-    assert x1.shape == (ds.verts.shape[1], 3) and torch.allclose(x1, xb[0], atol=1e-5)
-    # untrained heads give mm-size offsets: the garment sits on its skinned cloth pixels
-    assert (xb - pred(pose, model="whole")).norm(dim=-1).max() < 0.05
-
-
-
-
-def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
-    from pbc.evaluate import evaluate
-
-    root, ds, whole = world
-    cfg = OmegaConf.create({"whole_run": str(whole), "patch_runs": str(root / "runs" / "patches"),
-                            "methods": ["average", "pca", "inpaint", "hierarchy", "hierarchy_detail"], "split": "test",
-                            "max_samples": None, "batch_size": 8, "num_previews": 2, "pca_path": None,
-                            "pca_fit_max": 100, "stitch": _stitch_cfg("pca")})
-    m = evaluate(cfg, tmp_path)
-    for f in ("metrics.json", "metrics.md", "error_maps.png", "preview_0.png", "preview_1.png", "pca.pt"):
-        assert (tmp_path / f).is_file(), f
-    assert len(list((tmp_path / "meshes").glob("*.obj"))) == 6
-    e = m["entries"]
-    for name in ("whole", "train_mean", "floor_256", "floor_512", "patches_average", "patches_pca", "patches_inpaint",
-                 "patches_hierarchy", "gt_crops_average", "gt_crops_inpaint"):
-        assert np.isfinite(e[name]["vertex_error_cm"]), name
-    # ground-truth crops through every seam method land on the representation floor
-    floor = e["floor_512"]["vertex_error_cm"]
-    assert e["train_mean"]["vertex_error_cm"] > floor + 0.1  # the no-model baseline is a real error
-    for meth in ("average", "pca", "hierarchy", "hierarchy_detail"):
-        assert e[f"gt_crops_{meth}"]["vertex_error_cm"] <= floor + 1e-3, meth
-    assert e["gt_crops_inpaint"]["vertex_error_cm"] <= floor + 0.05
-    assert m["patch_disagreement_before_blend_cm"] > 0
-    # a basis from another dataset is refused
-    torch.save({**torch.load(tmp_path / "pca.pt"), "dataset_hash": "x"}, tmp_path / "bad_pca.pt")
-    cfg.pca_path = str(tmp_path / "bad_pca.pt")
-    with pytest.raises(ValueError, match="fitted on dataset"):
-        evaluate(cfg, tmp_path / "again")
-
-
-
-
-
-
-
-
-
-
-@pytest.fixture(scope="module")
-def predictor(world):
-    """One predictor for the door tests (building one costs seconds)."""
-    from pbc.predict import ClothPredictor
-
-    root, ds, whole = world
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(dsmod, "load_dataset", lambda d: ds)
-        return ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("average"))
-
-
-
-

@@ -1,0 +1,47 @@
+"""Helpers shared by tests/unit/test_train.py and tests/integration/test_train_jobs.py."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import TINY_SAMPLES
+
+from helpers.synthetic import FakeSkinner, two_chart_garment
+from pbc.models.module import ClothModule
+from pbc.pixels.operators import ImageOperators
+from pbc.pixels.target import WholeTarget
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+CONF = ROOT / "conf"
+
+
+def whole_module(norm="l1", normal_weight=0.01, res=32):
+    g = two_chart_garment()
+    ops = ImageOperators.for_garment(g, res, pad=2)
+    net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": 6,
+           "output_size": [res, res], "start_size": [8, 8], "start_channels": 64}
+    ident = {"garment_hash": "g", "num_vertices": len(g.vertices), "kind": "whole", "resolution": res,
+             "patch_id": None, "space": "local"}
+    m = ClothModule(net, "whole", "local", {"norm": norm, "normal_weight": normal_weight, "edge_weight": 0.1},
+                    1e-3, ident)
+    return m.attach(WholeTarget(FakeSkinner(g.vertices), g.faces, ops, "local")), g
+
+
+def _group_options(group: str) -> list[str]:
+    return sorted(p.stem for p in (CONF / group).glob("*.yaml"))
+
+
+TINY = ["data=tshirt_tiny", f"data.num_samples={TINY_SAMPLES}", "trainer=smoke", "image.whole_resolution=64",
+        "image.patch_resolution=128",
+        "callbacks.image_panel.every_n_epochs=1"]
+
+
+def _train(root: Path, data_dir: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PBC_ROOT=str(root))
+    return subprocess.run([sys.executable, "-m", "pbc.train", *TINY, f"data.dir={data_dir}", *args], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=300)
