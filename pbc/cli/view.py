@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import argparse
 
-import pbc.predict
 from pbc.cli.errors import entry_point
-from pbc.predict import ClothPredictor, stitch_config
+from pbc.predict import ClothPredictor, pretrained_run, stitch_config
 from pbc.stitch.pca import dataset_hash, load_pca
+from pbc.stitch.seams import METHODS
 from pbc.view import check_port, load_sequence, start_viewer, url, view_config, wait_forever
 
 EXAMPLES = """examples:
@@ -40,7 +40,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--pretrained", metavar="NAME", help="a model shipped with pbc (e.g. tshirt) instead of RUN")
     ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
                     "dir holding them, or a stacked +experiment=patches run dir")
-    ap.add_argument("--method", choices=pbc.predict.METHODS, default=str(cfg.method),
+    ap.add_argument("--method", choices=METHODS, default=str(cfg.method),
                     help=f"the seam method shown first (default {cfg.method}; a toggle in the viewer)")
     ap.add_argument("--pca", metavar="FILE", help="PCA basis for --method pca (pbc evaluate's pca.pt); default: "
                                                    "fitted on the training split when first shown")
@@ -53,15 +53,6 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--port", type=port_number, default=int(cfg.port),
                     help=f"port (default {cfg.port}; a port in use: the next free one, said so)")
     return ap
-
-
-def pretrained_run(name: str):
-    """The run dir of the shipped model `name`, through pbc.predict.pretrained_run when pbc has it."""
-    find = getattr(pbc.predict, "pretrained_run", None)
-    if find is None:
-        raise ValueError(f"--pretrained {name}: this pbc ships no pretrained models yet; give a trained run dir "
-                         "instead (pbc view runs/main/latest/whole; `make main` trains one)")
-    return find(name)
 
 
 def run(argv: list[str]) -> int:

@@ -18,7 +18,6 @@ from omegaconf import OmegaConf
 sys.path.insert(0, str(Path(__file__).parent))
 from helpers.evaluate_world import IMAGE, ROOT, _rotations, fake_dataset  # noqa: E402
 
-import pbc.predict  # noqa: E402
 from pbc.cli import view as view_cli  # noqa: E402
 from pbc.geometry.body import pose_body  # noqa: E402
 from pbc.geometry.skeleton import skeleton_from_config  # noqa: E402
@@ -144,11 +143,10 @@ def test_a_sequence_is_an_npy_of_rotations_or_a_bvh(predictor, tmp_path):
         load_sequence(tmp_path / "scaled.npy", ds)
 
 
-def test_the_command_refuses_a_missing_pretrained_model_and_a_bad_port(monkeypatch, capsys):
-    monkeypatch.delattr(pbc.predict, "pretrained_run", raising=False)
-    assert exit_code(view_cli.main, ["--pretrained", "tshirt"]) == 2
+def test_the_command_refuses_a_missing_pretrained_model_and_a_bad_port(capsys):
+    assert exit_code(view_cli.main, ["--pretrained", "no_such_model"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("pbc view: error: --pretrained tshirt") and "pbc view runs/main/latest/whole" in err
+    assert err.startswith("pbc view: error: no shipped model named 'no_such_model'") and "tshirt" in err
     assert len(err.splitlines()) == 1
     assert exit_code(view_cli.main, ["run", "--port", "http"]) == 2
     assert "give a TCP port number" in capsys.readouterr().err
