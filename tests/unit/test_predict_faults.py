@@ -12,37 +12,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from test_predict import IMAGE, fake_run
 from test_robustness import stand_in_dataset
 
 from pbc.predict import ClothPredictor, check_max_poses, first_poses, load_decoder, read_poses, stitch_config
-from pbc.runs import RunRecord, monitor
-
-# the image sizes of the synthetic runs: 32-pixel whole images, 20-pixel patch crops (160 at 512, at 64)
-IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 160,
-         "margin": 16, "pad": 8, "exact_sample": True, "method": "sparse"}
-
-
-def fake_run(d: Path, data_dir: Path, kind: str = "whole", patch_id: int | None = None, seed: int = 0) -> Path:
-    """A finished training run dir as pbc.train leaves it: metrics.json and checkpoints/epoch_000.ckpt of a
-    small untrained decoder (as in tests/unit/test_predict.py)."""
-    from hydra.utils import instantiate
-
-    torch.manual_seed(seed)
-    size, start, first, out = (32, 8, "conv_transpose", 6) if kind == "whole" else (20, 5, "linear", 3)
-    net_cfg = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": out,
-               "output_size": [size, size], "start_size": [start, start], "start_channels": 16, "first_layer": first}
-    net = instantiate(net_cfg)
-    with torch.no_grad():
-        net.output_scale.fill_(1e-3)
-    identity = {"garment_hash": "standin", "kind": kind, "patch_id": patch_id, "space": "local"}
-    ck = d / "checkpoints" / "epoch_000.ckpt"
-    ck.parent.mkdir(parents=True)
-    torch.save({"hyper_parameters": {"net": net_cfg, "identity": identity, "space": "local", "kind": kind},
-                "state_dict": {f"net.{k}": v for k, v in net.state_dict().items()}}, ck)
-    cfg = {"data": {"dir": str(data_dir)}, "image": IMAGE, "model": {"kind": kind, "patch_id": patch_id}}
-    RunRecord(kind=kind, optimized_metric=monitor(kind), identity=identity, config=cfg,
-              best_checkpoint=str(ck)).write(d)
-    return d
 
 
 @pytest.fixture(scope="module")
