@@ -13,9 +13,10 @@ import argparse
 from pbc.cli.errors import entry_point
 from pbc.config import load_config
 from pbc.geometry.autocage import auto_cage, cage_summary
+from pbc.geometry.bodies import body_from_config
 from pbc.geometry.cage import load_cage, save_cage
-from pbc.geometry.garment import load_garment_config, make_tshirt, write_tshirt_cage
-from pbc.geometry.garments import garment_from_config
+from pbc.geometry.garment import load_garment_config, write_tshirt_cage
+from pbc.geometry.garments import garment_from_config, garment_needs_body
 from pbc.paths import resolve_path
 
 
@@ -33,18 +34,20 @@ def run(argv: list[str]) -> int:
         return 0
     if not args.out:
         ap.error("give --out FILE (or --regenerate GARMENT_YAML ...)")
-    gcfg = load_config(args.overrides).garment
+    cfg = load_config(args.overrides)
+    gcfg = cfg.garment
+    body = body_from_config(cfg.body) if garment_needs_body(gcfg) else None
     image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     own = gcfg.get("cage")
     gcfg.cage = "auto"
     if gcfg.get("obj") or gcfg.get("kind") == "necktie":
-        garment, cage = garment_from_config(gcfg)
+        garment, cage = garment_from_config(gcfg, body)
     else:  # the procedural shirt: its mesh with the automatic cage
-        garment, _ = make_tshirt(gcfg, use_cage_file=False)
+        garment, _ = garment_from_config(gcfg, body)
         cage = auto_cage(garment, *image)
     save_cage(cage, args.out, garment.num_vertices)
     print(f"wrote {args.out}: automatic cage {cage_summary(cage)}")
-    if own and str(own) != "auto" and resolve_path(own).exists():
+    if own and str(own) != "auto" and body is None and resolve_path(own).exists():
         print(f"{own}: {cage_summary(load_cage(resolve_path(own), garment, *image))}")
     return 0
 

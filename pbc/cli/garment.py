@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.config import load_config
-from pbc.geometry.body import build_body
+from pbc.geometry.bodies import body_from_config
 from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture, split_outfit
 
 
@@ -43,7 +43,7 @@ def run(argv: list[str]) -> int:
             print(f"{name:<10} {n:>6} polygons  {target}")
         return 0
     cfg = load_config(["garment=obj", f"garment.obj={path}", *args.overrides])
-    report = inspect_garment(path, cfg.garment, build_body(cfg.body), wrap=not args.no_wrap)
+    report = inspect_garment(path, cfg.garment, body_from_config(cfg.body), wrap=not args.no_wrap)
     print(format_report(report, dict(cfg.garment.shrinkwrap)))
     if args.out:
         for target in (save_uv_picture(report, Path(args.out) / "uv_layout.png"),

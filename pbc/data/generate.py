@@ -39,7 +39,7 @@ from pbc.geometry.bodies import body_from_config
 from pbc.geometry.body import Body, pose_body, save_body
 from pbc.geometry.cage import Cage, save_cage
 from pbc.geometry.garment import Garment, save_garment_obj
-from pbc.geometry.garments import garment_from_config
+from pbc.geometry.garments import garment_from_config, garment_needs_body
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.io import (
     DiskFull,
@@ -112,7 +112,7 @@ def config_mismatch(cfg: DictConfig, manifest: dict, full: bool = False) -> list
     whole scene as generation does and compares every fingerprint key (seconds).
     """
     want = (fingerprint(cfg, build_scene(cfg)[0]) if full
-            else _cheap_fingerprint(cfg, garment_from_config(cfg.garment)[0]))
+            else _cheap_fingerprint(cfg, garment_from_config(cfg.garment, _body_if_needed(cfg))[0]))
     return identity_diff({k: manifest.get(k) for k in want}, want, names=("dataset", "config"))
 
 
@@ -149,10 +149,15 @@ def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
     return ()
 
 
+def _body_if_needed(cfg: DictConfig) -> Body | None:
+    """The body, only for a garment built from it (sized to it): the cheap fingerprint stays cheap otherwise."""
+    return body_from_config(cfg.body) if garment_needs_body(cfg.garment) else None
+
+
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
     body = body_from_config(cfg.body)
-    garment, cage = garment_from_config(cfg.garment)
+    garment, cage = garment_from_config(cfg.garment, body)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
     return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats
 

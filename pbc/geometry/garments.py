@@ -14,10 +14,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from pbc.geometry.autocage import auto_cage
+from pbc.geometry.body import Body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt
 from pbc.geometry.necktie import make_necktie
 from pbc.geometry.obj_import import import_garment
+from pbc.geometry.sizing import fits_to_body, fitted_config
 from pbc.paths import resolve_path
 
 
@@ -41,8 +43,14 @@ def obj_options(gcfg) -> dict:
     return out
 
 
-def garment_from_config(gcfg) -> tuple[Garment, Cage]:
-    """The garment and its cage through one door, from the garment config node.
+def garment_needs_body(gcfg) -> bool:
+    """Whether `garment_from_config` needs the body for this garment config (its sizes come from the body)."""
+    return fits_to_body(gcfg)
+
+
+def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
+    """The garment and its cage through one door, from the garment config node (and the body it is worn on,
+    needed when `garment_needs_body(gcfg)`: a procedural garment sized to the body, pbc.geometry.sizing).
 
     ``obj`` set: a user's OBJ (pbc's own files read exactly, others imported with obj_options) with
     the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
@@ -68,6 +76,11 @@ def garment_from_config(gcfg) -> tuple[Garment, Cage]:
                 raise
             raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
                              "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
+    if fits_to_body(gcfg):
+        if body is None:
+            raise ValueError("garment.fit_to_body.enabled=true sizes the garment to the body: build it with the "
+                             "body (garment_from_config(gcfg, body))")
+        gcfg = fitted_config(gcfg, body)
     if gcfg.get("kind") == "necktie":
         return make_necktie(gcfg)
     return make_tshirt(gcfg)

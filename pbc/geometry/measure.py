@@ -31,13 +31,18 @@ def girth(mesh: trimesh.Trimesh, y: float) -> float:
     return float(ConvexHull(pts).area)  # in 2D, ConvexHull.area is the perimeter
 
 
+def torso_mesh(body: Body) -> trimesh.Trimesh:
+    """The rest mesh's faces whose corners are all in the torso part and in no limb part."""
+    f = body.faces.numpy()
+    torso = body.parts[TORSO].numpy() & ~body.parts[1:].numpy().any(0)
+    return trimesh.Trimesh(body.vertices.double().numpy(), f[torso[f].all(1)], process=False)
+
+
 def measurements(body: Body, cfg=None) -> dict[str, float]:
     """{height, shoulder_height, chest, waist, hips (girths), and their heights} in metres."""
     cfg = cfg or measure_config()
     v = body.vertices.double().numpy()
-    f = body.faces.numpy()
-    torso = body.parts[TORSO].numpy() & ~body.parts[1:].numpy().any(0)
-    mesh = trimesh.Trimesh(v, f[torso[f].all(1)], process=False)
+    mesh = torso_mesh(body)
     sk = body.skeleton
     ys = float(sk.rest_heads[[sk.index("l_arm"), sk.index("r_arm")], 1].mean())
     out = {"height": float(v[:, 1].max() - v[:, 1].min()), "shoulder_height": ys}
