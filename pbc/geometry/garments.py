@@ -56,6 +56,11 @@ def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
     the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
     (pbc.geometry.autocage). ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
     """
+    if fits_to_body(gcfg):
+        if body is None:
+            raise ValueError("garment.fit_to_body.enabled=true sizes the garment to the body: build it with the "
+                             "body (garment_from_config(gcfg, body))")
+        gcfg = fitted_config(gcfg, body)
     image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     cage_path = gcfg.get("cage", None)
     auto = cage_path is None or str(cage_path) == "auto"
@@ -76,11 +81,6 @@ def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
                 raise
             raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
                              "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
-    if fits_to_body(gcfg):
-        if body is None:
-            raise ValueError("garment.fit_to_body.enabled=true sizes the garment to the body: build it with the "
-                             "body (garment_from_config(gcfg, body))")
-        gcfg = fitted_config(gcfg, body)
     if gcfg.get("kind") == "necktie":
         return make_necktie(gcfg)
     return make_tshirt(gcfg)

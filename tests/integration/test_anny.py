@@ -20,6 +20,7 @@ from pbc.geometry.anny_body import (
 )
 from pbc.geometry.bodies import body_from_config
 from pbc.geometry.body import body_sdf, load_body, pose_body, save_body
+from pbc.geometry.sizing import fitted_config
 from pbc.geometry.skeleton import forward_kinematics
 from pbc.sim.poses import SamplingSettings, euler_xzy_to_matrix, sample_angles, sample_poses
 
@@ -102,3 +103,21 @@ def test_turned_rest_pose_is_config(anny_body):
     # the trunk does not move in a re-rest
     lower = [sk.index(n) for n in ("lower_back", "spine", "neck")]
     assert torch.equal(sk.rest_heads[lower], anny_body.skeleton.rest_heads[lower])
+
+
+def test_shirt_sized_to_anny_wraps_onto_it():
+    # the shirt preset sized to the T-posed Anny (garment.fit_to_body): its sleeves sit on Anny's arm axis, not
+    # the mannequin's 5 cm lower, and the wrap stretches no patch past the limit the drape would discard
+    from pbc.data.generate import build_scene  # noqa: PLC0415 - a drape-stage import, only this test needs it
+
+    cfg = load_config(["body=anny_tpose", "garment=tshirt_coarse", "garment.fit_to_body.enabled=true"])
+    scene, stats = build_scene(cfg)
+    sk = scene.body.skeleton
+    arm_y = float(sk.rest_heads[sk.index("l_arm"), 1])
+    v = np.asarray(scene.garment.vertices)
+    sized = fitted_config(cfg.garment, scene.body)
+    half_torso = (0.5 * float(sized.chest_girth) + float(sized.chest_ease)) / 2.0  # the panel's half width
+    sleeves = v[np.abs(v[:, 0]) > half_torso + 0.02]
+    assert len(sleeves) > 0 and abs(float(sleeves[:, 1].mean()) - arm_y) < 0.03
+    assert stats["patch_stretch_max"] < float(cfg.garment.shrinkwrap.max_patch_stretch)
+    assert max(stats["sleeve_left_angle_deg"], stats["sleeve_right_angle_deg"]) < 5.0
