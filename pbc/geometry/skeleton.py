@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -174,3 +175,13 @@ def linear_blend_skinning(points: Tensor, weights: Tensor, transforms: Tensor) -
     if points.ndim == 2:
         points = points.expand(transforms.shape[0], *points.shape)
     return torch.einsum("bvij,bvj->bvi", rot, points) + trans
+
+
+def xzy_angles(poses) -> np.ndarray:
+    """Rotations (..., 3, 3) = Rx(x) Rz(z) Ry(y) -> angles (..., 3) in degrees, per axis (x, y, z); the
+    inverse of pbc.sim.poses.euler_xzy_to_matrix for |z| < 90 degrees (the body's limits keep it there)."""
+    r = np.asarray(poses, dtype=np.float64)
+    x = np.arctan2(r[..., 2, 1], r[..., 1, 1])
+    y = np.arctan2(r[..., 0, 2], r[..., 0, 0])
+    z = np.arcsin(np.clip(-r[..., 0, 1], -1.0, 1.0))
+    return np.degrees(np.stack([x, y, z], -1))

@@ -12,18 +12,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from pbc.geometry.skeleton import AXES
+from pbc.geometry.skeleton import AXES, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
-
-
-def xzy_angles(poses) -> np.ndarray:
-    """Rotations (..., 3, 3) = Rx(x) Rz(z) Ry(y) -> angles (..., 3) in degrees, per axis (x, y, z); the
-    inverse of pbc.sim.poses.euler_xzy_to_matrix for |z| < 90 degrees (the body's limits keep it there)."""
-    r = np.asarray(poses, dtype=np.float64)
-    x = np.arctan2(r[..., 2, 1], r[..., 1, 1])
-    y = np.arctan2(r[..., 0, 2], r[..., 0, 0])
-    z = np.arcsin(np.clip(-r[..., 0, 1], -1.0, 1.0))
-    return np.degrees(np.stack([x, y, z], -1))
 
 
 def angle_range(poses, chunk: int = 4096) -> np.ndarray:

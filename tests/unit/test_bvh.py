@@ -19,9 +19,9 @@ from test_robustness import stand_in_dataset
 
 from pbc.cli.predict import main
 from pbc.geometry.meshio import write_garment_mesh
-from pbc.geometry.skeleton import skeleton_from_config
+from pbc.geometry.skeleton import skeleton_from_config, xzy_angles
 from pbc.motion.bvh import BvhError, parse_bvh, read_bvh
-from pbc.motion.ranges import angle_range, clamp_to_range, range_report, xzy_angles
+from pbc.motion.ranges import angle_range, clamp_to_range, range_report
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, parse_frames
 from pbc.motion.writers import FrameObjWriter, render_frames
 from pbc.sim.poses import euler_xzy_to_matrix
