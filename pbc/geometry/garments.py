@@ -17,6 +17,7 @@ from pbc.geometry.autocage import auto_cage
 from pbc.geometry.body import Body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt
+from pbc.geometry.mhclo import mhclo_garment
 from pbc.geometry.necktie import make_necktie
 from pbc.geometry.obj_import import import_garment
 from pbc.geometry.sizing import fits_to_body, fitted_config
@@ -45,7 +46,7 @@ def obj_options(gcfg) -> dict:
 
 def garment_needs_body(gcfg) -> bool:
     """Whether `garment_from_config` needs the body for this garment config (its sizes come from the body)."""
-    return fits_to_body(gcfg)
+    return fits_to_body(gcfg) or gcfg.get("kind") == "mhclo"
 
 
 def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
@@ -54,7 +55,8 @@ def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
 
     ``obj`` set: a user's OBJ (pbc's own files read exactly, others imported with obj_options) with
     the cage file ``cage``, or, when ``cage`` is ``auto`` / null, the automatic cage
-    (pbc.geometry.autocage). ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
+    (pbc.geometry.autocage). ``kind: mhclo``: MakeHuman clothes (``path``: the .mhclo) fitted to the Anny
+    body, with a cage the same way. ``kind: necktie``: the procedural necktie. Otherwise the T-shirt.
     """
     if fits_to_body(gcfg):
         if body is None:
@@ -64,10 +66,11 @@ def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
     image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     cage_path = gcfg.get("cage", None)
     auto = cage_path is None or str(cage_path) == "auto"
-    if gcfg.get("obj"):
-        path = resolve_path(gcfg.obj)
+    if gcfg.get("obj") or gcfg.get("kind") == "mhclo":
         names = charts = None
-        if _is_pbc_obj(path):
+        if gcfg.get("kind") == "mhclo":  # MakeHuman clothes fitted to the body (pbc.geometry.mhclo)
+            garment, names, charts, _ = mhclo_garment(gcfg, body, obj_options(gcfg))
+        elif _is_pbc_obj(path := resolve_path(gcfg.obj)):
             garment = load_garment_obj(path)
         else:
             garment, names, charts = import_garment(path, **obj_options(gcfg))

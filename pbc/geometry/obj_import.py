@@ -251,7 +251,15 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
         text = path.read_text()
     except OSError as exc:
         raise ValueError(f"{where}: cannot read the garment OBJ ({exc})") from None
-    mesh = parse_obj(text, where)
+    return garment_from_mesh(parse_obj(text, where), where, charts, uv_unit, position_unit, position_offset,
+                             uv_padding, overlap_resolution, uv_unit_tolerance)
+
+
+def garment_from_mesh(mesh: ObjMesh, where: str, charts: Mapping[str, int] | None = None, uv_unit="auto",
+                      position_unit="m", position_offset=(0.0, 0.0, 0.0), uv_padding: float = 0.1,
+                      overlap_resolution: int = 512, uv_unit_tolerance: float | None = None):
+    """`import_garment` of an OBJ already parsed (`where` names it in errors): a garment whose positions
+    come from elsewhere (pbc.geometry.mhclo fits them to the body) or a piece cut from an outfit."""
     check_mesh(mesh, where)
     corners = mesh.uv[mesh.face_uv]  # (F, 3, 2) file convention, v up
     island = uv_islands(mesh.faces, corners)
