@@ -17,6 +17,7 @@ convolution unless `layer_modes` says otherwise. Every weight is a parameter or 
 
 from __future__ import annotations
 
+import logging
 import time
 import warnings
 from collections.abc import Sequence
@@ -39,7 +40,7 @@ from pbc.geometry.meshio import write_garment_mesh, write_mesh
 from pbc.io import load_checkpoint, require_writable_dir, save_figure, save_npy, user_cache_dir, write_json
 from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.motion.bvh import read_bvh
-from pbc.motion.ranges import angle_range, clamp_to_range, range_report
+from pbc.motion.ranges import angle_range, clamp_to_range, range_from_record, range_report
 from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, motion_settings, parse_frames
 from pbc.motion.writers import FrameObjWriter, VideoWriter, camera, render_frames, write_glb
 from pbc.pixels.frames import from_offsets, to_offsets
@@ -51,6 +52,8 @@ from pbc.runs import ModelKind, Run, find_runs, read_run, run_image_config, sele
 from pbc.stitch.pca import check_pca_matches, dataset_hash, fit_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, build_stitcher
 from pbc.validate import as_poses
+
+log = logging.getLogger(__name__)
 
 # measured fastest per transpose-conv group at batch 1 on the 2-core CPU (see bench/predict.py)
 DEFAULT_LAYER_MODES = ("bmm", "bmm", "grouped", "grouped", "grouped")
@@ -343,6 +346,10 @@ class ClothPredictor:
         if threads:
             torch.set_num_threads(int(threads))
         self.dataset, self.space = dataset, space
+        # the training split's joint-angle range its run recorded (RunRecord.pose_range) and that run's dir;
+        # from_runs fills them, None for a run written before runs recorded it (`run_pose_range`)
+        self.pose_range_record: dict | None = None
+        self.pose_range_run: Path | None = None
         # the operators exactly as training built them (pbc.pixels.target: one cache, one method)
         self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
@@ -430,7 +437,9 @@ class ClothPredictor:
             spaces.add(whole_hp.get("space", "local"))
         if len(spaces) > 1:
             raise ValueError(f"the runs use different offset spaces {sorted(spaces)}")
-        return cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
+        predictor = cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
+        predictor.pose_range_record, predictor.pose_range_run = first.record.pose_range, Path(first.path)
+        return predictor
 
     @classmethod
     def from_pretrained(cls, name: str, **kw) -> ClothPredictor:
@@ -711,6 +720,23 @@ def training_pose_range(dataset) -> np.ndarray:
     return angle_range(np.asarray(dataset.poses)[idx] if len(idx) else np.asarray(dataset.poses))
 
 
+def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | None]:
+    """(J, 3, 2) the joint-angle range of the poses the predictor's model was trained on, where it came from,
+    and a note when it was not the run's own record. The run's record first (RunRecord.pose_range, written by
+    pbc.train and carried by pbc pretrained pack): no dataset needed. A run made before runs recorded it falls
+    back to its dataset's training split (or a shipped model's data/training.json), saying so."""
+    ds = predictor.dataset
+    rng = range_from_record(predictor.pose_range_record, ds.body.skeleton.names)
+    if rng is not None:
+        return rng, f"recorded in the run {predictor.pose_range_run}", None
+    where = (f"its shipped data's {ds.dir}/training.json" if recorded_training_range(ds) is not None
+             else f"the training split of its dataset {ds.dir}")
+    note = (f"the run {predictor.pose_range_run} records no training pose range (made before runs recorded it): "
+            f"the range is taken from {where}")
+    log.info(note)
+    return training_pose_range(ds), where, note
+
+
 def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
                      glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
                      model: str | None = None, info: dict | None = None, progress: bool = True) -> dict:
@@ -718,14 +744,15 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
     k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
     animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
-    the frames outside the training poses' range, the seconds of each stage). `clamp`: joint angles clamped
-    into the training range before predicting (the flags are taken before). Returns predict.json's content."""
+    the frames outside the training poses' range (`run_pose_range`), the seconds of each stage). `clamp`: joint
+    angles clamped into the training range before predicting (the flags are taken before). Returns
+    predict.json's content."""
     t0 = time.time()
     model = predictor.check_model(model)
     settings = motion_settings()
     ds = predictor.dataset
     names = list(ds.body.skeleton.names)
-    rng = training_pose_range(ds)
+    rng, range_source, range_note = run_pose_range(predictor)
     tol = float(settings.range_tolerance_deg)
     report = range_report(motion.poses, rng, names, tol)
     poses_np = clamp_to_range(motion.poses, rng, tol) if clamp else motion.poses
@@ -786,8 +813,8 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
                   method=predictor.method if model == "patches" else None, num_poses=len(poses),
                   num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
-                  motion=motion.summary(), notes=list(motion.notes), pose_range=report,
-                  pose_range_source=f"training split of {ds.dir}")
+                  motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
+                  pose_range=report, pose_range_source=range_source)
     result["seconds_by_stage"] = stages
     result["seconds"] = round(time.time() - t0, 2)
     write_json(out / "predict.json", result)

@@ -19,6 +19,7 @@ Nothing here trains, plots or formats.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -139,6 +140,9 @@ class RunRecord:
     traceback: str | None = None
     exported_runs: list[str] = field(default_factory=list)  # a stacked run's exported single-patch run dirs
     exported_from: str | None = None  # an exported patch run's stacked run dir
+    # the training split's joint-angle range (pbc.motion.ranges.range_record): what predict compares new
+    # poses with, kept here so it travels with the run (and a shipped model) when its dataset does not
+    pose_range: dict | None = None
     extra: dict = field(default_factory=dict)  # a job's own top-level blocks (pbc.evaluate's)
 
     def __post_init__(self) -> None:
@@ -159,6 +163,8 @@ class RunRecord:
                 and self.optimized_metric != monitor(self.kind):
             raise ValueError(f"a {self.kind} run's checkpoint is chosen by {monitor(self.kind)}, "
                              f"the record says {self.optimized_metric!r}")
+        if self.pose_range is not None:
+            check_pose_range(self.pose_range)
         clash = set(self.extra) & {f.name for f in fields(self)}
         if clash:
             raise ValueError(f"extra blocks {sorted(clash)} would overwrite the record's own fields")
@@ -230,6 +236,21 @@ class RunRecord:
         """Metric `name` (unscoped, e.g. VERTEX_ERROR) of block `split`, under this kind's scoped name."""
         block = getattr(self, split) if split in METRIC_BLOCKS else {}
         return block.get(scoped_name(name, self.kind) if self.kind is not None else name)
+
+
+def check_pose_range(record) -> None:
+    """A ValueError unless `record` is a pose range record: {"split", "poses", "deg": {joint: {"x" | "y" |
+    "z": [min, max]}}} with finite min <= max degrees (pbc.motion.ranges.range_record writes it)."""
+    deg = record.get("deg") if isinstance(record, Mapping) else None
+    if not isinstance(deg, Mapping) or not deg:
+        raise ValueError(f"pose_range is not a joint-angle range record (no 'deg' table of joints): {record!r:.80}")
+    for joint, axes in deg.items():
+        for ax, lo_hi in (axes.items() if isinstance(axes, Mapping) else [(None, axes)]):
+            ok = (ax in ("x", "y", "z") and isinstance(lo_hi, list | tuple) and len(lo_hi) == 2
+                  and all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in lo_hi)
+                  and lo_hi[0] <= lo_hi[1])
+            if not ok:
+                raise ValueError(f"pose_range/deg/{joint}/{ax}: {lo_hi!r} is not a [min, max] of degrees")
 
 
 def flatten(d: dict, prefix: str = "") -> tuple[dict[str, float], dict]:

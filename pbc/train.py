@@ -10,7 +10,8 @@ lightning-hydra-template does), run fit + test, and leave everything in the Hydr
     <run dir>/tensorboard/          events: scalars, image panels, mesh, hparams tab with final metrics
     <run dir>/meshes/               predicted and ground-truth OBJ of one fixed validation pose
                                     (pred_val0.obj; a patch model's patch: pred_val0_patchNN.obj)
-    <run dir>/metrics.json          {"status", "test", "val_best", "optimized_metric", "config", ...}
+    <run dir>/metrics.json          {"status", "test", "val_best", "optimized_metric", "config", ...,
+                                    "pose_range": the training split's joint-angle range (predict's flags)}
 
 Return value: the best ``val/vertex_error_cm`` (the checkpoint monitor), so Hydra sweepers can minimise
 it. Failures: the error is logged and ``metrics.json`` is written with ``"status": "failed"`` and the
@@ -41,6 +42,7 @@ import traceback
 from pathlib import Path
 
 import lightning as L
+import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
@@ -52,6 +54,7 @@ from pbc.data.dataset import dataset_fingerprint, run_data_record
 from pbc.io import LockHeld, dir_lock, is_writable_dir, load_checkpoint, lock_holder, read_json, require_writable_dir
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.models.progress import metric_table, silence_training_noise
+from pbc.motion.ranges import range_record
 from pbc.pixels.target import VertexTarget
 from pbc.runs import RunRecord, monitor
 from pbc.validate import check_config, check_pose_joints, check_resume, identity_diff, training_identity
@@ -331,6 +334,7 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float) -> dict:
         test=scores.get("test", {}), train=scores.get("train_final", {}), best_checkpoint=best_path or None,
         epochs=trainer.current_epoch, seconds=round(time.time() - t0, 2), summary=summary, identity=identity,
         training_identity=training, data=run_data_record(dm.data), config=recorded_config(cfg, dm),
+        pose_range=training_pose_range(dm.data),
         # best_checkpoint may lie in the resumed run's dir (KeepBestOfResumedRun)
         extra={"resumed_from": ckpt} if ckpt else {},
     )
@@ -365,6 +369,16 @@ def check_opened_data(cfg: DictConfig, dm: ClothDataModule) -> None:
     from pbc.data.generate import check_matches_config  # noqa: PLC0415 - it pulls in newton/warp; only once data is open
 
     check_matches_config(cfg, dm.data)
+
+
+def training_pose_range(data) -> dict | None:
+    """The training split's joint-angle range, recorded in metrics.json (``pose_range``): predict flags the
+    frames of a clip outside it from the run alone, so a run whose dataset is gone, or a shipped model, still
+    knows what it saw. None for an empty training split (nothing was seen)."""
+    idx = np.asarray(data.split("train"), dtype=np.int64)
+    if len(idx) == 0:
+        return None
+    return range_record(np.asarray(data.poses[np.sort(idx)]), data.body.skeleton.names)
 
 
 def recorded_config(cfg: DictConfig, dm: ClothDataModule) -> dict:

@@ -122,7 +122,7 @@ def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
     res = predict_sequence(predictor, motion, out, args.format, None if args.video == "none" else args.video,
                            not args.no_glb, args.body, args.clamp_to_range, args.batch_size, args.model,
                            dict(info, frames=args.frames, fps=args.fps))
-    for note in motion.notes:
+    for note in res["notes"]:  # the clip's mapping, and where the training range came from when not the run
         print(note)
     print(range_summary(res["pose_range"]))
     extra = ", ".join(res["files"][k] for k in ("video", "glb") if k in res["files"])

@@ -278,7 +278,7 @@ def export_patch_runs(checkpoint: str | Path, out_dir: str | Path, record: RunRe
         # patch's own validation error (exported_from names that run)
         RunRecord(kind=ModelKind.PATCH, test=own(record.test), train=own(record.train), best_checkpoint=str(ckpt),
                   epochs=record.epochs, identity=ident, summary=single["summary"], config=config,
-                  data=record.data, exported_from=str(out_dir)).write(run)
+                  data=record.data, exported_from=str(out_dir), pose_range=record.pose_range).write(run)
         dirs.append(str(run))
     log.info("exported %d single-patch runs under %s", len(dirs), out_dir / PATCH_EXPORT_DIR)
     return dirs

@@ -74,3 +74,27 @@ def clamp_to_range(poses, rng: np.ndarray, tol: float = 0.0) -> np.ndarray:
         clamped = np.clip(a[out], rng[None, ..., 0].repeat(len(p), 0)[out], rng[None, ..., 1].repeat(len(p), 0)[out])
         p[out] = euler_xzy_to_matrix(torch.from_numpy(clamped)).numpy()
     return p
+
+
+def range_record(poses, names: Sequence[str], split: str = "train") -> dict:
+    """What a run records of its training poses (N, J, 3, 3) (pbc.runs.RunRecord.pose_range, written by
+    pbc.train): the per-joint, per-axis [min, max] degrees (`angle_range`) keyed by joint name, so predict
+    compares new poses with it without the dataset."""
+    return range_table_record(angle_range(poses), names, len(poses), split)
+
+
+def range_table_record(rng: np.ndarray, names: Sequence[str], num_poses: int, split: str = "train") -> dict:
+    """`range_record` of a range rng (J, 3, 2) degrees already taken over `num_poses` poses."""
+    return {"split": split, "poses": int(num_poses),
+            "angles": "the body's Euler angles per axis, R = Rx Rz Ry about the joint's rest frame (conf/body)",
+            "deg": {n: {ax: [float(rng[j, k, 0]), float(rng[j, k, 1])] for k, ax in enumerate(AXES)}
+                    for j, n in enumerate(names)}}
+
+
+def range_from_record(record: dict | None, names: Sequence[str]) -> np.ndarray | None:
+    """`range_record`'s table as (J, 3, 2) degrees in the joint order `names`; None when there is no record
+    or it lacks one of the joints (a record of another body: the caller takes the range elsewhere)."""
+    deg = (record or {}).get("deg") or {}
+    if not deg or any(n not in deg for n in names):
+        return None
+    return np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64)

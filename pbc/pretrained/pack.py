@@ -25,6 +25,7 @@ from omegaconf import OmegaConf
 from pbc.data.dataset import dataset_fingerprint, load_dataset
 from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
 from pbc.io import load_checkpoint, write_text
+from pbc.motion.ranges import range_from_record, range_table_record
 from pbc.pixels.frames import from_offsets
 from pbc.predict import ClothPredictor, training_pose_range
 from pbc.pretrained import SHIPPED_DIR
@@ -114,6 +115,18 @@ def this_machine() -> str:
     return f"{os.cpu_count()} CPU cores ({platform.machine()}), {gpu}"
 
 
+def shipped_pose_range(run, ds) -> tuple[dict, str]:
+    """The joint-angle range of the run's training poses to ship (RunRecord.pose_range) and where it came
+    from: the run's own record, or (a run trained before runs recorded it) measured here from its dataset's
+    training split."""
+    names = ds.body.skeleton.names
+    if range_from_record(run.record.pose_range, names) is not None:
+        return run.record.pose_range, "recorded by the training run (its metrics.json pose_range)"
+    rng = training_pose_range(ds)
+    return (range_table_record(rng, names, len(ds.split("train"))),
+            "measured by pbc pretrained pack from the run's dataset (the run predates the recorded range)")
+
+
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,
              trained_on: str | None = None, command: str | None = None, commit: str | None = None) -> dict:
     """Pack the whole-shirt run `run_dir` as shipped model `name` under `out` (default pbc/pretrained/<name>,
@@ -139,7 +152,8 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
                    "pbc_pretrained": {"name": name, "source_checkpoint": run.checkpoint.name}},
                   out / "checkpoints" / WEIGHTS)
     mean = mean_training_offsets(full)
-    trim_dataset(ds, out / DATA, training_pose_range(ds), mean, full.space, "test")
+    pose_range, range_source = shipped_pose_range(run, ds)
+    trim_dataset(ds, out / DATA, range_from_record(pose_range, ds.body.skeleton.names), mean, full.space, "test")
     shipped = load_dataset(out / DATA)
     record = run.record
     info = {
@@ -159,10 +173,12 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         # every float the state dict holds: weights and BatchNorm statistics, and the standardisation buffers
         "parameters": int(sum(v.numel() for v in net_state.values() if v.is_floating_point())),
         "recorded_fp32_test_vertex_error_cm": record.metric("test", VERTEX_ERROR),
+        "pose_range_source": range_source,
     }
     RunRecord(kind=ModelKind.WHOLE, optimized_metric=monitor(ModelKind.WHOLE), best_checkpoint=WEIGHTS,
               identity=dict(run.identity), config=dict(run.config), epochs=record.epochs, seconds=record.seconds,
-              data={"dir": DATA, "fingerprint": dataset_fingerprint(shipped)}, extra={"pretrained": info}).write(out)
+              data={"dir": DATA, "fingerprint": dataset_fingerprint(shipped)}, pose_range=pose_range,
+              extra={"pretrained": info}).write(out)
     # the scores of what ships: the packed folder opened as a user opens it, fp16 weights and trimmed data
     packed = ClothPredictor.from_runs(out)
     mean_back, _ = recorded_mean_offsets(packed.dataset)
@@ -189,13 +205,13 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     rec.test = {VERTEX_ERROR: info["test_vertex_error_cm"], f"{VERTEX_ERROR}_std": info["test_vertex_error_cm_std"]}
     rec.extra["pretrained"] = info
     rec.write(out)
-    write_text(out / CARD, model_card(info))
+    write_text(out / CARD, model_card(info, pose_range))
     info["bytes"]["total"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     return info
 
 
-def model_card(i: dict) -> str:
-    """MODEL_CARD.md from the numbers `pack_run` measured."""
+def model_card(i: dict, pose_range: dict | None = None) -> str:
+    """MODEL_CARD.md from the numbers `pack_run` measured, and the training poses' range (RunRecord.pose_range)."""
     d, sch, n = i["dataset"], i["schedule"], i["test_poses"]
     sched = "none" if not sch["model.scheduler"] else "yes (metrics.json config)"
     rows = [
@@ -217,6 +233,7 @@ def model_card(i: dict) -> str:
                          f"{i['fp16_vs_fp32_mean_vertex_cm']:.4f} cm mean, {i['fp16_vs_fp32_max_vertex_cm']:.4f} "
                          "cm at most"),
         ("beats the mean shape", f"on {i['poses_beating_mean_shape']} of {n} test poses"),
+        ("training pose range", f"{i.get('pose_range_source') or 'not recorded'}; per joint below"),
     ]
     table = "\n".join(f"| {k} | {v} |" for k, v in rows)
     made = i["command"] or "python -m pbc.main   # the README's main job: data, whole model, patch 7"
@@ -232,8 +249,9 @@ every number here was measured by it on the packed files.
 {table}
 
 The model saw {d['splits']['train']} training poses: far from the paper's 16K (0.44 cm there). Poses outside
-the training poses' joint-angle range (data/training.json) are flagged by `pbc predict --poses clip.bvh`.
-
+the training poses' joint-angle range (below; metrics.json `pose_range`) are flagged by
+`pbc predict --poses clip.bvh`.
+{range_section(pose_range)}
 What ships beside the weights (`data/`): the garment, cage, body and embedding of the run's dataset, the
 {n} test poses with their draped vertices (`--poses test`), and of the training split only its mean
 offsets (the baseline) and joint-angle range. Only the whole model ships: no patch models.
@@ -247,6 +265,25 @@ pbc pretrained pack runs/main/latest/whole --name {i['name']}
 
 Source run: `{i['source_run']}` ({i['source_checkpoint']}); dataset manifest hash
 `{d['fingerprint'].get('manifest_hash')}`, seed {d['fingerprint'].get('seed')}.
+"""
+
+
+def range_section(pose_range: dict | None) -> str:
+    """The card's table of the training poses' joint angles: [min, max] degrees per joint and axis."""
+    if not pose_range:
+        return ""
+    rows = "\n".join(f"| {j} | " + " | ".join(f"{lo:.1f} to {hi:.1f}" for lo, hi in (axes[a] for a in "xyz")) + " |"
+                     for j, axes in pose_range["deg"].items())
+    return f"""
+## Training poses' joint angles
+
+[min, max] degrees over the {pose_range['poses']} poses of the {pose_range['split']} split, per joint and
+axis ({pose_range['angles']}). A clip's frame outside them by more than conf/motion/sequence.yaml's
+range_tolerance_deg is flagged, and clamped into them with `--clamp-to-range`.
+
+| joint | x | y | z |
+| --- | --- | --- | --- |
+{rows}
 """
 
 

@@ -18,6 +18,9 @@ import pytest
 import torch
 from helpers.train_runs import _group_options, _train
 
+from pbc.data.dataset import load_dataset
+from pbc.motion.ranges import angle_range, range_from_record
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -88,6 +91,11 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     # the best model is also scored on the training split (Table 1's training error), normals included
     assert np.isfinite(metrics["train"][vertex]) and np.isfinite(metrics["train"][normal])
     assert (run / "checkpoints" / "last.ckpt").is_file()
+    # the training split's joint-angle range, recorded for predict (it flags a clip's frames without the data)
+    ds = load_dataset(tiny_dataset)
+    assert metrics["pose_range"]["poses"] == len(ds.split("train")) > 0
+    np.testing.assert_allclose(range_from_record(metrics["pose_range"], ds.body.skeleton.names),
+                               angle_range(np.asarray(ds.poses)[ds.split("train")]), atol=1e-9)
     # an image model starts from (and keeps in its checkpoint) the train split's mean image
     state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["net.output_mean"].abs().sum() > 0

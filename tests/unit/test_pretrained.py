@@ -26,7 +26,9 @@ from pbc.data.trimmed import recorded_mean_offsets
 from pbc.geometry.body import save_body
 from pbc.geometry.cage import save_cage
 from pbc.geometry.garment import save_garment_obj
-from pbc.predict import ClothPredictor, pretrained_run, training_pose_range
+from pbc.motion.ranges import range_from_record
+from pbc.predict import ClothPredictor, pretrained_run, run_pose_range, training_pose_range
+from pbc.runs import RunRecord
 
 # fp16 weights against the fp32 checkpoint they came from, positions in cm: half precision keeps ~3 digits
 # of each weight, so a prediction moves by ~1e-3 of its offsets (a few mm here, a few cm on the shirt)
@@ -129,6 +131,23 @@ def test_the_record_and_card_carry_the_measured_numbers(shipped):
                  "0123abc", "(test stand-in)", "train 7 / val 1 / test 2"):
         assert text in card, text
     assert info["bytes"]["weights"] < 0.6 * (shipped[1] / "checkpoints" / "epoch_000.ckpt").stat().st_size
+
+
+def test_the_training_range_ships_in_the_record_and_card(shipped):
+    """The stand-in run predates the recorded range: pack measures it from the run's dataset and says so; the
+    packed record carries it (predict reads it from there, no data needed) and the card prints it."""
+    _, _, full, info = shipped
+    d = pretrained_run("standin")
+    names = list(full.body.skeleton.names)
+    rec = RunRecord.read(d).pose_range
+    np.testing.assert_allclose(range_from_record(rec, names), training_pose_range(full), atol=1e-9)
+    assert rec["poses"] == 7 and info["pose_range_source"].startswith("measured by pbc pretrained pack")
+    pred = ClothPredictor.from_pretrained("standin")
+    assert run_pose_range(pred)[1] == f"recorded in the run {d}"
+    card = (d / "MODEL_CARD.md").read_text()
+    lo, hi = rec["deg"]["l_arm"]["z"]
+    assert "## Training poses' joint angles" in card and "over the 7 poses of the train split" in card
+    assert "| l_arm | " in card and f"{lo:.1f} to {hi:.1f} |" in card
 
 
 def test_unknown_names_are_refused_listing_the_shipped_ones(shipped, capsys):
