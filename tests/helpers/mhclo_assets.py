@@ -37,7 +37,8 @@ def chest_patch(base: np.ndarray, n: int = 6) -> tuple[np.ndarray, np.ndarray, n
 
 def grid_faces(n: int) -> list[tuple[int, int, int, int]]:
     """Quads of an n x n vertex grid (row-major), counter-clockwise seen from the front (+z)."""
-    return [(j * n + i, (j + 1) * n + i, (j + 1) * n + i + 1, j * n + i + 1) for j in range(n - 1) for i in range(n - 1)]
+    return [(j * n + i, (j + 1) * n + i, (j + 1) * n + i + 1, j * n + i + 1)
+            for j in range(n - 1) for i in range(n - 1)]
 
 
 def write_mhclo(folder, refs: np.ndarray, weights: np.ndarray, offsets: np.ndarray, positions_dm: np.ndarray,
