@@ -34,6 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 from pbc.config import load_config
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
+from pbc.geometry.bodies import body_from_config
 from pbc.geometry.body import pose_body, save_body
 from pbc.geometry.sculpt import paint_weights, sculpt_displacement, shaped_body
 from pbc.io import hash_arrays, read_json, save_figure, write_json, write_text
@@ -64,6 +65,26 @@ def trial_names(rob: DictConfig) -> list[str]:
     return [f"shape_{float(t):.1f}" for t in rob.shapes] + list(rob.artifacts.keys())
 
 
+PHENOTYPE = "phenotype_"  # trial phenotype_<key>_<delta>: Anny rebuilt with that phenotype value moved
+
+
+def phenotype_trials(rob: DictConfig) -> list[str]:
+    """phenotype_<key>_<delta> for each delta of each key in `robustness.phenotypes` (Anny bodies only, so
+    not in the default trial list: name them with robustness.trial=...)."""
+    return [f"{PHENOTYPE}{k}_{float(d):.2f}" for k, ds in (rob.get("phenotypes") or {}).items() for d in ds]
+
+
+def phenotype_of(name: str) -> tuple[str, float] | None:
+    """(key, delta) of a phenotype trial name, None for any other trial."""
+    if not name.startswith(PHENOTYPE):
+        return None
+    key, _, delta = name[len(PHENOTYPE):].rpartition("_")
+    try:
+        return key, float(delta)
+    except ValueError:
+        raise ValueError(f"trial {name!r}: expected phenotype_<key>_<delta>, e.g. phenotype_height_0.20") from None
+
+
 def shape_of(name: str) -> float | None:
     """The shape parameter of a trial name (None for an artifact trial)."""
     return float(name[len("shape_"):]) if name.startswith("shape_") else None
@@ -76,16 +97,35 @@ def load_settings(overrides: list[str] = ()) -> DictConfig:
     return OmegaConf.merge(rob, OmegaConf.from_dotlist(dots)) if dots else rob
 
 
-def trial_body(body, name: str, rob: DictConfig):
-    """The body of one trial: the sculpt at its shape parameter, or the true body with painted weights."""
+def trial_body(body, name: str, rob: DictConfig, body_cfg: DictConfig | None = None):
+    """The body of one trial: the sculpt at its shape parameter, the true body with painted weights, or (a
+    phenotype trial) the body of `body_cfg`, an Anny config, with one phenotype value moved: another person
+    on the same mesh connectivity, so the rest embedding stays valid."""
+    pheno = phenotype_of(name)
+    if pheno is not None:
+        return phenotype_body(body, body_cfg, *pheno)
     t = shape_of(name)
     if t is not None:
         sc = OmegaConf.to_container(rob.sculpt, resolve=True)
         return shaped_body(body, sculpt_displacement(body, sc["bumps"], sc.get("part")), t)
     if name not in rob.artifacts:
-        raise ValueError(f"unknown trial {name!r}; trials are {trial_names(rob)}")
+        raise ValueError(f"unknown trial {name!r}; trials are {trial_names(rob)} and, on Anny, "
+                         f"{phenotype_trials(rob)}")
     art = OmegaConf.to_container(rob.artifacts[name], resolve=True)
     return paint_weights(body, art["joint"], art["regions"])
+
+
+def phenotype_body(body, body_cfg: DictConfig | None, key: str, delta: float):
+    """The Anny body of `body_cfg` with phenotype `key` moved by `delta` (checked against its ranges)."""
+    if body_cfg is None or str(body_cfg.get("kind")) != "anny":
+        raise ValueError(f"trial phenotype_{key}_{delta:.2f} changes Anny's phenotype: run the study on Anny "
+                         "(body=anny or body=anny_tpose), or drop the phenotype_* trials")
+    moved = OmegaConf.merge(body_cfg, {"phenotype": {key: float(body_cfg.phenotype.get(key, 0.5)) + delta}})
+    other = body_from_config(moved)
+    if other.vertices.shape != body.vertices.shape or not torch.equal(other.faces, body.faces):
+        raise ValueError(f"the phenotype_{key}_{delta:.2f} body has another mesh than the dataset's body: the "
+                         "dataset was made with another body config; pass the same body overrides as its data")
+    return other
 
 
 def make_trial_dataset(base_dir: Path, out: Path, body, info: dict) -> Path:
@@ -104,12 +144,14 @@ def make_trial_dataset(base_dir: Path, out: Path, body, info: dict) -> Path:
     return out
 
 
-def make_bodies(base_dir: Path, sweep_dir: Path, rob: DictConfig, trials: list[str]) -> dict[str, Path]:
-    """One dataset dir per trial under <sweep_dir>/bodies/."""
+def make_bodies(base_dir: Path, sweep_dir: Path, rob: DictConfig, trials: list[str],
+                body_cfg: DictConfig | None = None) -> dict[str, Path]:
+    """One dataset dir per trial under <sweep_dir>/bodies/ (`body_cfg`: the base data's body config, which
+    phenotype trials rebuild)."""
     base = load_dataset(base_dir)
+    bodies = {name: trial_body(base.body, name, rob, body_cfg) for name in trials}  # every trial checked first
     dirs = {}
-    for name in trials:
-        body = trial_body(base.body, name, rob)
+    for name, body in bodies.items():
         moved = (body.vertices - base.body.vertices).norm(dim=-1)
         painted = (body.weights - base.body.weights).abs().sum(1)
         info = {"trial": name, "shape": shape_of(name), "max_vertex_move_cm": float(moved.max()) * CM,
@@ -131,11 +173,12 @@ def prepare_bodies(sweep_dir: Path, base_overrides: list[str], overrides: list[s
 
     overrides: the sweep's own (`robustness.*=...`, `robustness.trial=a,b`)."""
     rob = load_settings(overrides)
-    base_dir = Path(load_config(["+experiment=whole", *base_overrides]).data.dir)
+    base_cfg = load_config(["+experiment=whole", *base_overrides])
+    base_dir = Path(base_cfg.data.dir)
     if not (base_dir / "manifest.json").is_file():
         raise FileNotFoundError(f"no base dataset at {base_dir}: the sweep's data step (python -m pbc.generate) "
                                 "makes it")
-    return make_bodies(base_dir, Path(sweep_dir), rob, selected_trials(rob, overrides))
+    return make_bodies(base_dir, Path(sweep_dir), rob, selected_trials(rob, overrides), base_cfg.body)
 
 
 # ----------------------------------------------------------------------------- report

@@ -6,6 +6,7 @@ Anny's own forward pass for poses that move only pbc's posed joints; the body wo
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from omegaconf import OmegaConf
 
@@ -121,3 +122,15 @@ def test_shirt_sized_to_anny_wraps_onto_it():
     assert len(sleeves) > 0 and abs(float(sleeves[:, 1].mean()) - arm_y) < 0.03
     assert stats["patch_stretch_max"] < float(cfg.garment.shrinkwrap.max_patch_stretch)
     assert max(stats["sleeve_left_angle_deg"], stats["sleeve_right_angle_deg"]) < 5.0
+
+
+def test_phenotype_trial_is_another_person_on_the_same_mesh(anny_cfg, anny_body):
+    # the wrong-body study on Anny (pbc.robustness): a taller person, the same connectivity (the embedding holds)
+    from pbc.geometry.measure import measurements  # noqa: PLC0415 - only this test measures
+    from pbc.robustness import load_settings, trial_body  # noqa: PLC0415 - a job module, only this test needs it
+
+    taller = trial_body(anny_body, "phenotype_height_0.20", load_settings(), anny_cfg)
+    assert torch.equal(taller.faces, anny_body.faces) and taller.vertices.shape == anny_body.vertices.shape
+    assert measurements(taller)["height"] > measurements(anny_body)["height"] + 0.05
+    with pytest.raises(ValueError, match="height"):  # out of the phenotype's band: named with the bands
+        trial_body(anny_body, "phenotype_height_0.60", load_settings(), anny_cfg)
