@@ -7,7 +7,8 @@ once per machine, 82-158 s and 790 MB on 2 cores), the body build (mesh, merged 
 primitives), posing at batch 1 and 32 (pbc's forward kinematics + linear blend skinning, and Anny's own
 forward pass for the same poses), the shrink-wrap of the garment, and the drape seconds per sample of
 the same garment and poses on each body (body=mannequin against body=anny_tpose: the procedural shirt is
-modelled on a T-pose). Then the process's peak memory (RSS). The last line is one JSON object with the
+modelled on a T-pose), and of the shirt sized to Anny (garment.fit_to_body: Anny's chest, arm axis and
+torso length; more vertices). Then the process's peak memory (RSS). The last line is one JSON object with the
 figures and the ratios Anny / mannequin, naming the device.
 """
 
@@ -98,13 +99,17 @@ def main(argv: list[str]) -> dict:
                 out[f"anny_forward_b{B}_ms"] = 1e3 * s
                 rows.append(("Anny's own forward", f"batch {B}", f"{1e3 * s:.1f} ms"))
 
-    for name, key in (("mannequin", "mannequin"), ("anny", "anny_tpose")):
+    # the same garment on both bodies (the ratio), then the garment sized to Anny (garment.fit_to_body)
+    for name, key, sized in (("mannequin", "mannequin", False), ("anny", "anny_tpose", False),
+                             ("anny_sized", "anny_tpose", True)):
         t = time.perf_counter()
-        scene, stats = build_scene(load_config([f"body={key}", f"garment={garment}"]))
+        scene, stats = build_scene(load_config([f"body={key}", f"garment={garment}",
+                                                f"garment.fit_to_body.enabled={str(sized).lower()}"]))
+        key = f"{key}, sized shirt" if sized else key
         out[f"{name}_scene_s"] = time.perf_counter() - t
         rows.append((f"body + shrink-wrap: {key}", f"{garment}, max |sdf| {1e3 * stats['max_abs_sdf']:.0f} mm",
                      f"{out[f'{name}_scene_s']:.1f} s"))
-        cfg = load_config([f"body={key}"]).body
+        cfg = load_config([f"body={key.split(',')[0]}"]).body
         settings = SamplingSettings(halfnormal_joints=tuple(cfg.sampling.halfnormal_joints),
                                     posed_joints=tuple(cfg.sampling.posed_joints))
         poses, _ = sample_poses(scene.body.skeleton, n_poses, 1, scene.body, settings)  # pruned, as generate
