@@ -101,6 +101,11 @@ def test_turned_rest_pose_is_config(anny_body):
         assert float(torch.nn.functional.cosine_similarity(upper, fore, dim=0)) > 0.9999  # straight forearms
     shin = sk.rest_heads[sk.index("l_knee")] - sk.rest_heads[sk.index("l_hip")]
     assert float(shin[0]) > 0.05  # the left thigh turned outward (the bind pose has it at 0.04)
+    # limits are the body's range: the T-posed arm's zero is the bind pose's arm raised by its A angle
+    a = sk.index("l_arm")
+    lift = arm_angle_deg(anny_body.skeleton, "l")
+    assert torch.allclose(sk.limits_deg[a, 2], anny_body.skeleton.limits_deg[a, 2] - lift, atol=1e-3)
+    assert bool((sk.limits_deg[..., 0] <= 0).all() and (sk.limits_deg[..., 1] >= 0).all())  # the rest is allowed
     # the trunk does not move in a re-rest
     lower = [sk.index(n) for n in ("lower_back", "spine", "neck")]
     assert torch.equal(sk.rest_heads[lower], anny_body.skeleton.rest_heads[lower])
