@@ -86,7 +86,7 @@ def range_record(poses, names: Sequence[str], split: str = "train") -> dict:
 def range_table_record(rng: np.ndarray, names: Sequence[str], num_poses: int, split: str = "train") -> dict:
     """`range_record` of a range rng (J, 3, 2) degrees already taken over `num_poses` poses."""
     return {"split": split, "poses": int(num_poses),
-            "angles": "the body's Euler angles per axis, R = Rx Rz Ry about the joint's rest frame (conf/body)",
+            "angles": "the body's Euler angles x, y, z, R = Rx Rz Ry about the joint's rest frame (conf/body)",
             "deg": {n: {ax: [float(rng[j, k, 0]), float(rng[j, k, 1])] for k, ax in enumerate(AXES)}
                     for j, n in enumerate(names)}}
 

@@ -35,6 +35,7 @@ WEIGHTS = "weights_fp16.ckpt"
 CARD = "MODEL_CARD.md"
 DATA = "data"
 CM = 100.0
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the weights file's entries' timestamp (zip's earliest): packing is repeatable
 
 
 def half_state(state: dict) -> dict:
@@ -47,12 +48,16 @@ def half_state(state: dict) -> dict:
 def save_deflated(obj, path: Path) -> None:
     """`torch.save`, its zip entries then deflated: torch.load reads either. The mean image (mostly the
     padding around the charts) and the fp16 exponents compress, taking the shirt's 3.8M parameters + 0.4M
-    buffer values from 8.4 to about 7.1 MB, under the 8 MB a clone should carry."""
+    buffer values from 8.4 to about 7.1 MB, under the 8 MB a clone should carry. Every entry gets one fixed
+    timestamp, so packing the same weights again writes the same bytes (a tracked shipped model does not
+    change in git when only its card or record is made again)."""
     tmp = path.with_suffix(".tmp")
     torch.save(obj, tmp)
     with zipfile.ZipFile(tmp) as zi, zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=9) as zo:
         for entry in zi.infolist():
-            zo.writestr(entry.filename, zi.read(entry.filename))
+            info = zipfile.ZipInfo(entry.filename, date_time=ZIP_TIME)
+            info.compress_type, info.external_attr = zipfile.ZIP_DEFLATED, entry.external_attr
+            zo.writestr(info, zi.read(entry.filename), compresslevel=9)
     tmp.unlink()
 
 
@@ -277,9 +282,9 @@ def range_section(pose_range: dict | None) -> str:
     return f"""
 ## Training poses' joint angles
 
-[min, max] degrees over the {pose_range['poses']} poses of the {pose_range['split']} split, per joint and
-axis ({pose_range['angles']}). A clip's frame outside them by more than conf/motion/sequence.yaml's
-range_tolerance_deg is flagged, and clamped into them with `--clamp-to-range`.
+[min, max] degrees over the {pose_range['poses']} poses of the {pose_range['split']} split, per joint and axis:
+{pose_range['angles']}. A clip's frame outside them by more than `range_tolerance_deg`
+(conf/motion/sequence.yaml) is flagged; `--clamp-to-range` clamps it into them.
 
 | joint | x | y | z |
 | --- | --- | --- | --- |
