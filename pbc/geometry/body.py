@@ -173,6 +173,22 @@ def body_sdf(body: Body, rotations: Tensor, points: Tensor, part: int | None = N
     return _smooth_union(d, prims.blend)
 
 
+def bones_sdf(body: Body, rotations: Tensor, points: Tensor, bones) -> Tensor:
+    """Analytic SDF of the posed primitives attached to the given bones only (smooth union), negative inside.
+
+    rotations (B, J, 3, 3), points (B, N, 3) -> (B, N) metres; bones: columns (0 root, 1 + j joint j).
+    +inf where no primitive hangs on those bones (a joint that dominates too few vertices has none), so
+    the test "inside" is then false. The pose sampler tests one leg against the other with it.
+    """
+    prims = _require_primitives(body)
+    keep = torch.isin(prims.bone, torch.as_tensor(list(bones), dtype=torch.long))
+    transforms = forward_kinematics(body.skeleton, rotations)
+    if not keep.any():
+        return torch.full(points.shape[:2], float("inf"), dtype=transforms.dtype, device=points.device)
+    d = _posed_distances(prims, transforms, points.to(transforms.dtype))
+    return _smooth_union(d[..., keep.to(d.device)], prims.blend)
+
+
 def rest_primitive_distances(prims: Primitives, points: Tensor) -> Tensor:
     """Per-primitive SDF at rest, chunked: points (N, 3) -> (N, K)."""
     out = []

@@ -17,6 +17,8 @@ from pbc.geometry.autocage import auto_cage
 from pbc.geometry.body import Body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, _is_pbc_obj, load_garment_obj, make_tshirt
+from pbc.geometry.lowerbody import BUILDERS as LOWER_BODY
+from pbc.geometry.lowerbody import make_lower_body
 from pbc.geometry.mhclo import mhclo_garment
 from pbc.geometry.necktie import make_necktie
 from pbc.geometry.obj_import import import_garment
@@ -46,7 +48,8 @@ def obj_options(gcfg) -> dict:
 
 def garment_needs_body(gcfg) -> bool:
     """Whether `garment_from_config` needs the body for this garment config (its sizes come from the body)."""
-    return fits_to_body(gcfg) or gcfg.get("kind") == "mhclo"
+    lower_body = not gcfg.get("obj") and gcfg.get("kind") in LOWER_BODY  # the skirt, the trousers
+    return fits_to_body(gcfg) or gcfg.get("kind") == "mhclo" or lower_body
 
 
 def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
@@ -86,4 +89,9 @@ def garment_from_config(gcfg, body: Body | None = None) -> tuple[Garment, Cage]:
                              "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
     if gcfg.get("kind") == "necktie":
         return make_necktie(gcfg)
+    if gcfg.get("kind") in LOWER_BODY:  # the skirt, the trousers: always sized to the body (its legs)
+        if body is None:
+            raise ValueError(f"garment.kind={gcfg.kind} is sized to the body's legs: build it with the body "
+                             "(garment_from_config(gcfg, body))")
+        return make_lower_body(gcfg, body)
     return make_tshirt(gcfg)

@@ -393,7 +393,10 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     """
     t0 = time.perf_counter()
     x, stats = wrap_positions(garment, cage, body, cfg)
-    part = vertex_parts(cage, garment.num_vertices, x, body)
+    # a garment that covers no arm (the skirt, the trousers: garment.shrinkwrap.arm_parts false) collides
+    # with the torso part only, though its hips reach past the arm joints' x
+    arms = bool(_sw_cfg(cfg).get("arm_parts", True))
+    part = vertex_parts(cage, garment.num_vertices, x if arms else None, body if arms else None)
     emb = embed_points(x, body, part, int(_sw_cfg(cfg).nearest_triangles))
     rest = embedded_points(body.vertices[None].double(), body.faces, emb)[0].numpy()
     stats["embed_max_distance"] = float(np.linalg.norm(rest - x, axis=1).max())

@@ -1,4 +1,5 @@
-"""Random upper-body poses (appendix D.3): Euler angles within joint limits, pruned for arm-torso overlap.
+"""Random poses (appendix D.3): Euler angles within joint limits, pruned for arm-torso overlap and, on a body
+with legs whose legs move, for leg-leg and leg-torso overlap.
 
 Euler convention (`euler_xzy_to_matrix`): angles are given per axis in (x, y, z) order, like the joint
 limits, and applied in the order x, then z, then y about the joint's *moving* local axes (intrinsic):
@@ -25,7 +26,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
 
-from pbc.geometry.body import Body, body_sdf  # noqa: E402
+from pbc.geometry.body import Body, body_sdf, bones_sdf  # noqa: E402
 from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning  # noqa: E402
 from pbc.io import save_figure  # noqa: E402
 
@@ -46,6 +47,16 @@ class SamplingSettings:
     block_size: int = 1024
     max_blocks: int = 1000
     posed_joints: tuple[str, ...] = ()  # joints that are sampled; the rest stay at rest. () = all
+    # legs (a body that has them, conf/body/anny.yaml): each leg's joints, hip first; () = no leg pruning.
+    # Only when a leg joint is posed are poses pruned for a leg inside the other leg or inside the torso.
+    left_leg: tuple[str, ...] = ()
+    right_leg: tuple[str, ...] = ()
+    probes_per_leg: int = 53
+    leg_probe_min_distance: float = 0.15  # m from the hip joint: clear of the groin, where the legs meet
+    leg_torso_joints: tuple[str, ...] = ()  # the primitives (by joint, `root` included) a leg must not enter
+
+
+_NAME_LISTS = ("halfnormal_joints", "posed_joints", "left_leg", "right_leg", "leg_torso_joints")
 
 
 def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
@@ -54,7 +65,7 @@ def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
     unknown = set(cfg) - known
     if unknown:
         raise ValueError(f"unknown sampling settings {sorted(unknown)}; known: {sorted(known)}")
-    kw = {k: (tuple(str(n) for n in v) if k in ("halfnormal_joints", "posed_joints") else v) for k, v in cfg.items()}
+    kw = {k: (tuple(str(n) for n in v) if k in _NAME_LISTS else v) for k, v in cfg.items()}
     return SamplingSettings(**kw)
 
 
@@ -134,15 +145,77 @@ def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:
                 f"only {len(cand)} probe candidates on part {part} ({joint}); "
                 f"need {settings.probes_per_arm}: lower sampling.probe_min_distance or use a finer body mesh"
             )
-        pts = body.vertices[cand].double()
-        chosen = [int(dist[cand].argmax())]
-        gap = (pts - pts[chosen[0]]).norm(dim=1)
-        for _ in range(settings.probes_per_arm - 1):
-            k = int(gap.argmax())
-            chosen.append(k)
-            gap = torch.minimum(gap, (pts - pts[k]).norm(dim=1))
-        out.append(cand[torch.tensor(chosen)])
+        out.append(cand[_farthest_points(body.vertices[cand].double(), int(dist[cand].argmax()),
+                                         settings.probes_per_arm)])
     return torch.cat(out)
+
+
+def _farthest_points(pts: Tensor, first: int, count: int) -> Tensor:
+    """(count,) long indices into pts (n, 3): farthest-point sampling started at `first`."""
+    chosen = [first]
+    gap = (pts - pts[first]).norm(dim=1)
+    for _ in range(count - 1):
+        k = int(gap.argmax())
+        chosen.append(k)
+        gap = torch.minimum(gap, (pts - pts[k]).norm(dim=1))
+    return torch.tensor(chosen)
+
+
+def legs_pruned(skel: Skeleton, settings: SamplingSettings) -> bool:
+    """Whether poses are pruned for the legs: the settings name both legs and a leg joint is posed (a body
+    whose legs stay at rest, as every upper-body garment keeps them, samples exactly as without legs)."""
+    if not (settings.left_leg and settings.right_leg):
+        return False
+    legs = [*settings.left_leg, *settings.right_leg]
+    skel.indices(legs, "sampling.left_leg / right_leg")  # unknown names: one error naming them
+    skel.indices([j for j in settings.leg_torso_joints if j != "root"], "sampling.leg_torso_joints")
+    return not settings.posed_joints or any(j in settings.posed_joints for j in legs)
+
+
+def _leg_columns(skel: Skeleton, joints) -> list[int]:
+    """Weight / primitive columns (0 root, 1 + j joint j) of joint names (`root` allowed)."""
+    return [0 if j == "root" else skel.index(j) + 1 for j in joints]
+
+
+def leg_probe_indices(body: Body, settings: SamplingSettings) -> tuple[Tensor, Tensor]:
+    """(probes_per_leg,) long body-vertex ids on the left leg and on the right leg, fixed and deterministic.
+
+    Candidates: vertices carried mostly by the leg's joints (their weights sum to more than a half) at
+    least leg_probe_min_distance from its hip; farthest-point sampling from the vertex farthest from the
+    hip (the toes), so they cover thigh, shin and foot.
+    """
+    skel = body.skeleton
+    out = []
+    for name, joints in (("left_leg", settings.left_leg), ("right_leg", settings.right_leg)):
+        hip = skel.rest_heads[skel.index(joints[0])]
+        dist = (body.vertices - hip).norm(dim=1)
+        carried = body.weights[:, _leg_columns(skel, joints)].sum(1)
+        cand = ((carried > 0.5) & (dist >= settings.leg_probe_min_distance)).nonzero()[:, 0]
+        if len(cand) < settings.probes_per_leg:
+            raise ValueError(
+                f"only {len(cand)} probe candidates on the {name.replace('_', ' ')} ({', '.join(joints)}); need "
+                f"{settings.probes_per_leg}: lower sampling.leg_probe_min_distance or sampling.probes_per_leg"
+            )
+        out.append(cand[_farthest_points(body.vertices[cand].double(), int(dist[cand].argmax()),
+                                         settings.probes_per_leg)])
+    return out[0], out[1]
+
+
+def legs_collide(body: Body, rotations: Tensor, probes: tuple[Tensor, Tensor], settings: SamplingSettings) -> Tensor:
+    """(B,) bool: a probe of one leg lies inside the other leg's primitives, or a leg probe inside the
+    `leg_torso_joints` primitives, in the posed body. rotations (B, J, 3, 3); probes from leg_probe_indices."""
+    skel = body.skeleton
+    transforms = forward_kinematics(skel, rotations)
+    left, right = probes
+    ids = torch.cat([left, right])
+    posed = linear_blend_skinning(body.vertices[ids], body.weights[ids], transforms)  # (B, 2P, 3)
+    n = len(left)
+    tol = -settings.prune_tolerance
+    bad = (bones_sdf(body, rotations, posed[:, :n], _leg_columns(skel, settings.right_leg)) < tol).any(1)
+    bad |= (bones_sdf(body, rotations, posed[:, n:], _leg_columns(skel, settings.left_leg)) < tol).any(1)
+    if settings.leg_torso_joints:
+        bad |= (bones_sdf(body, rotations, posed, _leg_columns(skel, settings.leg_torso_joints)) < tol).any(1)
+    return bad
 
 
 def probes_inside_torso(body: Body, rotations: Tensor, probes: Tensor, settings: SamplingSettings) -> Tensor:
@@ -156,16 +229,19 @@ def probes_inside_torso(body: Body, rotations: Tensor, probes: Tensor, settings:
 def sample_poses(
     skel: Skeleton, n: int, seed: int, body: Body | None = None, settings: SamplingSettings | None = None
 ) -> tuple[Tensor, dict]:
-    """Sample n poses (appendix D.3); with a body, prune poses whose arm probes enter the torso.
+    """Sample n poses (appendix D.3); with a body, prune poses whose arm probes enter the torso, and, when
+    the legs move (`legs_pruned`), poses with a leg inside the other leg or inside the torso.
 
     Returns poses (n, J, 3, 3) float32 and stats: requested, kept, candidates (drawn), pruned,
-    probes (count), angles_deg (n, J, 3) float32 Euler angles of the kept poses.
+    probes (arm probes, count), leg_probes (count; only when the legs are pruned), angles_deg (n, J, 3)
+    float32 Euler angles of the kept poses.
     (`settings`: addition to docs/interfaces.md; None = the defaults, equal to conf/body/mannequin.yaml.)
     """
     if n < 0:
         raise ValueError(f"n must be >= 0, got {n}")
     settings = settings or SamplingSettings()
     probes = arm_probe_indices(body, settings) if body is not None else None
+    legs = leg_probe_indices(body, settings) if body is not None and legs_pruned(skel, settings) else None
     kept: list[np.ndarray] = []
     num_kept = drawn = pruned = 0
     block = 0
@@ -179,7 +255,10 @@ def sample_poses(
         block += 1
         if probes is not None:
             with torch.no_grad():
-                bad = probes_inside_torso(body, euler_xzy_to_matrix(torch.from_numpy(angles)), probes, settings)
+                rot = euler_xzy_to_matrix(torch.from_numpy(angles))
+                bad = probes_inside_torso(body, rot, probes, settings)
+                if legs is not None:
+                    bad |= legs_collide(body, rot, legs, settings)
             ok = np.flatnonzero(~bad.numpy())
         else:
             ok = np.arange(len(angles))
@@ -201,6 +280,8 @@ def sample_poses(
         "probes": 0 if probes is None else len(probes),
         "angles_deg": angles_t,
     }
+    if legs is not None:  # only then: the stats of a dataset whose legs stay at rest are as before
+        stats["leg_probes"] = len(legs[0]) + len(legs[1])
     return poses, stats
 
 
@@ -232,6 +313,9 @@ __all__ = [
     "SamplingSettings",
     "arm_probe_indices",
     "euler_xzy_to_matrix",
+    "leg_probe_indices",
+    "legs_collide",
+    "legs_pruned",
     "plot_angle_histograms",
     "probes_inside_torso",
     "sample_angles",
