@@ -3,10 +3,11 @@ install) without training: `pbc predict --pretrained tshirt`, `ClothPredictor.fr
 
 Each shipped model is a folder here (pbc/pretrained/<name>/) laid out as a training run dir, so every
 reader of runs opens it unchanged: metrics.json (a pbc.runs.RunRecord whose data record points at its own
-data/ folder, relative to the run, and whose pose_range is the training poses' joint-angle range), checkpoints/weights_fp16.ckpt (the network's state dict in half
-precision), data/ (the dataset cut to its test split plus the training split's range and mean offsets:
-pbc.data.trimmed) and MODEL_CARD.md (what it was trained on, how, and its scores). `pbc pretrained pack`
-(pbc.pretrained.pack) makes one from a run. This module only finds them: it imports nothing of pbc.
+data/ folder, relative to the run, and whose pose_range is the training poses' joint-angle range),
+checkpoints/weights_fp16.ckpt (the network's state dict in half precision), data/ (the dataset cut to its
+test split plus the training split's range and mean offsets: pbc.data.trimmed) and MODEL_CARD.md (what it
+was trained on, how, and its scores). `pbc pretrained pack` (pbc.pretrained.pack) makes one from a run.
+This module only finds them: it imports nothing of pbc.
 """
 
 from __future__ import annotations
