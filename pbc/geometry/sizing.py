@@ -18,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 from pbc.geometry.body import Body
 from pbc.geometry.measure import girth, measurements, torso_mesh
 
+UPPER_ARM_FALLBACK = 0.29  # m: the upper arm's length on a body without a forearm joint (the mannequin's)
 NECK_SECTION_ABOVE = 0.05  # m above the neck joint: the section is the neck alone (the shoulders end below it)
 
 
@@ -31,8 +32,30 @@ def landmarks(body: Body) -> dict[str, float]:
     neck = sk.rest_heads[sk.index("neck")]
     out = {"chest": m["chest"], "shoulder_height": float(arms[:, 1].mean()), "arm_z": float(arms[:, 2].mean()),
            "hips_at": m["hips_at"], "neck_y": float(neck[1]), "neck_z": float(neck[2]),
-           "neck_radius": girth(torso_mesh(body), float(neck[1]) + NECK_SECTION_ABOVE) / (2.0 * math.pi)}
+           "neck_radius": girth(torso_mesh(body), float(neck[1]) + NECK_SECTION_ABOVE) / (2.0 * math.pi),
+           "arm_radius": upper_arm_radius(body)}
     return out
+
+
+def upper_arm_radius(body: Body, side: str = "l") -> float:
+    """Median distance (m) to the upper arm's axis of the vertices the arm joint dominates, over the axis's
+    first quarter from the shoulder (where the sleeve's opening sits). The axis runs from the arm joint to
+    the forearm joint, or along the rest arm for a body without forearms (the mannequin)."""
+    sk = body.skeleton
+    head = sk.rest_heads[sk.index(f"{side}_arm")].double()
+    if f"{side}_forearm" in sk.names:
+        axis = sk.rest_heads[sk.index(f"{side}_forearm")].double() - head
+    else:
+        axis = sk.frames()[sk.index(f"{side}_arm")][:, 1].double() * UPPER_ARM_FALLBACK
+    length = axis.norm()
+    axis = axis / length
+    v = body.vertices.double()[body.weights[:, 1 + sk.index(f"{side}_arm")] > 0.5] - head
+    t = v @ axis
+    near = (t > 0) & (t < 0.25 * length)
+    if not bool(near.any()):
+        raise ValueError(f"sizing: no vertices along the first quarter of joint {side}_arm; the body's arm "
+                         "weights are not where its skeleton puts the arm")
+    return float((v[near] - t[near, None] * axis).norm(dim=1).median())
 
 
 def _require(ref: DictConfig, keys) -> None:
@@ -44,15 +67,17 @@ def _require(ref: DictConfig, keys) -> None:
 
 def size_tshirt(gcfg: DictConfig, m: dict[str, float]) -> dict:
     """The shirt keys set from a body's landmarks `m`: chest girth from the body; the sleeves on its arm
-    axis; the torso length scaled with the shoulder-to-hips length."""
+    axis, their opening scaled with the upper arm's radius; the torso length scaled with the shoulder-to-hips
+    length."""
     ref = gcfg.fit_to_body.reference
-    _require(ref, ("chest", "shoulder_height", "arm_z", "hips_at"))
+    _require(ref, ("chest", "shoulder_height", "arm_z", "hips_at", "arm_radius"))
     span = (m["shoulder_height"] - m["hips_at"]) / (float(ref.shoulder_height) - float(ref.hips_at))
     return {
         "chest_girth": float(gcfg.chest_girth) * m["chest"] / float(ref.chest),
         "shoulder_height": float(gcfg.shoulder_height) + m["shoulder_height"] - float(ref.shoulder_height),
         "center_z": float(gcfg.center_z) + m["arm_z"] - float(ref.arm_z),
         "torso_length": float(gcfg.torso_length) * span,
+        "sleeve_opening": float(gcfg.sleeve_opening) * m["arm_radius"] / float(ref.arm_radius),
     }
 
 
