@@ -139,3 +139,16 @@ def test_phenotype_trial_is_another_person_on_the_same_mesh(anny_cfg, anny_body)
     assert measurements(taller)["height"] > measurements(anny_body)["height"] + 0.05
     with pytest.raises(ValueError, match="height"):  # out of the phenotype's band: named with the bands
         trial_body(anny_body, "phenotype_height_0.60", load_settings(), anny_cfg)
+
+
+def test_necktie_sized_to_anny_sits_at_its_neck():
+    # the tie's collar follows Anny's neck joint (12 cm above the mannequin's) and its band the neck's radius
+    from pbc.data.generate import build_scene  # noqa: PLC0415 - a drape-stage import, only this test needs it
+
+    cfg = load_config(["data=necktie_small", "body=anny_tpose", "garment.fit_to_body.enabled=true"])
+    scene, stats = build_scene(cfg)
+    sk = scene.body.skeleton
+    neck_y = float(sk.rest_heads[sk.index("neck"), 1])
+    top = float(np.asarray(scene.garment.vertices)[:, 1].max())
+    assert abs(top - neck_y) < 0.05
+    assert stats["patch_stretch_max"] < float(cfg.garment.shrinkwrap.max_patch_stretch)
