@@ -259,7 +259,8 @@ def fig9(path: Path, rows: list[dict]) -> Path:
         ax.annotate(r["trial"], (xa + 0.35 * i, r["test_cm"]), fontsize=6, rotation=60,
                     xytext=(2, 4), textcoords="offset points")
     ax.axvline(0.0, color="gray", lw=0.6, ls="--")
-    ax.set_xlabel("body shape parameter (0 = true body, 1 = sculpted); right: skinning artifacts")
+    ax.set_xlabel("body shape parameter (0 = true body, 1 = sculpted); right: skinning artifacts, phenotypes",
+                  fontsize=8)
     ax.set_ylabel("mean vertex error (cm)")
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=8)
@@ -404,8 +405,10 @@ def markdown(res: dict) -> str:
              "| mean-offsets baseline: train / test cm |",
              "|---|---|---|---|---|---|---|"]
     for r in res["rows"]:
+        pheno = phenotype_of(r["trial"])
         change = (f"max {r.get('max_vertex_move_cm', 0):.1f} cm move" if r["shape"] is not None
-                  else f"{r.get('painted_vertices', 0)} vertices repainted")
+                  else f"phenotype {pheno[0]} {pheno[1]:+.2f}, max {r.get('max_vertex_move_cm', 0):.1f} cm move"
+                  if pheno else f"{r.get('painted_vertices', 0)} vertices repainted")
         if r.get("status") == "ok":
             ratio = v.get("ratios", {}).get(r["trial"])
             mb = r.get("mean_baseline", {})
