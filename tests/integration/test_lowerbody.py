@@ -23,7 +23,8 @@ LEGS = ["lower_back", "spine", "l_hip", "r_hip", "l_knee", "r_knee"]
 
 def test_skirt_drapes_trains_and_predicts_on_anny(tmp_path, anny_body):
     """`python -m pbc.generate +experiment=skirt` on 3 poses, `pbc.train trainer=smoke`, predict."""
-    overrides = [*SKIRT, f"paths.data_dir={tmp_path}", "data.num_samples=3"]  # seed 0: sample 2 is kept (0, 1 compressed at the groin)
+    # seed 0: sample 2 is kept (0 and 1 are discarded, compressed at the groin crease)
+    overrides = [*SKIRT, f"paths.data_dir={tmp_path}", "data.num_samples=3"]
     cfg = load_config(overrides)
     scene, wrap = build_scene(cfg)
     # every skirt vertex collides with the trunk and legs (none with an arm), and sits on the body at rest
