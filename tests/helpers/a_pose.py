@@ -18,10 +18,11 @@ ARM_Y = 0.43
 IMPORT = ["garment=obj", "garment.uv_unit=auto", "garment.position_unit=dm", "body.mesh.voxel_size=0.03"]
 
 
-def shirt_parts(angle_deg: float = 40.0):
+def shirt_parts(angle_deg: float = 40.0, garment: str = "tshirt"):
     """The procedural shirt's (positions (V, 3) m, faces, uv (T, 2) per side in [0, 1], face_uv, face_side),
-    each sleeve (|x| > SLEEVE_ROOT_X) turned ``angle_deg`` down about its root on the arm axis."""
-    g, _ = make_tshirt(load_config([]).garment)
+    each sleeve (|x| > SLEEVE_ROOT_X) turned ``angle_deg`` down about its root on the arm axis. garment:
+    its config (tshirt_coarse: 425 vertices, for tests that drape it)."""
+    g, _ = make_tshirt(load_config([f"garment={garment}"]).garment)
     p = g.vertices.double().numpy().copy()
     a = np.radians(angle_deg)
     for sgn in (1.0, -1.0):
@@ -50,11 +51,11 @@ def _tube(top: float, bottom: float, radius: float, cols: int = 24, rows: int = 
     return pts, np.array(faces), uv, np.array(fuv)
 
 
-def outfit_obj(angle_deg: float = 40.0, trousers: bool = True, unit: float = 0.1) -> str:
+def outfit_obj(angle_deg: float = 40.0, trousers: bool = True, unit: float = 0.1, garment: str = "tshirt") -> str:
     """An OBJ as the issue's asset: triangles, one UV atlas in [0, 1] (no `g` groups: every chart is
     `default...`), positions in ``unit`` metres (decimetres), the shirt with A-posed sleeves and, with
     ``trousers``, a separate trouser-like tube from just below the waist to the ankles in the same mesh."""
-    p, f, uv, fuv, side = shirt_parts(angle_deg)
+    p, f, uv, fuv, side = shirt_parts(angle_deg, garment)
     # the atlas: the front panel top left, the back beside it, the trousers below; one uniform scale
     # (0.4 atlas units per side image), so the pattern keeps its shape
     uv_side = np.zeros(len(uv), np.int64)
@@ -62,7 +63,7 @@ def outfit_obj(angle_deg: float = 40.0, trousers: bool = True, unit: float = 0.1
     atlas = np.stack([0.4 * uv[:, 0] + 0.4 * uv_side, 1.0 - 0.4 * uv[:, 1]], 1)  # file convention: v up
     pieces = [(p, f, atlas, fuv)]
     if trousers:
-        g, _ = make_tshirt(load_config([]).garment)
+        g, _ = make_tshirt(load_config([f"garment={garment}"]).garment)
         per_metre = 0.4 / float(g.uv_scale)  # atlas units per pattern metre, as the shirt's
         tp, tf, tuv, tfuv = _tube(-0.10, -0.90, 0.17)
         tuv = (tuv - tuv.min(0)) * per_metre + np.array([0.02, 0.02])

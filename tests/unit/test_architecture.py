@@ -23,7 +23,7 @@ STAGES = [
     ("pbc.predict",),
     ("pbc.evaluate", "pbc.train", "pbc.edit", "pbc.view", "pbc.pretrained.pack"),
     ("pbc.report",),
-    ("pbc.sweeps", "pbc.robustness"),
+    ("pbc.sweeps", "pbc.robustness", "pbc.garment_fit"),
     ("pbc.generate", "pbc.main", "pbc.cli", "pbc.__main__"),
 ]
 # the library stages: no command lives there (the entry floor, pbc.cli, holds them all)
