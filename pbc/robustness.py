@@ -120,7 +120,9 @@ def phenotype_body(body, body_cfg: DictConfig | None, key: str, delta: float):
     if body_cfg is None or str(body_cfg.get("kind")) != "anny":
         raise ValueError(f"trial phenotype_{key}_{delta:.2f} changes Anny's phenotype: run the study on Anny "
                          "(body=anny or body=anny_tpose), or drop the phenotype_* trials")
-    moved = OmegaConf.merge(body_cfg, {"phenotype": {key: float(body_cfg.phenotype.get(key, 0.5)) + delta}})
+    # rounded: 0.7 - 0.2 is 0.49999999999999994 in floating point, outside a band that starts at 0.5
+    value = round(float(body_cfg.phenotype.get(key, 0.5)) + delta, 9)
+    moved = OmegaConf.merge(body_cfg, {"phenotype": {key: value}})
     other = body_from_config(moved)
     if other.vertices.shape != body.vertices.shape or not torch.equal(other.faces, body.faces):
         raise ValueError(f"the phenotype_{key}_{delta:.2f} body has another mesh than the dataset's body: the "

@@ -137,6 +137,8 @@ def test_phenotype_trial_is_another_person_on_the_same_mesh(anny_cfg, anny_body)
     taller = trial_body(anny_body, "phenotype_height_0.20", load_settings(), anny_cfg)
     assert torch.equal(taller.faces, anny_body.faces) and taller.vertices.shape == anny_body.vertices.shape
     assert measurements(taller)["height"] > measurements(anny_body)["height"] + 0.05
+    older = trial_body(anny_body, "phenotype_age_-0.20", load_settings(), anny_cfg)  # 0.7 - 0.2: the band's edge
+    assert older.vertices.shape == anny_body.vertices.shape
     with pytest.raises(ValueError, match="height"):  # out of the phenotype's band: named with the bands
         trial_body(anny_body, "phenotype_height_0.60", load_settings(), anny_cfg)
 
