@@ -238,8 +238,49 @@ def verdict(rows: list[dict], factor: float) -> dict:
             "trials_done": len(ok), "trials": len(rows)}
 
 
+def _shape_panel(ax, shp: list[dict], arts: list[dict]) -> None:
+    """Fig. 9's sculpt panel: error against the shape parameter, artifact trials as separate markers."""
+    x = [r["shape"] for r in shp]
+    ax.plot(x, [r["train_cm"] for r in shp], "o-", label="train")
+    ax.plot(x, [r["test_cm"] for r in shp], "s-", label="test")
+    mb = [r.get("mean_baseline", {}).get("test_cm", np.nan) for r in shp]
+    ax.plot(x, mb, "--", color="gray", lw=1, label="test, mean-offsets baseline (no model)")
+    xa = max(x, default=2.0) + 0.6
+    for i, r in enumerate(arts):
+        ax.plot([xa + 0.35 * i] * 2, [r["train_cm"], r["test_cm"]], "k:", lw=0.8)
+        ax.plot(xa + 0.35 * i, r["train_cm"], "o", color="C0")
+        ax.plot(xa + 0.35 * i, r["test_cm"], "s", color="C1")
+        ax.annotate(r["trial"], (xa + 0.35 * i, r["test_cm"]), fontsize=6, rotation=60,
+                    xytext=(2, 4), textcoords="offset points")
+    ax.axvline(0.0, color="gray", lw=0.6, ls="--")
+    ax.set_xlabel("body shape parameter (0 = true body, 1 = sculpted); right: skinning artifacts", fontsize=8)
+    ax.set_ylabel("mean vertex error (cm)")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.set_title("sculpted bodies and painted skinning weights", fontsize=9)
+
+
+def _phenotype_panel(ax, true_body: list[dict], pheno: list[dict]) -> None:
+    """Fig. 9's Anny panel: the true body's error beside each phenotype trial's."""
+    cats = true_body + pheno
+    xs = np.arange(len(cats))
+    ax.plot(xs, [r["train_cm"] for r in cats], "o", label="train")
+    ax.plot(xs, [r["test_cm"] for r in cats], "s", label="test")
+    ax.plot(xs, [r.get("mean_baseline", {}).get("test_cm", np.nan) for r in cats], "_", color="gray", ms=14,
+            label="test, mean-offsets baseline")
+    names = [phenotype_of(r["trial"]) for r in cats]
+    ax.set_xticks(xs, ["true body" if n is None else f"{n[0]} {n[1]:+.2f}" for n in names], rotation=45,
+                  ha="right", fontsize=7)
+    ax.set_ylabel("mean vertex error (cm)")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.set_title("Anny: the same cloth skinned on another person (phenotype moved)", fontsize=9)
+
+
 def fig9(path: Path, rows: list[dict]) -> Path:
-    """Train and test vertex error against the shape parameter; artifact trials as separate markers."""
+    """Train and test vertex error against the shape parameter (artifact trials as separate markers), and the
+    phenotype trials (Anny) in a panel of their own beside the true body's. The sculpt panel is left out when
+    it would hold the true body alone (a phenotype study)."""
     import matplotlib  # noqa: PLC0415 - Agg must be chosen before pyplot loads, only when plotting
 
     matplotlib.use("Agg")
@@ -247,26 +288,17 @@ def fig9(path: Path, rows: list[dict]) -> Path:
 
     ok = [r for r in rows if r.get("status") == "ok"]
     shp = sorted((r for r in ok if r["shape"] is not None), key=lambda r: r["shape"])
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    x = [r["shape"] for r in shp]
-    ax.plot(x, [r["train_cm"] for r in shp], "o-", label="train")
-    ax.plot(x, [r["test_cm"] for r in shp], "s-", label="test")
-    mb = [r.get("mean_baseline", {}).get("test_cm", np.nan) for r in shp]
-    ax.plot(x, mb, "--", color="gray", lw=1, label="test, mean-offsets baseline (no model)")
-    xa = max(x, default=2.0) + 0.6
-    for i, r in enumerate(r for r in ok if r["shape"] is None):
-        ax.plot([xa + 0.35 * i] * 2, [r["train_cm"], r["test_cm"]], "k:", lw=0.8)
-        ax.plot(xa + 0.35 * i, r["train_cm"], "o", color="C0")
-        ax.plot(xa + 0.35 * i, r["test_cm"], "s", color="C1")
-        ax.annotate(r["trial"], (xa + 0.35 * i, r["test_cm"]), fontsize=6, rotation=60,
-                    xytext=(2, 4), textcoords="offset points")
-    ax.axvline(0.0, color="gray", lw=0.6, ls="--")
-    ax.set_xlabel("body shape parameter (0 = true body, 1 = sculpted); right: skinning artifacts, phenotypes",
-                  fontsize=8)
-    ax.set_ylabel("mean vertex error (cm)")
-    ax.set_ylim(bottom=0)
-    ax.legend(fontsize=8)
-    ax.set_title("Fig. 9: error of models trained with wrong bodies", fontsize=9)
+    pheno = [r for r in ok if phenotype_of(r["trial"])]
+    arts = [r for r in ok if r["shape"] is None and not phenotype_of(r["trial"])]
+    left = len(shp) > 1 or bool(arts) or not pheno
+    panels = int(left) + bool(pheno)
+    fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 3.8), squeeze=False)
+    if left:
+        _shape_panel(axes[0, 0], shp, arts)
+    if pheno:
+        _phenotype_panel(axes[0, -1], [r for r in shp if r["shape"] == 0.0], pheno)
+    fig.suptitle("Fig. 9: error of models trained with wrong bodies", fontsize=10)
+    fig.tight_layout()
     return save_figure(fig, path)
 
 
