@@ -31,7 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "body": ("body", "the body a config builds: show (joints, limits, girths) or export (rest OBJ)"),
     "cage": ("cage", "a garment's automatic cage as an editable JSON; regenerate committed cages"),
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
-    "garment": ("garment", "a garment OBJ before any drape: inspect (charts, fit, settings), split (an outfit)"),
+    "garment": ("garment", "a garment file: inspect (charts, fit, settings), split (an outfit), fit (file -> model)"),
     "view": ("view", "a local web viewer: body + predicted garment under joint sliders, in the browser"),
     "pretrained": ("pretrained", "the models shipped with pbc (--pretrained NAME): list them, pack a run as one"),
 }
