@@ -376,6 +376,7 @@ def mhclo_garment(gcfg, body, options: dict | None = None):
     """The garment of `garment=mhclo` (conf/garment/mhclo.yaml) fitted to `body` (Anny: its phenotype and rest
     pose): (Garment, chart names, face chart (F,), stats). `options` are the OBJ import's (charts, uv_unit,
     uv_padding, uv_unit_tolerance: pbc.geometry.garments.obj_options); positions are the fit's, in metres."""
+    check_anny_body(body)  # before reading the file: the body is the user's first mistake to name
     m = read_mhclo(resolve_path(gcfg.path))
     mesh, stats = mhclo_mesh(gcfg, body, m)
     opts = {k: v for k, v in (options or {}).items() if k not in ("position_unit", "position_offset")}
