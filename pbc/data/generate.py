@@ -702,9 +702,8 @@ def _write_merged(out: Path, scene: Scene, arrays: dict[str, np.ndarray], manife
 
 
 def split_sizes(n: int) -> tuple[int, int]:
-    """Train and validation counts of an 80/10/10 split: with 4 or more samples no split is empty; fewer all
-    train (a model needs 2 training poses, so 3 samples are not cut into 1/1/1)."""
-    n_held = max(1, round(0.1 * n)) if n >= 4 else 0
+    """Train and validation counts of an 80/10/10 split; with 3 or more samples no split is empty."""
+    n_held = max(1, round(0.1 * n)) if n >= 3 else 0
     return n - 2 * n_held, n_held
 
 

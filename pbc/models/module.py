@@ -296,6 +296,15 @@ class ClothModule(L.LightningModule):
             per_channel = [var[c][varies[c]].mean().sqrt() if varies[c].any() else var.new_ones(()) for c in
                            range(var.shape[0])]
             scale.copy_(torch.stack(per_channel).float().view_as(scale))
+        elif scale is not None:
+            # one training pose has no spread: each channel's own size in it (RMS over its pixels) sets the
+            # scale, not the 1 m default, with which a 3-drape smoke fit read 1e18 cm on validation
+            img = mean[0]
+            per_channel = [img[c][img[c] != 0].pow(2).mean().sqrt() if (img[c] != 0).any() else img.new_ones(())
+                           for c in range(img.shape[0])]
+            scale.copy_(torch.stack(per_channel).float().view_as(scale))
+            log.warning("the train split holds 1 pose: the model can only learn that pose (make more data: "
+                        "data.num_samples)")
         log.info("decoder starts from the mean image of %d train samples (output scale %s)", n,
                  None if scale is None else [f"{v:.2e}" for v in scale.flatten().tolist()])
 

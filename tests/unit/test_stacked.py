@@ -189,3 +189,17 @@ def test_export_loads_as_single_patch_runs(world, tmp_path):
         single = ClothModule(**{k: v for k, v in hp.items() if k != "summary"})
         single.on_load_checkpoint(torch.load(r.checkpoint, weights_only=False))
     assert isinstance(stacked.target.patches[0], PatchTarget)
+
+
+def test_one_training_pose_scales_the_output_by_its_own_size(world):
+    # one pose has no spread over poses: the scale comes from the pose's own offsets, not the 1 m default
+    # (with which a 3-drape smoke fit read 1e18 cm on validation)
+    ds, _ = world
+    _, singles = _modules(world)
+    m = singles[0]
+    batch = batch_for(ds.garment, b=1)
+    m.fit_output_mean([batch])
+    image = m.targets(batch)["image"][0].double()  # (C, H, W)
+    want = torch.stack([image[c][image[c] != 0].pow(2).mean().sqrt() for c in range(image.shape[0])])
+    assert torch.allclose(m.net.output_scale.flatten().double(), want, rtol=1e-5)
+    assert float(m.net.output_scale.max()) < 0.5  # offsets of centimetres, not the metre default
