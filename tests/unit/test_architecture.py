@@ -194,3 +194,10 @@ def test_the_lazy_import_check_catches_an_unexplained_one():
     found = unexplained_lazy_imports(source, "x.py")
     assert [f.split(": ")[0] for f in found] == ["x.py:3", "x.py:4", "x.py:5", "x.py:11"]
     assert found[0] == "x.py:3: import json"
+
+
+def test_test_files_have_one_name_across_the_tiers():
+    # pytest imports test files by basename (no packages under tests/): two tiers holding test_x.py stop the
+    # whole run at collection ("import file mismatch"), as the first CI of a tests/unit + tests/integration pair did
+    names = [p.name for p in (PKG.parent / "tests").rglob("test_*.py")]
+    assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})

@@ -1,6 +1,6 @@
 """MakeHuman-format clothes (pbc/geometry/mhclo.py) on hand-made base meshes: the parser (real-world quirks and
 each corrupt input), the fit against a hand computation, the push-out of what sits inside the body, an outfit's
-pieces, and the refusals before anything is built (no Anny here: tests/integration/test_mhclo.py fits to it)."""
+pieces, and the refusals before anything is built (no Anny here: tests/integration/test_mhclo_jobs.py fits to it)."""
 
 from __future__ import annotations
 
