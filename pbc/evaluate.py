@@ -27,7 +27,7 @@ import torch
 from matplotlib.collections import PolyCollection
 from omegaconf import DictConfig, OmegaConf
 
-from pbc.data.dataset import run_data_record
+from pbc.data.dataset import person_kw, run_data_record
 from pbc.data.trimmed import recorded_mean_offsets
 from pbc.geometry.meshio import write_garment_mesh
 from pbc.io import require_writable_dir, save_figure, write_text
@@ -112,7 +112,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
             j = idx[i:i + int(cfg.batch_size)]
             poses = torch.from_numpy(ds.poses[j]).float()
             gt = torch.from_numpy(ds.verts[j]).float()
-            gt_off, anchors, frames = pred.offsets_of(poses, gt)
+            gt_off, anchors, frames = pred.offsets_of(poses, gt, **person_kw(ds, j))
 
             def pos_of(off, anchors=anchors, frames=frames):
                 return from_offsets(off, anchors, frames, pred.space)

@@ -33,7 +33,7 @@ from tqdm.auto import tqdm
 
 import pbc.data.dataset as datasets
 from pbc.config import CONF_DIR
-from pbc.data.dataset import dataset_fingerprint
+from pbc.data.dataset import dataset_fingerprint, person_kw
 from pbc.data.trimmed import recorded_training_range
 from pbc.geometry.body import pose_body
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
@@ -45,8 +45,7 @@ from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, motion_s
 from pbc.motion.writers import FrameObjWriter, VideoWriter, camera, render_frames, write_glb
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.operators import image_sizes
-from pbc.pixels.reconstruct import Skinner
-from pbc.pixels.target import image_operators, make_target, patch_crops
+from pbc.pixels.target import dataset_skinner, image_operators, make_target, patch_crops
 from pbc.pretrained import pretrained_dir, resolve_run
 from pbc.runs import ModelKind, Run, find_runs, read_run, run_image_config, select_patch_runs
 from pbc.stitch.pca import check_pca_matches, dataset_hash, fit_pca
@@ -351,7 +350,7 @@ class ClothPredictor:
         self.pose_range_record: dict | None = None
         self.pose_range_run: Path | None = None
         # the operators exactly as training built them (pbc.pixels.target: one cache, one method)
-        self.skinner = Skinner(dataset.body, dataset.garment, dataset.embedding)
+        self.skinner = dataset_skinner(dataset)
         self.faces = torch.as_tensor(dataset.garment.faces).long()
         if whole_net is None and not patch_nets:
             raise ValueError("no model to predict with: give a whole-shirt run and/or one patch run per cage patch")
@@ -462,10 +461,11 @@ class ClothPredictor:
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
         return self.skinner(pose)
 
-    def offsets_of(self, pose: Tensor, verts: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def offsets_of(self, pose: Tensor, verts: Tensor, person: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Garment positions verts (B, V, 3) at poses (B, J, 3, 3) -> (offsets (B, V, 3) in the models'
-        space, anchors (B, V, 3), frames (B, V, 3, 3)): what the models would have to predict."""
-        anchors, frames = self.skinner(pose)
+        space, anchors (B, V, 3), frames (B, V, 3, 3)): what the models would have to predict. person (B,):
+        each sample's person in a dataset of several people (`ClothDataset.person_kw`); None: the base one."""
+        anchors, frames = self.skinner(pose, **({} if person is None else {"person": person}))
         return to_offsets(verts, anchors, frames, self.space), anchors, frames
 
     @torch.inference_mode()
@@ -480,10 +480,13 @@ class ClothPredictor:
         return self.whole_target.values(self.whole_net(pose.to(self.device, torch.float32)))
 
     @torch.inference_mode()
-    def __call__(self, pose, model: str | None = None, method: str | None = None) -> Tensor:
+    def __call__(self, pose, model: str | None = None, method: str | None = None,
+                 person: int | None = None) -> Tensor:
         """pose: torch or numpy, (J, 3, 3) / (J*9,) for one pose -> (V, 3), or (B, J, 3, 3) / (B, J*9) ->
         (B, V, 3); checked first (shape, finite, rotations: pbc.validate.as_poses).
-        model: "patches" or "whole"; None = the patches when there are patch models, else the whole."""
+        model: "patches" or "whole"; None = the patches when there are patch models, else the whole.
+        person: in a dataset of several people (`data.body_shape`), the person k whose body the cloth is
+        skinned on (the models read the pose only); None: the base person (body.npz)."""
         names = list(self.dataset.body.skeleton.names)
         pose, batched = as_poses(pose, len(names), joint_names=names)
         single = not batched
@@ -501,7 +504,8 @@ class ClothPredictor:
             method = method or self.method
             whole = self.whole_offsets(pose) if method in NEEDS_WHOLE else None
             off = self.stitcher(self.patch_crops(pose), method, whole)
-        anchors, frames = self.skinner(pose)
+        who = {} if person is None else {"person": torch.full((len(pose),), int(person), dtype=torch.long)}
+        anchors, frames = self.skinner(pose, **who)
         x = from_offsets(off, anchors, frames, self.space)
         return x[0] if single else x
 
@@ -533,7 +537,7 @@ def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: 
         for i in range(0, len(idx), batch):
             j = idx[i:i + batch]
             offs.append(predictor.offsets_of(torch.from_numpy(ds.poses[j]).float(),
-                                             torch.from_numpy(ds.verts[j]).float())[0])
+                                             torch.from_numpy(ds.verts[j]).float(), **person_kw(ds, j))[0])
     return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
 
 

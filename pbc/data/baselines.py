@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from pbc.data.dataset import ClothDataset
+from pbc.data.dataset import ClothDataset, person_kw
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.target import make_target
 
@@ -36,7 +36,7 @@ def mean_shape_errors(ds: ClothDataset, splits: Sequence[str] = ("train", "test"
             j = idx[s:s + batch]
             pose = torch.from_numpy(np.asarray(ds.poses[j], np.float32))
             verts = torch.from_numpy(np.asarray(ds.verts[j], np.float32))
-            anchors, frames = skin(pose)
+            anchors, frames = skin(pose, **person_kw(ds, j))
             yield verts, anchors, frames
 
     with torch.inference_mode():

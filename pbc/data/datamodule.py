@@ -12,6 +12,7 @@ Batch dict (B = batch size, V garment vertices, H = W = image.whole_resolution, 
     pose     (B, 90)          float32  10 joint rotations, row-major 3x3, joint order of conf/body
     verts    (B, V, 3)        float32  draped garment vertices (root frame, metres): metrics ground truth
     index    (B,)             int64    sample index in the dataset arrays
+    person   (B,)             int64    the sample's person (only in a dataset of several, `data.body_shape`)
   added on the device by `dm.target.render` when `render` is true (the default):
     anchors  (B, V, 3)        float32  skinned cloth pixels (embedded points on the posed body)
     frames   (B, V, 3, 3)     float32  their local frames, rows (t, b, n)
@@ -40,7 +41,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from pbc.data.dataset import ClothDataset, load_dataset
+from pbc.data.dataset import ClothDataset, load_dataset, person_kw
 from pbc.pixels.frames import SPACES
 from pbc.pixels.target import KINDS, TargetCache, VertexTarget, build_cache, make_target
 
@@ -54,17 +55,22 @@ class PoseVerts(Dataset):
 
     def __init__(self, data: ClothDataset, indices: np.ndarray):
         self.poses, self.verts, self.indices = data.poses, data.verts, np.asarray(indices, np.int64)
+        # (N,) or None: one body, and no `person` key (the single-body batch)
+        self.person = getattr(data, "person", None)
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def __getitem__(self, i: int) -> dict:
         k = int(self.indices[i])
-        return {
+        item = {
             "pose": torch.from_numpy(np.array(self.poses[k], np.float32).reshape(-1)),
             "verts": torch.from_numpy(np.array(self.verts[k], np.float32)),
             "index": torch.tensor(k),
         }
+        if self.person is not None:
+            item["person"] = torch.tensor(int(self.person[k]))
+        return item
 
 
 class ClothDataModule(L.LightningDataModule):
@@ -222,10 +228,12 @@ class ClothDataModule(L.LightningDataModule):
         if str(device) in self._cache_refused:
             return None
         index = np.unique(np.concatenate([self.splits[s] for s in ("train", "val", "test")]))
+        person = person_kw(self.data, index).get("person")
         one = self.target.render({"pose": torch.from_numpy(np.array(self.data.poses[index[:1]], np.float32)),
-                                  "verts": torch.from_numpy(np.array(self.data.verts[index[:1]], np.float32))})
+                                  "verts": torch.from_numpy(np.array(self.data.verts[index[:1]], np.float32)),
+                                  "person": None if person is None else person[:1]})
         per = sum(v.numel() * (self.cache_dtype.itemsize if k == "image" else v.element_size())
-                  for k, v in one.items() if k not in ("pose", "verts", *self.target.constant_keys))
+                  for k, v in one.items() if k not in ("pose", "verts", "person", *self.target.constant_keys))
         per += one["verts"].numel() * 4  # the ground-truth normals
         gib = per * len(index) / 2**30
         if gib > self.cache_max_gb:
@@ -238,7 +246,7 @@ class ClothDataModule(L.LightningDataModule):
         self.target.cache = build_cache(
             self.target, torch.from_numpy(np.array(self.data.poses[index], np.float32)).reshape(len(index), -1),
             torch.from_numpy(np.array(self.data.verts[index], np.float32)), torch.from_numpy(index), device,
-            chunk=self.cache_chunk, image_dtype=self.cache_dtype)
+            chunk=self.cache_chunk, image_dtype=self.cache_dtype, person=person)
         log.info("target cache: %d samples, %.2f GiB on %s, built in %.1f s", len(index),
                  self.target.cache.nbytes / 2**30, device, time.perf_counter() - t0)
         return self.target.cache

@@ -7,6 +7,9 @@ Layout (see docs/interfaces.md):
     embedding.npz   body triangle + barycentric weights + collision part of every garment vertex
     poses.npy       (N, J, 3, 3) float32 joint rotations of the kept samples
     verts.npy       (N, V, 3) float32 draped garment vertices (root frame, metres)
+  a dataset of several people (`data.body_shape`, pbc.data.shapes) also has
+    shapes.npz      phenotype keys (P,), values (K, P), rest vertices (K, Vb, 3), rest heads (K, J, 3)
+    person.npy      (N,) int64 the person each kept sample is draped on
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from pbc.data.shapes import BodyShapes, load_shapes, person_body
 from pbc.geometry.body import Body, load_body
 from pbc.geometry.cage import Cage, load_cage
 from pbc.geometry.garment import Garment, load_garment_obj
@@ -44,15 +48,40 @@ class ClothDataset:
     cage: Cage
     body: Body
     embedding: Embedding
+    # a dataset of several people (`data.body_shape`): the people and each sample's person (N,); else None
+    shapes: BodyShapes | None = None
+    person: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.poses)
+
+    def person_body(self, k: int | None = None) -> Body:
+        """The Body of person k (None: the base person, body.npz). Refused on a single-body dataset."""
+        if k is None:
+            return self.body
+        if self.shapes is None:
+            raise ValueError(f"dataset {self.dir} has one body (made without data.body_shape): no person {k}")
+        return person_body(self.body, self.shapes, int(k))
+
+    def person_kw(self, rows) -> dict:
+        """The keyword a Skinner call takes for sample rows `rows` (module function `person_kw`)."""
+        return person_kw(self, rows)
 
     def split(self, name: str) -> np.ndarray:
         """Sample indices of split `name` ('train', 'val' or 'test')."""
         if name not in SPLITS:
             raise ValueError(f"unknown split {name!r}; choose one of {SPLITS}")
         return np.asarray(self.manifest["splits"][name], dtype=np.int64)
+
+
+def person_kw(data, rows) -> dict:
+    """The keyword a Skinner call takes for sample rows `rows` (B,) of `data`: {} for one body (or a stand-in
+    dataset without people), {"person": (B,) long} for a dataset of several people, so that each sample is
+    skinned on its own person."""
+    person = getattr(data, "person", None)
+    if person is None:
+        return {}
+    return {"person": torch.from_numpy(np.asarray(person[np.asarray(rows)], np.int64))}
 
 
 def save_embedding(emb: Embedding, path: str | Path) -> None:
@@ -102,7 +131,15 @@ def load_dataset(directory: str | Path, check: bool = True) -> ClothDataset:
     verts = load_npy(d / "verts.npy", shape=(n, v, 3))
     if emb.face.shape[0] != v:
         raise ValueError(f"embedding in {d} has {emb.face.shape[0]} vertices, the garment {v}; regenerate the dataset")
-    data = ClothDataset(d, manifest, poses, verts, garment, cage, body, emb)
+    shapes = person = None
+    if manifest.get("body_shapes") is not None:
+        shapes = load_shapes(d / "shapes.npz")
+        person = load_npy(d / "person.npy", shape=(n,))
+        if shapes.vertices.shape[1:] != body.vertices.shape or (len(person) and not (
+                0 <= int(person.min()) and int(person.max()) < len(shapes))):
+            raise ValueError(f"{d}: shapes.npz / person.npy do not fit its body or its {len(shapes)} people; "
+                             "regenerate the dataset")
+    data = ClothDataset(d, manifest, poses, verts, garment, cage, body, emb, shapes, person)
     if check:
         check_dataset(data)
     return data
@@ -200,6 +237,8 @@ def dataset_fingerprint(data: ClothDataset) -> dict:
     manifest file (splits, source indices, stats). Equal fingerprints = the same arrays (generation is
     deterministic). JSON-able; store it in a run (`run_data_record`), compare with `fingerprint_diff`."""
     fp: dict[str, Any] = {k: data.manifest.get(k) for k in FINGERPRINT_KEYS}
+    if data.manifest.get("body_shapes") is not None:  # only then: single-body fingerprints stay as they were
+        fp["body_shapes"] = data.manifest["body_shapes"]
     fp["kept"] = int(data.manifest.get("counts", {}).get("kept", len(data)))
     fp["manifest_hash"] = hashlib.sha256((Path(data.dir) / "manifest.json").read_bytes()).hexdigest()[:16]
     return fp

@@ -35,6 +35,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
+from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
 from pbc.geometry.bodies import body_from_config
 from pbc.geometry.body import Body, pose_body, save_body
 from pbc.geometry.cage import Cage, save_cage
@@ -71,6 +72,13 @@ class Scene:
     embedding: Embedding
     sim: DictConfig
     batched: object | None = None  # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch
+    # `data.body_shape`: the K people (full bodies, for the drapes' collisions) and their rest shapes
+    people: list[Body] | None = None
+    shapes: BodyShapes | None = None
+
+    def body_for(self, i: int) -> Body:
+        """The body generation sample i is draped on: person i mod K, or the one body."""
+        return self.body if self.people is None else self.people[person_of(i, self.shapes)]
 
 
 def dataset_dir(cfg: DictConfig) -> Path:
@@ -79,23 +87,30 @@ def dataset_dir(cfg: DictConfig) -> Path:
 
 def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
     """What makes two runs produce the same dataset. A directory made with another one is refused."""
-    return {
+    fp = {
         **_cheap_fingerprint(cfg, scene.garment),
         "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights, scene.body.parts),
         # the rest-pose embedding and collision parts: a change to the shrink-wrap changes the data
         "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part),
     }
+    if _shapes(scene) is not None:  # only then: a single-body manifest keeps its bytes
+        fp["shapes_hash"] = shapes_hash(scene.shapes)
+    return fp
 
 
 def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
     """The fingerprint keys that need no body or shrink-wrap (the garment is rebuilt in ~0.1 s)."""
-    return {
+    fp = {
         "format_version": FORMAT_VERSION,
         "seed": int(cfg.data.seed),
         "num_samples": int(cfg.data.num_samples),
         "garment_hash": hash_arrays(garment.vertices, garment.faces, garment.uv),
         "sim": sim_fingerprint(cfg.sim),
     }
+    people = sample_phenotypes(cfg)
+    if people is not None:  # only with data.body_shape: single-body datasets keep their fingerprint
+        fp["body_shapes"] = {"keys": list(people[0]), "values": people[1].tolist()}
+    return fp
 
 
 def sim_fingerprint(sim: DictConfig) -> dict:
@@ -156,20 +171,25 @@ def _body_if_needed(cfg: DictConfig) -> Body | None:
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
+    sample_phenotypes(cfg)  # a bad data.body_shape is refused before any body is built
     body = body_from_config(cfg.body)
     garment, cage = garment_from_config(cfg.garment, body)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
-    return Scene(body, garment, cage, embedding, cfg.sim), wrap_stats
+    # the garment and its embedding are the base body's; the people share its mesh, so the embedding holds
+    people, shapes = shape_bodies(cfg, body)
+    return Scene(body, garment, cage, embedding, cfg.sim, people=people, shapes=shapes), wrap_stats
 
 
-def drape_pose(scene: Scene, pose: np.ndarray) -> dict:
-    """Skin the embedded garment onto the posed body and drape it. Returns the per-sample record."""
+def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
+    """Skin the embedded garment onto the posed body (of generation sample `index`'s person, when the data
+    spans several) and drape it. Returns the per-sample record."""
     t0 = time.perf_counter()
+    body = scene.body_for(index)
     rot = torch.from_numpy(pose)[None].float()
-    body_v = pose_body(scene.body, rot)  # (1, Vb, 3)
-    start = embedded_points(body_v, scene.body.faces, scene.embedding)[0]
+    body_v = pose_body(body, rot)  # (1, Vb, 3)
+    start = embedded_points(body_v, body.faces, scene.embedding)[0]
     t1 = time.perf_counter()
-    res = drape_garment(scene.garment, start, body_v[0], scene.body, scene.embedding, scene.sim)
+    res = drape_garment(scene.garment, start, body_v[0], body, scene.embedding, scene.sim)
     t2 = time.perf_counter()
     return _drape_record(scene, res, t1 - t0, t2 - t1)
 
@@ -189,14 +209,17 @@ def _drape_record(scene: Scene, res, t_skin: float, t_drape: float) -> dict:
     }
 
 
-def drape_batch(scene: Scene, poses: np.ndarray) -> list[dict]:
+def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
     """`drape_pose` for B poses (B, J, 3, 3) at once in the worker's batched model (built on the first
-    call, reused after). Per-sample times are the batch's shared equally."""
+    call, reused after); `indices` (B,): their generation sample ids (whose person drapes them; None: 0..B-1).
+    Per-sample times are the batch's shared equally. The people share faces and parts: one model serves all."""
     t0 = time.perf_counter()
     starts, bodies = [], []
-    for pose in poses:  # one at a time: the same skinning, bit for bit, as `drape_pose`
-        body_v = pose_body(scene.body, torch.from_numpy(pose)[None].float())
-        starts.append(embedded_points(body_v, scene.body.faces, scene.embedding)[0].numpy())
+    indices = range(len(poses)) if indices is None else indices
+    for pose, i in zip(poses, indices, strict=True):  # one at a time: the same skinning, bit for bit, as drape_pose
+        body = scene.body_for(i)
+        body_v = pose_body(body, torch.from_numpy(pose)[None].float())
+        starts.append(embedded_points(body_v, body.faces, scene.embedding)[0].numpy())
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
     if scene.batched is None:
@@ -238,14 +261,14 @@ def _write_sample(path: str, rec: dict) -> None:
 
 def _work(args: tuple[int, np.ndarray, str]) -> tuple[int, bool, str]:
     i, pose, path = args
-    rec = drape_pose(_scene(), pose)
+    rec = drape_pose(_scene(), pose, i)
     _write_sample(path, rec)
     return i, rec["ok"], rec["reason"]
 
 
 def _work_batch(jobs: list[tuple[int, np.ndarray, str]]) -> list[tuple[int, bool, str]]:
     """Drape one batch and write its samples (each atomically): a kill loses at most this batch."""
-    recs = drape_batch(_scene(), np.stack([pose for _, pose, _ in jobs]))
+    recs = drape_batch(_scene(), np.stack([pose for _, pose, _ in jobs]), [i for i, _, _ in jobs])
     out = []
     for (i, _, path), rec in zip(jobs, recs, strict=True):
         if not Path(path).is_file():  # left by a batch killed while writing: the same bytes, keep it
@@ -527,7 +550,7 @@ def _warp_cache_filled(sim: DictConfig) -> bool:
 
 # what a merge writes, the manifest last (its presence marks a finished dataset)
 MERGED_FILES = ("garment.obj", "cage.json", "body.npz", "embedding.npz", "poses.npy", "verts.npy", "angles.npy",
-                "timings.json", "manifest.json")
+                "shapes.npz", "person.npy", "timings.json", "manifest.json")
 
 
 def missing_shards(work: Path, num_poses: int, batch: int = 1, num_shards: int = 1) -> dict[int, list[int]]:
@@ -613,6 +636,8 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     )
     timings = dict(timings, **timed, **{f"{k}_cpu_total": v for k, v in stage.items()})
     arrays = {"poses.npy": poses[kept], "verts.npy": verts, "angles.npy": angles[kept].astype(np.float32)}
+    if _shapes(scene) is not None:  # each kept sample's person (data.body_shape)
+        arrays["person.npy"] = np.array([person_of(i, scene.shapes) for i in kept], np.int64)
 
     fix = (f"free space there (or move {out} to a disk with room and point paths.data_dir at it), then run the "
            "same command again: the drapes in work/ are kept and only the merge is redone")
@@ -686,6 +711,8 @@ def _scene_bytes(scene: Scene) -> int:
     """About what the scene's files take (body, embedding, garment): arrays' bytes, text formats x4."""
     arrays = [scene.body.vertices, scene.body.faces, scene.body.weights, scene.embedding.face, scene.embedding.bary]
     arrays += [scene.garment.vertices, scene.garment.faces, scene.garment.uv]
+    if _shapes(scene) is not None:
+        arrays += [scene.shapes.vertices, scene.shapes.heads]
     return 4 * sum(int(a.nbytes) if hasattr(a, "nbytes") else a.numel() * a.element_size() for a in arrays)
 
 
@@ -695,10 +722,17 @@ def _write_merged(out: Path, scene: Scene, arrays: dict[str, np.ndarray], manife
     save_cage(scene.cage, out / "cage.json")
     save_body(scene.body, out / "body.npz")
     save_embedding(scene.embedding, out / "embedding.npz")
+    if _shapes(scene) is not None:
+        save_shapes(scene.shapes, out / "shapes.npz")
     for name, a in arrays.items():
         save_npy(out / name, a)
     write_json(out / "timings.json", _plain(timings))
     write_json(out / "manifest.json", manifest)
+
+
+def _shapes(scene) -> BodyShapes | None:
+    """The scene's people (data.body_shape), None for one body (and for a stand-in scene without the field)."""
+    return getattr(scene, "shapes", None)
 
 
 def split_sizes(n: int) -> tuple[int, int]:

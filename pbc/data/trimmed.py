@@ -59,6 +59,9 @@ def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean
             shutil.copy2(src, out / name)
     save_npy(out / "poses.npy", np.asarray(ds.poses[idx], np.float32))
     save_npy(out / "verts.npy", np.asarray(ds.verts[idx], np.float32))
+    if getattr(ds, "shapes", None) is not None:  # several people (data.body_shape): theirs, the rows' persons
+        shutil.copy2(Path(ds.dir) / "shapes.npz", out / "shapes.npz")
+        save_npy(out / "person.npy", np.asarray(ds.person[idx], np.int64))
     names = list(ds.body.skeleton.names)
     mean = np.asarray(mean_offsets, np.float32)
     if mean.shape != (len(ds.garment.vertices), 3):

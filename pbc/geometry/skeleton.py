@@ -123,17 +123,19 @@ def check_rotations(skel: Skeleton, rotations: Tensor) -> None:
         )
 
 
-def forward_kinematics(skel: Skeleton, rotations: Tensor) -> Tensor:
+def forward_kinematics(skel: Skeleton, rotations: Tensor, heads: Tensor | None = None) -> Tensor:
     """Skinning transforms of every bone relative to rest.
 
     rotations: (B, J, 3, 3) local rotations in each joint's rest frame.
+    heads: (J, 3) or (B, J, 3) rest heads to use instead of the skeleton's: another person of the same rig
+    (same joints, parents and frames; `data.body_shape`), per sample. None: the skeleton's.
     Returns (B, J+1, 4, 4): index 0 = the fixed root (identity), 1+j = joint j; a rest-pose point p
     attached to bone k lands at transforms[:, k] @ [p, 1].
     """
     check_rotations(skel, rotations)
     B, J = rotations.shape[:2]
     dtype, device = rotations.dtype, rotations.device
-    heads = skel.rest_heads.to(dtype=dtype, device=device)
+    heads = (skel.rest_heads if heads is None else heads).to(dtype=dtype, device=device)
     frames = skel.frames().to(dtype=dtype, device=device)
     # the rotation about each joint in root axes: F R F^T
     world_rot = frames @ rotations @ frames.transpose(-1, -2)  # (B, J, 3, 3)

@@ -18,9 +18,14 @@ class Skinner:
 
     Only the body vertices of the triangles the garment is embedded in are skinned (a few thousand
     instead of the whole body), which is what makes per-batch rendering cheap.
+
+    shapes: the other people of a dataset spanning several (`data.body_shape`; anything with `vertices`
+    (K, Vb, 3) and `heads` (K, J, 3), the rest meshes and joint heads of persons 0..K-1 on the body's mesh
+    connectivity, skinning weights and skeleton). A call with `person` (B,) skins sample b on person
+    person[b]; without, on `body` (the dataset's base person), by the single-body path.
     """
 
-    def __init__(self, body, garment, emb):
+    def __init__(self, body, garment, emb, shapes=None):
         faces = torch.as_tensor(body.faces).long()[torch.as_tensor(emb.face).long()]  # (V, 3) body vertex ids
         used, inverse = torch.unique(faces.reshape(-1), return_inverse=True)
         self.skeleton = body.skeleton
@@ -30,23 +35,56 @@ class Skinner:
         self.bary = torch.as_tensor(emb.bary).float()
         self.builder = FrameBuilder(garment)
         self._emb_local = _LocalEmbedding(torch.arange(len(faces)), self.bary)
+        # (K, U, 3) and (K, J, 3): each person's used rest vertices and rest heads; None = one body
+        self.people_points = self.people_heads = None
+        if shapes is not None:
+            vertices, heads = torch.as_tensor(shapes.vertices).float(), torch.as_tensor(shapes.heads).float()
+            if vertices.shape[1:] != body.vertices.shape or heads.shape[1:] != body.skeleton.rest_heads.shape:
+                raise ValueError(f"body shapes: rest vertices {tuple(vertices.shape)} and heads {tuple(heads.shape)}"
+                                 f" do not fit the body ({tuple(body.vertices.shape)} vertices, "
+                                 f"{tuple(body.skeleton.rest_heads.shape)} heads): regenerate the dataset")
+            self.people_points, self.people_heads = vertices[:, used], heads
+
+    @property
+    def num_people(self) -> int:
+        """K, the people a `person` index may name (0: a single-body skinner)."""
+        return 0 if self.people_points is None else len(self.people_points)
 
     def to(self, device) -> Skinner:
-        for name in ("points", "weights", "local_faces", "bary"):
-            setattr(self, name, getattr(self, name).to(device))
+        for name in ("points", "weights", "local_faces", "bary", "people_points", "people_heads"):
+            if getattr(self, name) is not None:
+                setattr(self, name, getattr(self, name).to(device))
         self._emb_local = _LocalEmbedding(self._emb_local.face.to(device), self.bary)
         self.builder.to(device)
         return self
 
-    def __call__(self, rotations: Tensor) -> tuple[Tensor, Tensor]:
-        """rotations (B, J, 3, 3) -> anchors (B, V, 3), frames (B, V, 3, 3) (rows t, b, n)."""
+    def __call__(self, rotations: Tensor, person: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """rotations (B, J, 3, 3) [, person (B,) long] -> anchors (B, V, 3), frames (B, V, 3, 3) (rows t, b, n)."""
         if self.points.device != rotations.device:
             self.to(rotations.device)
-        transforms = forward_kinematics(self.skeleton, rotations)
-        body = linear_blend_skinning(self.points, self.weights, transforms)  # (B, U, 3)
+        if person is None:
+            transforms = forward_kinematics(self.skeleton, rotations)
+            body = linear_blend_skinning(self.points, self.weights, transforms)  # (B, U, 3)
+        else:
+            person = self._check_person(person, rotations)
+            transforms = forward_kinematics(self.skeleton, rotations, self.people_heads[person])
+            body = linear_blend_skinning(self.people_points[person], self.weights, transforms)
         anchors = embedded_anchors(body, self.local_faces, self._emb_local)
         frames = self.builder(anchors, embedded_body_normals(body, self.local_faces, self._emb_local))
         return anchors, frames
+
+    def _check_person(self, person, rotations: Tensor) -> Tensor:
+        """person as a (B,) long tensor on the rotations' device; one ValueError for a bad one."""
+        person = torch.as_tensor(person).long().reshape(-1).to(rotations.device)
+        if self.people_points is None:
+            raise ValueError("a person index was given, but this body has one person: the dataset was made "
+                             "without data.body_shape")
+        if len(person) != rotations.shape[0]:
+            raise ValueError(f"person: expected {rotations.shape[0]} indices (one per pose), got {len(person)}")
+        if len(person) and (int(person.min()) < 0 or int(person.max()) >= self.num_people):
+            raise ValueError(f"person index {person.tolist()} is outside 0..{self.num_people - 1}, the dataset's "
+                             "people (data.body_shapes)")
+        return person
 
 
 class _LocalEmbedding:

@@ -124,9 +124,11 @@ class VertexTarget:
     @torch.no_grad()
     def render(self, batch: dict) -> dict:
         """batch {pose (B, 90) or (B, J, 3, 3), verts (B, V, 3), ...} -> the batch plus anchors, frames,
-        offsets (and, for image kinds, image and mask), on the batch's device."""
+        offsets (and, for image kinds, image and mask), on the batch's device. A batch of a dataset of
+        several people (`data.body_shape`) carries `person` (B,): each sample is skinned on its person."""
         pose, verts = batch["pose"], batch["verts"]
-        anchors, frames = self.skinner(pose.reshape(pose.shape[0], -1, 3, 3))
+        person = {"person": batch["person"]} if batch.get("person") is not None else {}
+        anchors, frames = self.skinner(pose.reshape(pose.shape[0], -1, 3, 3), **person)
         offsets = to_offsets(verts, anchors, frames, self.space)
         return dict(batch, anchors=anchors, frames=frames, offsets=offsets)
 
@@ -402,6 +404,12 @@ class PatchesTarget(WholeTarget):
         return pos
 
 
+def dataset_skinner(dataset) -> Skinner:
+    """The skinner of a loaded dataset: its base body, and its people when it spans several
+    (`ClothDataset.shapes`, `data.body_shape`)."""
+    return Skinner(dataset.body, dataset.garment, dataset.embedding, shapes=getattr(dataset, "shapes", None))
+
+
 def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, space: str = "local",
                 skinner=None, cache_dir: str | Path | None = None) -> VertexTarget:
     """The one factory: the cloth target of `kind` ("whole" | "patch" | "fc" | "patches") for `dataset` (a loaded
@@ -413,7 +421,7 @@ def make_target(dataset, image_cfg, kind: str, patch_id: int | None = None, spac
     """
     if kind not in KINDS:
         raise ValueError(f"model.kind must be one of {KINDS}, got {kind!r}")
-    skinner = skinner if skinner is not None else Skinner(dataset.body, dataset.garment, dataset.embedding)
+    skinner = skinner if skinner is not None else dataset_skinner(dataset)
     faces = dataset.garment.faces
     if kind == "fc":
         return VertexTarget(skinner, faces, space, len(dataset.garment.vertices))
@@ -483,13 +491,14 @@ class TargetCache:
 @torch.no_grad()
 def build_cache(target: VertexTarget, pose: Tensor, verts: Tensor, index: Tensor, device=None,
                 chunk: int = 64, image_dtype: torch.dtype = torch.float32,
-                normals: bool = True) -> TargetCache:
+                normals: bool = True, person: Tensor | None = None) -> TargetCache:
     """Render the targets of N samples once, `chunk` at a time, on `device`.
 
     pose (N, 90) or (N, J, 3, 3), verts (N, V, 3) float32 (any device; copied chunk by chunk), index (N,)
     their dataset sample ids. image_dtype: storage of the cloth images (float16 halves the cache; its
     error is measured by bench/train.py); per-vertex values stay float32. normals: also cache the
-    ground-truth vertex normals (N, V, 3) the normal loss and metric compare to.
+    ground-truth vertex normals (N, V, 3) the normal loss and metric compare to. person: (N,) each sample's
+    person (a dataset of several people, `data.body_shape`), None for one body.
     """
     device = torch.device(device) if device is not None else verts.device
     n = int(verts.shape[0])
@@ -502,6 +511,8 @@ def build_cache(target: VertexTarget, pose: Tensor, verts: Tensor, index: Tensor
         stop = min(start + int(chunk), n)
         batch = {"pose": torch.as_tensor(pose[start:stop]).to(device, torch.float32),
                  "verts": torch.as_tensor(verts[start:stop]).to(device, torch.float32)}
+        if person is not None:
+            batch["person"] = torch.as_tensor(person[start:stop]).long().to(device)
         out = target.render(batch)
         if normals:
             out["normals"] = vertex_normals(batch["verts"], faces)

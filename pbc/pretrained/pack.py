@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from pbc.data.dataset import dataset_fingerprint, load_dataset
+from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
 from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
 from pbc.io import load_checkpoint, write_text
 from pbc.motion.ranges import range_from_record, range_table_record
@@ -73,7 +73,7 @@ def mean_training_offsets(pred: ClothPredictor, batch: int = 64) -> torch.Tensor
         for i in range(0, len(idx), batch):
             j = idx[i:i + batch]
             off = pred.offsets_of(torch.from_numpy(np.asarray(ds.poses[j], np.float32)),
-                                  torch.from_numpy(np.asarray(ds.verts[j], np.float32)))[0]
+                                  torch.from_numpy(np.asarray(ds.verts[j], np.float32)), **person_kw(ds, j))[0]
             s = off.sum(0, dtype=torch.float64)
             total = s if total is None else total + s
     return (total / len(idx)).float()
