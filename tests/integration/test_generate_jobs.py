@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -65,6 +66,46 @@ def test_resume_after_sigkill_is_byte_identical(reference: Path, tmp_path: Path)
     generate(load_config(cfg_args))
     for name in ("poses.npy", "verts.npy", "manifest.json", "embedding.npz", "garment.obj", "cage.json"):
         assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every process below `pid` (Linux /proc)."""
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            with contextlib.suppress(OSError):
+                kids = {int(c) for c in (task / "children").read_text().split()}
+                todo += list(kids - out)
+                out |= kids
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    state = Path(f"/proc/{pid}/stat")
+    return not (state.exists() and state.read_text().split(") ")[-1].startswith("Z"))  # a zombie is gone
+
+
+def test_sigterm_stops_the_drape_workers_with_their_job(tmp_path: Path):
+    # a killed job (kill, a scheduler's cancel) left its two drape workers draping on as orphans for half an hour
+    cfg_args = tiny_overrides(tmp_path, "data.workers=2")
+    proc = subprocess.Popen([sys.executable, "-m", "pbc.generate", *cfg_args], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline, workers = time.time() + 240, set()
+    while time.time() < deadline and proc.poll() is None and len(workers) < 2:
+        workers = {p for p in _descendants(proc.pid) if "multiprocessing" in Path(f"/proc/{p}/cmdline").read_text()}
+        time.sleep(0.2)
+    assert proc.poll() is None and len(workers) >= 2, "the drape workers never started"
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+    deadline = time.time() + 15
+    while time.time() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.2)
+    assert not [p for p in workers if _alive(p)], "drape workers outlived their killed job"
 
 
 def test_shards_then_merge_equal_single_run(reference: Path, tmp_path: Path):
