@@ -356,15 +356,18 @@ def _workers_stop_on_sigterm():
 
 def _stop(ex: ProcessPoolExecutor) -> None:
     """Shut a pool down now: queued jobs cancelled, running workers terminated (a drape can take minutes)."""
+    # taken before shutdown, which empties `_processes` (Python 3.11): read after it, no worker was terminated
+    # and a worker in the middle of a drape ran on after its job had ended
+    procs = list((getattr(ex, "_processes", None) or {}).values())
     ex.shutdown(wait=False, cancel_futures=True)
     terminate = getattr(ex, "terminate_workers", None)  # Python 3.14+
     if terminate is not None:
         terminate()
         return
-    for p in list((getattr(ex, "_processes", None) or {}).values()):
+    for p in procs:
         with contextlib.suppress(Exception):
             p.terminate()
-    for p in list((getattr(ex, "_processes", None) or {}).values()):
+    for p in procs:
         with contextlib.suppress(Exception):
             p.join(5)
 

@@ -95,9 +95,13 @@ def test_sigterm_stops_the_drape_workers_with_their_job(tmp_path: Path):
     cfg_args = tiny_overrides(tmp_path, "data.workers=2")
     proc = subprocess.Popen([sys.executable, "-m", "pbc.generate", *cfg_args], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out = Path(load_config(cfg_args).data.dir)
     deadline, workers = time.time() + 240, set()
-    while time.time() < deadline and proc.poll() is None and len(workers) < 2:
-        workers = {p for p in _descendants(proc.pid) if "multiprocessing" in Path(f"/proc/{p}/cmdline").read_text()}
+    # both workers started and one drape written: the next drapes are under way, as when a job is cancelled
+    while time.time() < deadline and proc.poll() is None and (
+            len(workers) < 2 or not list((out / "work" / "samples").glob("[0-9]*.npz"))):
+        workers = {p for p in _descendants(proc.pid)
+                   if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text()}
         time.sleep(0.2)
     assert proc.poll() is None and len(workers) >= 2, "the drape workers never started"
     proc.send_signal(signal.SIGTERM)
@@ -149,3 +153,23 @@ def test_manifest_records_provenance(reference: Path):
     assert not any(k.startswith("batch_") for k in m["sim"])
 
 
+
+
+def test_stop_terminates_a_worker_in_the_middle_of_a_job():
+    # ProcessPoolExecutor.shutdown empties `_processes` (Python 3.11): _stop read them after it and terminated none
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from pbc.data.generate import _stop
+
+    ex = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"))
+    fut = ex.submit(time.sleep, 120)
+    deadline = time.time() + 60
+    while time.time() < deadline and not fut.running():
+        time.sleep(0.1)
+    procs = list(ex._processes.values())
+    assert fut.running() and procs
+    _stop(ex)
+    for p in procs:
+        p.join(10)
+    assert not any(p.is_alive() for p in procs), "a worker in the middle of a job outlived _stop"
