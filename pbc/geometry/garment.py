@@ -195,6 +195,25 @@ def _boundary_vertices(mask: np.ndarray, keep_pts: np.ndarray) -> np.ndarray:
     return kept_any & drop_any & keep_pts
 
 
+def two_panel_uv(faces_f: np.ndarray, faces_b: np.ndarray, uv_f: np.ndarray, uv_b: np.ndarray):
+    """The UV layout of a garment sewn from a front and a back panel: faces_f (Ff, 3), faces_b (Fb, 3) vertex
+    ids, uv_f / uv_b (V, 2) every vertex's UV on each panel. A seam vertex gets one texture coordinate per
+    panel. -> uv (T, 2) (front panel's first), face_uv (Ff + Fb, 3), vertex_uv (V, 2) and vertex_side (V,)
+    (0 front, the front's UV for seam vertices; 1 back)."""
+    nv = len(uv_f)
+    on_front = np.zeros(nv, bool)
+    on_front[np.unique(faces_f)] = True
+    on_back = np.zeros(nv, bool)
+    on_back[np.unique(faces_b)] = True
+    front_tex = -np.ones(nv, np.int64)
+    front_tex[on_front] = np.arange(on_front.sum())
+    back_tex = -np.ones(nv, np.int64)
+    back_tex[on_back] = on_front.sum() + np.arange(on_back.sum())
+    uv = np.concatenate([uv_f[on_front], uv_b[on_back]])
+    face_uv = np.concatenate([front_tex[faces_f], back_tex[faces_b]])
+    return uv, face_uv, np.where(on_front[:, None], uv_f, uv_b), np.where(on_front, 0, 1)
+
+
 def build_tshirt_mesh(cfg) -> tuple[Garment, TShirtLayout]:
     """The sewn two-panel T-shirt mesh, its UVs and 3D pillow rest shape, plus its grid layout.
 
@@ -276,20 +295,8 @@ def build_tshirt_mesh(cfg) -> tuple[Garment, TShirtLayout]:
         v = 0.5 - (p[:, 1] - cym) / uv_scale
         return np.stack([u, v], 1)
 
-    uv_front = to_uv(pat_f, False)
-    uv_back = to_uv(pat_b, True)
-    on_front = np.zeros(nv, bool)
-    on_front[np.unique(faces_f)] = True
-    on_back = np.zeros(nv, bool)
-    on_back[np.unique(faces_b)] = True
-    front_tex = -np.ones(nv, np.int64)
-    front_tex[on_front] = np.arange(on_front.sum())
-    back_tex = -np.ones(nv, np.int64)
-    back_tex[on_back] = on_front.sum() + np.arange(on_back.sum())
-    uv = np.concatenate([uv_front[on_front], uv_back[on_back]])
-    face_uv = np.concatenate([front_tex[faces_f], back_tex[faces_b]])
-    vertex_side = np.where(on_front, 0, 1)
-    vertex_uv = np.where(on_front[:, None], uv_front, uv_back)
+    uv, face_uv, vertex_uv, vertex_side = two_panel_uv(faces_f, faces_b, to_uv(pat_f, False), to_uv(pat_b, True))
+    on_front = vertex_side == 0
 
     # 3D rest shape: a pillow around the T-pose body. Per panel solve  lap(phi) = -1  with phi = 0 on
     # the seams; z = depth_ratio * sqrt(2 phi) is then an ellipse whose depth scales with the local

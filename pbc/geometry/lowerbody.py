@@ -33,7 +33,7 @@ import trimesh
 from pbc.geometry.autocage import auto_cage
 from pbc.geometry.body import Body
 from pbc.geometry.cage import Cage
-from pbc.geometry.garment import Garment, _cell_triangles
+from pbc.geometry.garment import Garment, _cell_triangles, two_panel_uv
 from pbc.geometry.measure import girth, measurements, torso_mesh
 
 SIDES = ("left", "right")
@@ -172,25 +172,16 @@ def sew_panels(p: Panels, uv_padding: float) -> Garment:
         return np.stack([0.5 + (-1.0 if mirror else 1.0) * (q[:, 0] - c[0]) / uv_scale,
                          0.5 - (q[:, 1] - c[1]) / uv_scale], 1)
 
-    on_front = np.zeros(nv, bool)
-    on_front[np.unique(faces_f)] = True
-    on_back = np.zeros(nv, bool)
-    on_back[np.unique(faces_b)] = True
-    front_tex = -np.ones(nv, np.int64)
-    front_tex[on_front] = np.arange(on_front.sum())
-    back_tex = -np.ones(nv, np.int64)
-    back_tex[on_back] = on_front.sum() + np.arange(on_back.sum())
-    uv_f, uv_b = to_uv(pat, False), to_uv(pat, True)
-    uv = np.concatenate([uv_f[on_front], uv_b[on_back]])
+    uv, face_uv, vertex_uv, vertex_side = two_panel_uv(faces_f, faces_b, to_uv(pat, False), to_uv(pat, True))
     faces = np.concatenate([faces_f, faces_b])
     return Garment(
         vertices=torch.tensor(pos, dtype=torch.float32),
         faces=torch.tensor(faces, dtype=torch.long),
         uv=torch.tensor(uv, dtype=torch.float32),
-        face_uv=torch.tensor(np.concatenate([front_tex[faces_f], back_tex[faces_b]]), dtype=torch.long),
+        face_uv=torch.tensor(face_uv, dtype=torch.long),
         face_side=torch.tensor(np.repeat([0, 1], [len(faces_f), len(faces_b)]), dtype=torch.long),
-        vertex_uv=torch.tensor(np.where(on_front[:, None], uv_f, uv_b), dtype=torch.float32),
-        vertex_side=torch.tensor(np.where(on_front, 0, 1), dtype=torch.long),
+        vertex_uv=torch.tensor(vertex_uv, dtype=torch.float32),
+        vertex_side=torch.tensor(vertex_side, dtype=torch.long),
         uv_scale=uv_scale,
     )
 
