@@ -22,6 +22,7 @@ import time
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -457,6 +458,21 @@ class ClothPredictor:
                              f"{'patches' if self.patch_net is not None else 'whole'}, what this predictor has)")
         return model
 
+    def check_person(self, person) -> None:
+        """Refuse a `person` (None, one int, or one per pose) this predictor's dataset does not have, before
+        anything is predicted or written: one ValueError naming the people there are."""
+        if person is None:
+            return
+        people_kw(person, 1)  # an integer
+        k = self.skinner.num_people
+        if k == 0:
+            raise ValueError(f"person {np.asarray(person).tolist()}: the model's dataset {self.dataset.dir} was "
+                             "draped on one body (made without data.body_shape); leave the person out")
+        arr = np.asarray(person)
+        if arr.size and (int(arr.min()) < 0 or int(arr.max()) >= k):
+            raise ValueError(f"person {arr.tolist()} is outside 0..{k - 1}, the {k} people of the model's dataset "
+                             f"{self.dataset.dir} (data.body_shapes)")
+
     # -------------------------------------------------------------------- pieces
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
         return self.skinner(pose)
@@ -481,12 +497,13 @@ class ClothPredictor:
 
     @torch.inference_mode()
     def __call__(self, pose, model: str | None = None, method: str | None = None,
-                 person: int | None = None) -> Tensor:
+                 person=None) -> Tensor:
         """pose: torch or numpy, (J, 3, 3) / (J*9,) for one pose -> (V, 3), or (B, J, 3, 3) / (B, J*9) ->
         (B, V, 3); checked first (shape, finite, rotations: pbc.validate.as_poses).
         model: "patches" or "whole"; None = the patches when there are patch models, else the whole.
         person: in a dataset of several people (`data.body_shape`), the person k whose body the cloth is
-        skinned on (the models read the pose only); None: the base person (body.npz)."""
+        skinned on (the models read the pose only), one int for every pose or (B,) one per pose; None: the
+        base person (body.npz)."""
         names = list(self.dataset.body.skeleton.names)
         pose, batched = as_poses(pose, len(names), joint_names=names)
         single = not batched
@@ -504,8 +521,7 @@ class ClothPredictor:
             method = method or self.method
             whole = self.whole_offsets(pose) if method in NEEDS_WHOLE else None
             off = self.stitcher(self.patch_crops(pose), method, whole)
-        who = {} if person is None else {"person": torch.full((len(pose),), int(person), dtype=torch.long)}
-        anchors, frames = self.skinner(pose, **who)
+        anchors, frames = self.skinner(pose, **people_kw(person, len(pose)))
         x = from_offsets(off, anchors, frames, self.space)
         return x[0] if single else x
 
@@ -541,10 +557,40 @@ def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: 
     return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
 
 
-def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor | None]:
+def people_kw(person, n: int) -> dict:
+    """The keyword a Skinner call takes for `person` over n poses: {} for None (the base person), else
+    {"person": (n,) long} from one int (every pose) or n of them (one per pose; the Skinner checks them)."""
+    if person is None:
+        return {}
+    arr = np.asarray(person)
+    if arr.dtype.kind not in "iu" and not (arr.dtype.kind == "f" and np.all(arr == np.round(arr))):
+        raise ValueError(f"person {person!r}: give a person's index, an integer (0..K-1 of the dataset's people)")
+    if arr.ndim == 0:
+        return {"person": torch.full((n,), int(arr), dtype=torch.long)}
+    return {"person": torch.as_tensor(arr.astype(np.int64))}
+
+
+class PoseSet(NamedTuple):
+    """Poses to predict (`read_poses`), with what is known of them."""
+
+    poses: Tensor  # (N, J, 3, 3)
+    names: list[str]  # one per pose: the mesh file names
+    truth: Tensor | None  # (N, V, 3) the simulated garment (a dataset split), else None
+    people: np.ndarray | None  # (N,) int64 each pose's person (a split of a dataset of several people), else None
+
+    def first(self, n) -> PoseSet:
+        """The first `n` poses (checked by `check_max_poses`; None = all)."""
+        n = check_max_poses(n)
+        if n is None:
+            return self
+        return PoseSet(self.poses[:n], list(self.names)[:n], None if self.truth is None else self.truth[:n],
+                       None if self.people is None else self.people[:n])
+
+
+def read_poses(source: str | Path, dataset) -> PoseSet:
     """Poses to predict: an .npy of (N, J, 3, 3) / (N, J*9) / (J, 3, 3) rotations, or the name of a split of
-    `dataset` (train / val / test). Returns (poses (N, J, 3, 3), a name per pose, the split's simulated
-    vertices (N, V, 3) or None). Raises ValueError naming what is wrong (shape, non-rotations, no file)."""
+    `dataset` (train / val / test; with the simulated vertices and, in a dataset of several people, each
+    sample's person). Raises ValueError naming what is wrong (shape, non-rotations, no file)."""
     J = int(dataset.poses.shape[1])
     names = tuple(getattr(dataset.body.skeleton, "names", ())) or None
     path = Path(source)
@@ -561,7 +607,7 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
                              "it is corrupt or truncated, or another format; save the poses again with "
                              "np.save") from None
         rot, _ = as_poses(arr, J, joint_names=names, what=f"pose file {path}")
-        return rot, [f"pose_{k:05d}" for k in range(rot.shape[0])], None
+        return PoseSet(rot, [f"pose_{k:05d}" for k in range(rot.shape[0])], None, None)
     splits = sorted(dataset.manifest.get("splits") or {})
     if str(source) not in splits:
         raise ValueError(f"--poses {source!r} is neither an .npy file nor a split of the dataset {dataset.dir} "
@@ -572,7 +618,9 @@ def read_poses(source: str | Path, dataset) -> tuple[Tensor, list[str], Tensor |
                    "--poses test, or the run's own dataset") if "trimmed_from" in dataset.manifest else ""
         raise ValueError(f"split {source!r} of {dataset.dir} is empty{shipped}")
     poses = torch.from_numpy(np.asarray(dataset.poses[idx])).float()
-    return poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx])).float()
+    people = getattr(dataset, "person", None)
+    return PoseSet(poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx]))
+                   .float(), None if people is None else np.asarray(people)[idx].astype(np.int64))
 
 
 def check_max_poses(n, what: str = "--max") -> int | None:
@@ -585,23 +633,31 @@ def check_max_poses(n, what: str = "--max") -> int | None:
     return int(n)
 
 
-def first_poses(poses: Tensor, names: Sequence[str], truth: Tensor | None, n) -> tuple[Tensor, list[str],
-                                                                                        Tensor | None]:
-    """The first `n` (checked by `check_max_poses`; None = all) of what `read_poses` returned."""
-    n = check_max_poses(n)
-    if n is None:
-        return poses, list(names), truth
-    return poses[:n], list(names)[:n], None if truth is None else truth[:n]
-
-
 def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16, model: str | None = None,
-                  progress: bool = True) -> Tensor:
-    """poses (N, J, 3, 3) -> garment vertices (N, V, 3), in batches, with a progress bar for long runs."""
+                  progress: bool = True, person=None) -> Tensor:
+    """poses (N, J, 3, 3) -> garment vertices (N, V, 3), in batches, with a progress bar for long runs;
+    person: None (the base person), one int, or (N,) one per pose (`ClothPredictor.__call__`)."""
     out = []
+    per_pose = person is not None and np.ndim(person) > 0
     starts = range(0, poses.shape[0], max(1, int(batch_size)))
     for i in tqdm(starts, desc="predict", unit="batch", disable=not progress or len(starts) < 2, mininterval=2):
-        out.append(predictor(poses[i:i + batch_size], model=model))
+        who = np.asarray(person)[i:i + batch_size] if per_pose else person
+        out.append(predictor(poses[i:i + batch_size], model=model, person=who))
     return torch.cat(out)
+
+
+def posed_bodies(dataset, poses: Tensor, person=None, chunk: int = 64) -> Tensor:
+    """The body under each pose: poses (N, J, 3, 3) -> vertices (N, Vb, 3), each on its person (None: the base
+    person; one int; or (N,) one per pose) of a dataset of several people (`ClothDataset.person_body`)."""
+    n = len(poses)
+    people = np.zeros(n, np.int64) if person is None else np.broadcast_to(np.asarray(person, np.int64), (n,))
+    out = torch.empty(n, *dataset.body.vertices.shape, dtype=dataset.body.vertices.dtype)
+    for k in np.unique(people):
+        rows = torch.from_numpy(np.flatnonzero(people == k))
+        body = dataset.body if person is None else dataset.person_body(int(k))
+        for i in range(0, len(rows), chunk):
+            out[rows[i:i + chunk]] = pose_body(body, poses[rows[i:i + chunk]])
+    return out
 
 
 def contact_sheet(path: Path, garment_faces, verts, titles: Sequence[str], body_verts=None, body_faces=None) -> Path:
@@ -661,17 +717,20 @@ def contact_sheet(path: Path, garment_faces, verts, titles: Sequence[str], body_
 
 def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str], out: Path, fmt: str = "obj",
                    body: bool = False, sheet: int = 12, batch_size: int = 16, model: str | None = None,
-                   truth: Tensor | None = None, info: dict | None = None) -> dict:
+                   truth: Tensor | None = None, info: dict | None = None, person=None) -> dict:
     """Predict every pose and write, under `out`: meshes/<name>.<fmt> (garment with UVs and normals;
     <name>_body.<fmt> with `body`), vertices.npy (N, V, 3) float32 metres, poses.npy (N, J, 3, 3),
     contact_sheet.png (the first `sheet` poses), predict.json (what was run, files, and with `truth`
-    the vertex error against it). Returns predict.json's content."""
+    the vertex error against it). person: whose body each pose is on, in a dataset of several people (None:
+    the base person; one int; or (N,)); the garment and the body meshes follow it. Returns predict.json's
+    content."""
     t0 = time.time()
     model = predictor.check_model(model)  # before the output dir is made
+    predictor.check_person(person)
     out = require_writable_dir(out, "prediction output directory")
-    verts = predict_poses(predictor, poses, batch_size, model)
+    verts = predict_poses(predictor, poses, batch_size, model, person=person)
     ds = predictor.dataset
-    bodies = pose_body(ds.body, poses) if body or sheet else None
+    bodies = posed_bodies(ds, poses, person) if body or sheet else None
     for k, name in enumerate(names):
         write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
                            header=[f"{name}: predicted by pbc.predict ({model}"
@@ -684,6 +743,8 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
                   num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
                   files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
                   names=list(names))
+    if person is not None:
+        result["person"] = np.broadcast_to(np.asarray(person, np.int64), (len(names),)).tolist()
     titles = list(names)
     if truth is not None:
         err = (verts - truth).norm(dim=-1).mean(1) * 100.0
@@ -743,16 +804,18 @@ def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | No
 
 def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
                      glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
-                     model: str | None = None, info: dict | None = None, progress: bool = True) -> dict:
+                     model: str | None = None, info: dict | None = None, progress: bool = True,
+                     person: int | None = None) -> dict:
     """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
     with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
     k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
     animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
     the frames outside the training poses' range (`run_pose_range`), the seconds of each stage). `clamp`: joint
-    angles clamped into the training range before predicting (the flags are taken before). Returns
-    predict.json's content."""
+    angles clamped into the training range before predicting (the flags are taken before). person: the
+    dataset's person k the clip is played on (None: the base person). Returns predict.json's content."""
     t0 = time.time()
     model = predictor.check_model(model)
+    predictor.check_person(person)
     settings = motion_settings()
     ds = predictor.dataset
     names = list(ds.body.skeleton.names)
@@ -765,11 +828,11 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     out = require_writable_dir(out, "prediction output directory")
     stages = {"read": round(t0 - (info or {}).get("started", t0), 3)} if info and "started" in info else {}
     t = time.time()
-    verts = predict_poses(predictor, poses, batch_size, model, progress)
+    verts = predict_poses(predictor, poses, batch_size, model, progress, person)
     stages["predict"] = round(time.time() - t, 3)
     frame_names = [f"frame_{k:05d}" for k in range(len(poses))]
     t = time.time()
-    bodies = torch.cat([pose_body(ds.body, poses[i:i + 64]) for i in range(0, len(poses), 64)])
+    bodies = posed_bodies(ds, poses, person)
     stages["pose_body"] = round(time.time() - t, 3)
     t = time.time()
     files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
@@ -819,6 +882,8 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
                   num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
                   motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
                   pose_range=report, pose_range_source=range_source)
+    if person is not None:
+        result["person"] = int(person)
     result["seconds_by_stage"] = stages
     result["seconds"] = round(time.time() - t0, 2)
     write_json(out / "predict.json", result)

@@ -9,13 +9,14 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
+
 from pbc.cli.errors import entry_point
 from pbc.motion.ranges import range_summary
 from pbc.motion.retarget import shipped_joint_maps
 from pbc.predict import (
     ClothPredictor,
     check_max_poses,
-    first_poses,
     fit_training_pca,
     predict_sequence,
     predict_to_dir,
@@ -34,6 +35,7 @@ EXAMPLES = """examples:
   pbc predict runs/main/latest/whole --patches runs/patches --method pca --poses test --format ply
   pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: meshes, video, GLB
   pbc predict runs/main/latest/whole --poses walk.bvh --fps 30 --clamp-to-range --bvh-map my_rig.yaml
+  pbc predict runs/shapes/whole --poses walk.bvh --person 3            # a data.body_shape run: on person 3
 """
 # the options that only a BVH clip takes, and their defaults
 MOTION_OPTIONS = {"bvh_map": "auto", "frames": None, "fps": None, "clamp_to_range": False, "video": "mp4",
@@ -62,6 +64,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="output dir (default $PBC_ROOT/runs/predict/<date>_<time>)")
     ap.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh format (default obj)")
     ap.add_argument("--body", action="store_true", help="also write each posed body mesh")
+    ap.add_argument("--person", type=int, metavar="K", help="in a dataset of several people (data.body_shape): "
+                    "the garment on person K (0..K-1, shapes.npz) for every pose; default: a split's poses each on "
+                    "its own person, other poses on the base person (body.npz)")
     ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png (0: none)")
     ap.add_argument("--batch-size", type=int, default=16)
     motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): a mesh per frame, motion.mp4, garment.glb")
@@ -104,9 +109,16 @@ def run(argv: list[str]) -> int:
             "poses": str(args.poses)}
     if is_bvh:
         return run_motion(args, predictor, out, info)
-    poses, names, truth = first_poses(*read_poses(args.poses, predictor.dataset), args.max)
-    res = predict_to_dir(predictor, poses, names, out, args.format, args.body, args.sheet, args.batch_size,
-                         args.model, truth, info)
+    chosen = read_poses(args.poses, predictor.dataset).first(args.max)
+    truth, person = chosen.truth, chosen.people
+    if args.person is not None:
+        person = args.person
+        if chosen.people is not None and np.any(chosen.people != args.person):
+            truth = None  # simulated on other people: no error to report against them
+            print(f"--person {args.person}: the split's poses were simulated on their own people, so no vertex "
+                  "error is reported")
+    res = predict_to_dir(predictor, chosen.poses, chosen.names, out, args.format, args.body, args.sheet,
+                         args.batch_size, args.model, truth, info, person)
     err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
     print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format} ({res['model']} model{err}), "
           f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
@@ -121,7 +133,7 @@ def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
                                      source_frames=motion.source_frames[:args.max])
     res = predict_sequence(predictor, motion, out, args.format, None if args.video == "none" else args.video,
                            not args.no_glb, args.body, args.clamp_to_range, args.batch_size, args.model,
-                           dict(info, frames=args.frames, fps=args.fps))
+                           dict(info, frames=args.frames, fps=args.fps), person=args.person)
     for note in res["notes"]:  # the clip's mapping, and where the training range came from when not the run
         print(note)
     print(range_summary(res["pose_range"]))

@@ -1,6 +1,7 @@
 """Shape as data on Anny end to end: `data.body_shape` drapes a dataset on two people of different height,
 writes them (shapes.npz, person.npy), each sample's cloth follows its own person, a smoke training runs on
-it and the predictor skins on the base person or on a given one. About a minute."""
+it and the predictor skins on the base person or on a given one; `pbc predict` puts a split's poses each on its own
+person (its vertex error is against them) and `--person K` every pose on person K. About a minute."""
 
 from __future__ import annotations
 
@@ -13,17 +14,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pbc.config import load_config
-from pbc.data.dataset import load_dataset
-from pbc.data.generate import generate
-from pbc.geometry.body import pose_body
-from pbc.predict import ClothPredictor
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from helpers.cli import exit_code  # noqa: E402
+
+from pbc.cli.predict import main as predict_main  # noqa: E402
+from pbc.config import load_config  # noqa: E402
+from pbc.data.dataset import load_dataset  # noqa: E402
+from pbc.data.generate import generate  # noqa: E402
+from pbc.geometry.body import pose_body  # noqa: E402
+from pbc.predict import ClothPredictor  # noqa: E402
 
 PEOPLE = ["body=anny_tpose", "data=tshirt_tiny", "garment.fit_to_body.enabled=true", "data.num_samples=6",
           "data.body_shape={height:[0.2,0.8]}", "data.body_shapes=2", "data.workers=1"]
 
 
-def test_a_dataset_of_two_people_drapes_trains_and_predicts(tmp_path, anny_body):
+def test_a_dataset_of_two_people_drapes_trains_and_predicts(tmp_path, anny_body, capsys):
     overrides = [*PEOPLE, f"paths.data_dir={tmp_path}"]
     cfg = load_config(overrides)
     ds = load_dataset(generate(cfg))
@@ -59,3 +64,32 @@ def test_a_dataset_of_two_people_drapes_trains_and_predicts(tmp_path, anny_body)
     pose = torch.from_numpy(np.array(ds.poses[:1]))
     on_base, on_other = pred(pose), pred(pose, person=int(np.argmax(np.abs(h - float(cfg.body.phenotype.height)))))
     assert torch.isfinite(on_base).all() and (on_base - on_other).norm(dim=-1).max() > 0.01
+
+    # pbc predict: a split's poses each on its own person, so the error is against what was simulated there
+    out = tmp_path / "pred"
+    assert exit_code(predict_main, [str(run), "--poses", "train", "--body", "--sheet", "2", "--out", str(out)]) == 0
+    res = json.loads((out / "predict.json").read_text())
+    idx = ds.split("train")
+    assert res["person"] == ds.person[idx].tolist()
+    poses = torch.from_numpy(np.array(ds.poses[idx]))
+    own = pred(poses, person=ds.person[idx])
+    want = (own - torch.from_numpy(np.array(ds.verts[idx]))).norm(dim=-1).mean(1) * 100
+    assert np.allclose(res["per_pose_vertex_error_cm"], want.numpy(), atol=1e-3)
+    assert np.allclose(np.load(out / "vertices.npy"), own.numpy(), atol=1e-5)
+    # --person K: every pose on person K, the body meshes too (not the base person's); no error against others
+    k = int(np.argmax(np.abs(h - float(cfg.body.phenotype.height))))
+    np.save(tmp_path / "poses.npy", poses.numpy())
+    out_k = tmp_path / "pred_k"
+    assert exit_code(predict_main, [str(run), "--poses", str(tmp_path / "poses.npy"), "--person", str(k), "--body",
+                                    "--sheet", "0", "--out", str(out_k)]) == 0
+    assert np.allclose(np.load(out_k / "vertices.npy"), pred(poses, person=k).numpy(), atol=1e-5)
+    body_k = pose_body(ds.person_body(k), poses[:1])[0].numpy()
+    name = json.loads((out_k / "predict.json").read_text())["names"][0]
+    written = np.array([line.split()[1:4] for line in (out_k / "meshes" / f"{name}_body.obj").read_text().splitlines()
+                        if line.startswith("v ")], float)
+    assert np.abs(written - body_k).max() < 1e-4
+    # a person the dataset does not have: one line, exit 2, nothing written
+    capsys.readouterr()
+    assert exit_code(predict_main, [str(run), "--poses", "train", "--person", "2", "--out", str(tmp_path / "no")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "outside 0..1, the 2 people" in err and len(err.splitlines()) == 1 and not (tmp_path / "no").exists()

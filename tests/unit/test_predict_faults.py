@@ -15,7 +15,7 @@ import torch
 from test_predict import IMAGE, fake_run
 from test_robustness import stand_in_dataset
 
-from pbc.predict import ClothPredictor, check_max_poses, first_poses, load_decoder, read_poses, stitch_config
+from pbc.predict import ClothPredictor, PoseSet, check_max_poses, load_decoder, read_poses, stitch_config
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +53,11 @@ def test_predict_to_dir_checks_the_model_before_making_its_folder(runs, tmp_path
     with pytest.raises(ValueError, match="choose one of"):
         predict_to_dir(pred, _pose(), ["a", "b"], tmp_path / "out", model="Whole", sheet=0)
     assert not (tmp_path / "out").exists()
+    # a person on a model of one body, or a person that is not an index: refused, nothing written
+    for person, message in ((0, "draped on one body"), (1.5, "an integer")):
+        with pytest.raises(ValueError, match=message):
+            predict_to_dir(pred, _pose(), ["a", "b"], tmp_path / "out", person=person, sheet=0)
+        assert not (tmp_path / "out").exists()
 
 
 # ============================================================================ image sizes across runs
@@ -108,11 +113,11 @@ def test_max_poses_must_be_at_least_one(bad):
         check_max_poses(bad)
 
 
-def test_first_poses_keeps_names_and_truth_in_step():
+def test_first_poses_keeps_names_truth_and_people_in_step():
     poses, truth = _pose(3), torch.zeros(3, 5, 3)
-    p, names, t = first_poses(poses, ["a", "b", "c"], truth, 2)
-    assert (p.shape[0], names, t.shape[0]) == (2, ["a", "b"], 2)
-    assert first_poses(poses, ["a", "b", "c"], None, None)[1] == ["a", "b", "c"]
+    p, names, t, who = PoseSet(poses, ["a", "b", "c"], truth, np.array([2, 0, 1])).first(2)
+    assert (p.shape[0], names, t.shape[0], who.tolist()) == (2, ["a", "b"], 2, [2, 0])
+    assert PoseSet(poses, ["a", "b", "c"], None, None).first(None).names == ["a", "b", "c"]
 
 
 # ============================================================================ edit values
