@@ -304,8 +304,8 @@ def select_piece(mesh: ObjMesh, positions: np.ndarray, piece, where: str) -> tup
     if piece is None or str(piece) == "all":
         if piece is None and len(places) > 1:
             raise ValueError(f"{where}: an outfit of {len(names)} pieces: {listing}; choose one: "
-                             f"garment.piece={places[0]} (every piece sitting there), a numbered piece, or "
-                             "garment.piece=all for the whole outfit as one garment")
+                             f"{' or '.join(f'garment.piece={p}' for p in places)} (every piece sitting there), a "
+                             "numbered piece, or garment.piece=all for the whole outfit as one garment")
         return mesh, positions
     piece = str(piece)
     keep = [k for k, n in enumerate(names) if n == piece or (piece in places and n.split("_")[0] == piece)]
