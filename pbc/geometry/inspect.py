@@ -132,9 +132,12 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
         unit = "auto" if uv_range <= 1.0 else name_unit(fit_all)
     charts = {r.name: int(r.facing == "back") for r in rows}
     sleeves = sleeve_axes(p, f, body)
-    arms = rest_arm_directions(body)
-    arm_droop = droop_deg(arms["left"])
-    if sleeves:
+    # the rest arms as the sleeves are compared with them (their skin there), else the arm bones
+    arm_droop = (float(np.mean([a["arm_droop_deg"] for a in sleeves.values()])) if sleeves
+                 else droop_deg(rest_arm_directions(body)["left"]))
+    if gcfg.get("kind") == "mhclo":
+        pose = "MakeHuman clothes are fitted to the body's own rest pose by their binding: keep it"
+    elif sleeves:
         droop = float(np.mean([a["droop_deg"] for a in sleeves.values()]))
         pose = (f"the garment's sleeves point {droop:.0f} degrees below the horizontal, the body's rest arms "
                 f"{arm_droop:.0f}: " + ("they match (keep the body's rest pose)" if abs(droop - arm_droop) <= 10 else

@@ -83,10 +83,10 @@ def _stop(tmp_path, capsys, garment: Path, *overrides: str) -> str:
     return err
 
 
-@pytest.mark.parametrize("body, angle", [(MANNEQUIN, 35), (["body=anny"], 24)])
+@pytest.mark.parametrize("body, angle", [(MANNEQUIN, 35), (["body=anny"], 22)])
 def test_an_a_posed_shirt_stops_at_the_sleeve_check_with_the_angle(tmp_path, capsys, body, angle):
     # Anny's rest arms are A-posed too (43 degrees down), but bent forward: the shirt's sleeves (36 down, in the
-    # body's plane) are still 24 degrees off them
+    # body's plane) are still 22 degrees off the arm's skin there (41 down)
     shirt = tmp_path / "shirt.obj"
     shirt.write_text(outfit_obj(40.0, trousers=False, garment="tshirt_coarse"))
     err = _stop(tmp_path, capsys, shirt, "garment.position_unit=dm", *body)
