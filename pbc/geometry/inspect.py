@@ -203,10 +203,12 @@ def format_report(report: Report, limits: dict) -> str:
         st = "-" if r.stretch is None else f"{r.stretch:.2f}x"
         lines.append(f"{r.id:>3}  {r.name:<14} {c:<22} {r.facing:<9} {r.area_3d:>8.4f} {r.area_uv:>9.4g} "
                      f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7}  {r.region}")
+    sleeve_limit = limits.get("max_sleeve_angle_deg")
+    sleeve_limit = "null (no check)" if sleeve_limit is None else sleeve_limit
     for side, a in sorted(report.sleeves.items()):
         lines.append(f"{side} sleeve: {a['angle_deg']:.1f} degrees off the body's rest arm (sleeve "
                      f"{a['droop_deg']:.1f} below the horizontal, arm {a['arm_droop_deg']:.1f}); limit "
-                     f"garment.shrinkwrap.max_sleeve_angle_deg = {limits.get('max_sleeve_angle_deg')}")
+                     f"garment.shrinkwrap.max_sleeve_angle_deg = {sleeve_limit}")
     far = [r for r in report.rows if limits.get("max_start_distance") is not None
            and r.distance_max > float(limits["max_start_distance"])]
     for r in far:
