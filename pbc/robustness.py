@@ -151,6 +151,10 @@ def make_bodies(base_dir: Path, sweep_dir: Path, rob: DictConfig, trials: list[s
     """One dataset dir per trial under <sweep_dir>/bodies/ (`body_cfg`: the base data's body config, which
     phenotype trials rebuild)."""
     base = load_dataset(base_dir)
+    if base.shapes is not None:  # a trial swaps the one body its cloth was draped on: here there are several
+        raise ValueError(f"{base_dir} was draped on {len(base.shapes)} people (data.body_shape): a robustness trial "
+                         "re-skins one body's data on another body, so it needs a dataset of one body; make the "
+                         "base data without data.body_shape (the phenotype trials move Anny's shape for you)")
     bodies = {name: trial_body(base.body, name, rob, body_cfg) for name in trials}  # every trial checked first
     dirs = {}
     for name, body in bodies.items():

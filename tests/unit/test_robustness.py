@@ -96,3 +96,21 @@ def test_painted_weights_follow_the_arm(body):
         paint_weights(body, "tail", art["regions"])
 
 
+
+
+def test_a_dataset_of_several_people_is_refused_before_any_trial_is_made(tmp_path, body):
+    # its trial dirs lacked shapes.npz and person.npy, so every trial failed later on a missing file
+    from pbc.data.shapes import BodyShapes, save_shapes
+    from pbc.robustness import make_bodies
+
+    d = stand_in_dataset(tmp_path / "data", body)
+    J = len(body.skeleton.names)
+    rest = body.vertices[None].repeat(2, 1, 1)
+    save_shapes(BodyShapes(("height",), np.array([[0.4], [0.6]]), rest * torch.tensor([1.0, 1.02, 1.0]),
+                           body.skeleton.rest_heads[None].repeat(2, 1, 1).reshape(2, J, 3)), d / "shapes.npz")
+    np.save(d / "person.npy", np.arange(N, dtype=np.int64) % 2)
+    manifest = json.loads((d / "manifest.json").read_text())
+    (d / "manifest.json").write_text(json.dumps(dict(manifest, body_shapes={"keys": ["height"], "count": 2})))
+    with pytest.raises(ValueError, match=r"draped on 2 people \(data.body_shape\).*dataset of one body"):
+        make_bodies(d, tmp_path / "sweep", settings(), ["shape_0.5"])
+    assert not (tmp_path / "sweep").exists()
