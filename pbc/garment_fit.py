@@ -103,9 +103,13 @@ def inspect_file(garment: Path, cfg, body, folder: Path, wrap: bool = True):
     return inspect_garment(fitted, cfg.garment, body, wrap=wrap)
 
 
-def default_out(path: Path, root: Path) -> Path:
-    """Where a fit goes without --out: `<root>/runs/fit/<garment name>` (fixed, so a second call resumes)."""
-    return Path(root) / "runs" / "fit" / Path(path).stem
+def default_out(path: Path, root: Path, overrides: list[str] = ()) -> Path:
+    """Where a fit goes without --out: `<root>/runs/fit/<garment name>` (fixed, so a second call resumes), and
+    `<name>_<piece>` for one piece of an outfit (`garment.piece=top`), so its pieces' fits do not collide."""
+    pieces = [o.split("=", 1)[1] for o in overrides if _key(o) == "garment.piece" and "=" in o]
+    piece = pieces[-1].strip("'\"") if pieces else ""
+    name = Path(path).stem + (f"_{piece}" if piece and piece not in ("all", "null") else "")
+    return Path(root) / "runs" / "fit" / name
 
 
 class Fit:

@@ -9,7 +9,8 @@ cut into its pieces, and a garment file to a trained model in one command (issue
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
     pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E]
         inspect, the checks before any drape, the cage, data, a whole-garment model and a preview of the
-        test poses, each step skipped when done (a second call resumes); default DIR runs/fit/<name>
+        test poses, each step skipped when done (a second call resumes); default DIR runs/fit/<name> (an
+        outfit's piece: runs/fit/<name>_<piece>)
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def run(argv: list[str]) -> int:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such garment file")
     if args.command == "fit":
-        out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")))
+        out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")), [*args.overrides, *rest])
         print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs).run())
         return 0
     if args.command == "split":

@@ -1,0 +1,30 @@
+"""`pbc garment fit`'s pure helpers: where a fit goes without --out (an outfit's pieces apart) and the overrides
+that load a garment file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pbc.garment_fit import default_out, garment_overrides
+
+
+def test_each_piece_of_an_outfit_gets_its_own_fit_dir(tmp_path):
+    root = tmp_path / "root"
+    suit = Path("assets/suit01.mhclo")
+    assert default_out(suit, root) == root / "runs" / "fit" / "suit01"
+    top = default_out(suit, root, ["garment.piece=top", "--samples"])
+    bottom = default_out(suit, root, ["garment.piece=bottom"])
+    assert (top.name, bottom.name) == ("suit01_top", "suit01_bottom")  # were both runs/fit/suit01: refused
+    assert default_out(suit, root, ["garment.piece=top", "garment.piece=top_2"]).name == "suit01_top_2"  # last wins
+    assert default_out(suit, root, ["garment.piece=all"]).name == "suit01"  # the whole outfit is the garment
+
+
+def test_a_garment_file_is_loaded_by_its_suffix(tmp_path):
+    obj, mh = tmp_path / "shirt.obj", tmp_path / "shirt.mhclo"
+    assert garment_overrides(obj, []) == ["garment=obj", f"garment.obj={obj.resolve()}"]
+    assert garment_overrides(mh, []) == ["garment=mhclo", f"garment.path={mh.resolve()}", "body=anny"]
+    assert garment_overrides(mh, ["body=anny_tpose"])[-1] != "body=anny"  # the user's body is kept
+    with pytest.raises(ValueError, match=r"an \.obj or a MakeHuman \.mhclo"):
+        garment_overrides(tmp_path / "shirt.fbx", [])
