@@ -460,18 +460,9 @@ class ClothPredictor:
 
     def check_person(self, person) -> None:
         """Refuse a `person` (None, one int, or one per pose) this predictor's dataset does not have, before
-        anything is predicted or written: one ValueError naming the people there are."""
-        if person is None:
-            return
-        people_kw(person, 1)  # an integer
-        k = self.skinner.num_people
-        if k == 0:
-            raise ValueError(f"person {np.asarray(person).tolist()}: the model's dataset {self.dataset.dir} was "
-                             "draped on one body (made without data.body_shape); leave the person out")
-        arr = np.asarray(person)
-        if arr.size and (int(arr.min()) < 0 or int(arr.max()) >= k):
-            raise ValueError(f"person {arr.tolist()} is outside 0..{k - 1}, the {k} people of the model's dataset "
-                             f"{self.dataset.dir} (data.body_shapes)")
+        anything is predicted or written (`Skinner.people`)."""
+        if person is not None:
+            self.skinner.people(person)
 
     # -------------------------------------------------------------------- pieces
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
@@ -481,7 +472,7 @@ class ClothPredictor:
         """Garment positions verts (B, V, 3) at poses (B, J, 3, 3) -> (offsets (B, V, 3) in the models'
         space, anchors (B, V, 3), frames (B, V, 3, 3)): what the models would have to predict. person (B,):
         each sample's person in a dataset of several people (`ClothDataset.person_kw`); None: the base one."""
-        anchors, frames = self.skinner(pose, **({} if person is None else {"person": person}))
+        anchors, frames = self.skinner(pose, person)
         return to_offsets(verts, anchors, frames, self.space), anchors, frames
 
     @torch.inference_mode()
@@ -521,7 +512,7 @@ class ClothPredictor:
             method = method or self.method
             whole = self.whole_offsets(pose) if method in NEEDS_WHOLE else None
             off = self.stitcher(self.patch_crops(pose), method, whole)
-        anchors, frames = self.skinner(pose, **people_kw(person, len(pose)))
+        anchors, frames = self.skinner(pose, person)
         x = from_offsets(off, anchors, frames, self.space)
         return x[0] if single else x
 
@@ -555,19 +546,6 @@ def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: 
             offs.append(predictor.offsets_of(torch.from_numpy(ds.poses[j]).float(),
                                              torch.from_numpy(ds.verts[j]).float(), **person_kw(ds, j))[0])
     return fit_pca(torch.cat(offs), n_components, dataset_hash(ds.dir), fingerprint=dataset_fingerprint(ds))
-
-
-def people_kw(person, n: int) -> dict:
-    """The keyword a Skinner call takes for `person` over n poses: {} for None (the base person), else
-    {"person": (n,) long} from one int (every pose) or n of them (one per pose; the Skinner checks them)."""
-    if person is None:
-        return {}
-    arr = np.asarray(person)
-    if arr.dtype.kind not in "iu" and not (arr.dtype.kind == "f" and np.all(arr == np.round(arr))):
-        raise ValueError(f"person {person!r}: give a person's index, an integer (0..K-1 of the dataset's people)")
-    if arr.ndim == 0:
-        return {"person": torch.full((n,), int(arr), dtype=torch.long)}
-    return {"person": torch.as_tensor(arr.astype(np.int64))}
 
 
 class PoseSet(NamedTuple):

@@ -6,6 +6,7 @@ One job: the differentiable path image -> vertices -> 3D that the normal and edg
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -58,33 +59,42 @@ class Skinner:
         self.builder.to(device)
         return self
 
-    def __call__(self, rotations: Tensor, person: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """rotations (B, J, 3, 3) [, person (B,) long] -> anchors (B, V, 3), frames (B, V, 3, 3) (rows t, b, n)."""
+    def __call__(self, rotations: Tensor, person=None) -> tuple[Tensor, Tensor]:
+        """rotations (B, J, 3, 3) [, person: one int or (B,) (`people`)] -> anchors (B, V, 3), frames (B, V, 3, 3)
+        (rows t, b, n)."""
         if self.points.device != rotations.device:
             self.to(rotations.device)
         if person is None:
             transforms = forward_kinematics(self.skeleton, rotations)
             body = linear_blend_skinning(self.points, self.weights, transforms)  # (B, U, 3)
         else:
-            person = self._check_person(person, rotations)
+            person = self.people(person, rotations.shape[0]).to(rotations.device)
             transforms = forward_kinematics(self.skeleton, rotations, self.people_heads[person])
             body = linear_blend_skinning(self.people_points[person], self.weights, transforms)
         anchors = embedded_anchors(body, self.local_faces, self._emb_local)
         frames = self.builder(anchors, embedded_body_normals(body, self.local_faces, self._emb_local))
         return anchors, frames
 
-    def _check_person(self, person, rotations: Tensor) -> Tensor:
-        """person as a (B,) long tensor on the rotations' device; one ValueError for a bad one."""
-        person = torch.as_tensor(person).long().reshape(-1).to(rotations.device)
+    def people(self, person, n: int | None = None) -> Tensor:
+        """`person` checked: one int (every one of n poses) or (n,) indices -> (n,) long (n None: as given, no
+        count to match). One ValueError for a non-integer, a single-body skinner, a wrong count or an index
+        outside the people."""
+        arr = np.asarray(person.cpu() if isinstance(person, Tensor) else person)
+        if arr.dtype.kind not in "iu" and not (arr.dtype.kind == "f" and np.all(arr == np.round(arr))):
+            raise ValueError(f"person {arr.tolist()!r}: give a person's index, an integer (0..K-1 of the dataset's "
+                             "people)")
         if self.people_points is None:
-            raise ValueError("a person index was given, but this body has one person: the dataset was made "
-                             "without data.body_shape")
-        if len(person) != rotations.shape[0]:
-            raise ValueError(f"person: expected {rotations.shape[0]} indices (one per pose), got {len(person)}")
-        if len(person) and (int(person.min()) < 0 or int(person.max()) >= self.num_people):
-            raise ValueError(f"person index {person.tolist()} is outside 0..{self.num_people - 1}, the dataset's "
-                             "people (data.body_shapes)")
-        return person
+            raise ValueError("a person index was given, but this body has one person: the dataset was draped on one "
+                             "body (made without data.body_shape); leave the person out")
+        if arr.ndim == 0 and n is not None:
+            arr = np.full(n, int(arr))
+        idx = torch.as_tensor(arr.astype(np.int64)).reshape(-1)
+        if n is not None and len(idx) != n:
+            raise ValueError(f"person: expected {n} indices (one per pose), got {len(idx)}")
+        if len(idx) and (int(idx.min()) < 0 or int(idx.max()) >= self.num_people):
+            raise ValueError(f"person index {idx.tolist()} is outside 0..{self.num_people - 1}, the "
+                             f"{self.num_people} people of the dataset (data.body_shapes)")
+        return idx
 
 
 class _LocalEmbedding:
