@@ -74,7 +74,7 @@ def run(argv: list[str]) -> int:
                               wrap=not args.no_wrap)
         print(format_report(report, dict(cfg.garment.shrinkwrap)))
     if args.out:
-        fitted = [Path(args.out) / "fitted.obj"] if cfg.garment.get("kind") == "mhclo" else []
+        fitted = [Path(report.path)] if Path(report.path) != path else []  # what inspect_file wrote
         for target in (save_uv_picture(report, Path(args.out) / "uv_layout.png"),
                        save_body_picture(report, Path(args.out) / "on_body.png"), *fitted):
             print(f"wrote {target}")

@@ -206,7 +206,8 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dic
         if reach.max() <= x0:
             continue
         lo, hi = x0 + 0.5 * (reach.max() - x0), reach.max()
-        sleeve = tube_axis(p, f[(reach > lo) & (centre[:, 1] > 0.0)])
+        sel = (reach > lo) & (centre[:, 1] > 0.0)
+        sleeve = tube_axis(p, f[sel])
         if sleeve is None or sleeve[1] > 0.35:  # not a tube (a flat flap, a cape): no axis to compare
             continue
         axis = sleeve[0] * (1.0 if sgn * sleeve[0][0] >= 0 else -1.0)  # pointing away from the body
@@ -216,7 +217,7 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dic
         arm = arms[side] if skin is None or skin[1] > 0.35 else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
         angle = float(np.degrees(np.arccos(np.clip(abs(axis @ arm), 0.0, 1.0))))
         out[side] = {"axis": axis, "arm": arm, "angle_deg": angle, "droop_deg": droop_deg(axis),
-                     "arm_droop_deg": droop_deg(arm), "faces": int(((reach > lo) & (centre[:, 1] > 0.0)).sum())}
+                     "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum())}
     return out
 
 
