@@ -7,7 +7,7 @@ once per machine, 82-158 s and 790 MB on 2 cores), the body build (mesh, merged 
 primitives), posing at batch 1 and 32 (pbc's forward kinematics + linear blend skinning, and Anny's own
 forward pass for the same poses), the shrink-wrap of the garment, and the drape seconds per sample of
 the same garment and poses on each body (body=mannequin against body=anny_tpose: the procedural shirt is
-modelled on a T-pose), and of the shirt sized to Anny (garment.fit_to_body: Anny's chest, arm axis and
+modelled on a T-pose), and of the shirt sized to Anny (garment.size_to_body: Anny's chest, arm axis and
 torso length; more vertices). Then the process's peak memory (RSS). The last line is one JSON object with the
 figures and the ratios Anny / mannequin, naming the device.
 """
@@ -23,18 +23,12 @@ import time
 import numpy as np
 import torch
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.generate import build_scene, drape_pose
-from pbc.geometry.anny_body import (
-    ANNY_TO_PBC,
-    anny_rest,
-    check_phenotype,
-    joint_table,
-    load_anny_model,
-)
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.body import pose_body
-from pbc.geometry.skeleton import forward_kinematics
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.anny import ANNY_TO_PBC, anny_rest, check_phenotype, joint_table, load_anny_model
+from pbc.geometry.body.base import pose_body
+from pbc.geometry.body.skeleton import forward_kinematics
 from pbc.sim.poses import SamplingSettings, euler_xzy_to_matrix, sample_angles, sample_poses
 
 
@@ -99,12 +93,12 @@ def main(argv: list[str]) -> dict:
                 out[f"anny_forward_b{B}_ms"] = 1e3 * s
                 rows.append(("Anny's own forward", f"batch {B}", f"{1e3 * s:.1f} ms"))
 
-    # the same garment on both bodies (the ratio), then the garment sized to Anny (garment.fit_to_body)
+    # the same garment on both bodies (the ratio), then the garment sized to Anny (garment.size_to_body)
     for name, key, sized in (("mannequin", "mannequin", False), ("anny", "anny_tpose", False),
                              ("anny_sized", "anny_tpose", True)):
         t = time.perf_counter()
         scene, stats = build_scene(load_config([f"body={key}", f"garment={garment}",
-                                                f"garment.fit_to_body.enabled={str(sized).lower()}"]))
+                                                f"garment.size_to_body.enabled={str(sized).lower()}"]))
         key = f"{key}, sized shirt" if sized else key
         out[f"{name}_scene_s"] = time.perf_counter() - t
         rows.append((f"body + shrink-wrap: {key}", f"{garment}, max |sdf| {1e3 * stats['max_abs_sdf']:.0f} mm",

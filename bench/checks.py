@@ -2,7 +2,7 @@
 
     python bench/checks.py [samples=4000] [vertices=3153]
 
-1. `pbc.validate.as_poses` per call, with and without the rotation test, at batch 1 / 64 / 1024 (the
+1. `pbc.core.validate.as_poses` per call, with and without the rotation test, at batch 1 / 64 / 1024 (the
    predictor's and the module's first line; compare with a forward pass of milliseconds).
 2. `pbc.data.dataset.bad_samples` over memory-mapped (N, V, 3) vertices and (N, 10, 3, 3) poses: what
    opening a dataset costs once per process (the tshirt_small shirt has 3153 vertices).
@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pbc.core.io import load_npy, save_npy
+from pbc.core.validate import as_poses
 from pbc.data.dataset import bad_samples
-from pbc.io import load_npy, save_npy
-from pbc.validate import as_poses
 
 J = 10
 

@@ -31,9 +31,10 @@ import time
 import numpy as np
 import torch
 
-from pbc.config import load_config
-from pbc.geometry.body import build_body, pose_body
-from pbc.geometry.garment import make_tshirt
+from pbc.core.config import load_config
+from pbc.geometry.body.base import pose_body
+from pbc.geometry.body.mannequin import build_mannequin
+from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.geometry.shrinkwrap import embedded_points, shrinkwrap
 from pbc.sim.drape import (
     _part_meshes,
@@ -65,7 +66,7 @@ def pose_rotations(skel, spec: dict) -> torch.Tensor:
 def main(argv: list[str]) -> dict:
     n_poses = int(next((a.split("=", 1)[1] for a in argv if a.startswith("poses=")), len(POSES)))
     cfg = load_config([])
-    body = build_body(cfg.body)
+    body = build_mannequin(cfg.body)
     rows = []
     for gname in ("tshirt_coarse", "tshirt"):
         gcfg = load_config([f"garment={gname}"]).garment

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pbc.config import load_config
+from pbc.core.config import load_config
+from pbc.core.io import atomic_path
 from pbc.data.generate import batch_size, build_scene, drape_batch, drape_pose
-from pbc.io import atomic_path
 from pbc.sim.drape import init_warp
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 

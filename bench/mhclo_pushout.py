@@ -1,5 +1,5 @@
 """How much of a tight MakeHuman garment ends up inside the Anny body when it follows another phenotype, and so what
-`garment.push_out` (pbc/geometry/mhclo.py) has to move.
+`garment.push_out` (pbc/geometry/garment/mhclo.py) has to move.
 
     python bench/mhclo_pushout.py
 
@@ -20,11 +20,12 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from pbc.config import load_config
-from pbc.geometry.anny_body import base_mesh_vertices
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.mhclo import Mhclo, fit_vertices, offset_scales, push_out, surface_distance
-from pbc.geometry.obj_import import parse_obj
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.anny import base_mesh_vertices
+from pbc.geometry.garment.mhclo import Mhclo, bound_positions, offset_scales
+from pbc.geometry.meshio import parse_obj
+from pbc.geometry.meshops import push_out, surface_distance
 
 PHENOTYPES = ({"weight": 0.9}, {"weight": 0.1}, {"muscle": 0.9, "gender": 1.0}, {"gender": 0.0, "weight": 0.8},
               {"height": 0.85, "proportions": 0.9}, {"age": 1.0, "weight": 0.7})
@@ -49,7 +50,7 @@ def tight_top(base: np.ndarray, faces: np.ndarray, body) -> Mhclo:
               offsets=np.zeros((len(garment), 3)), lines=rows)
     m.scales = [(a, b, abs(base[a, k] - base[b, k]) * 10, 0) for k, (a, b) in enumerate(HEAD_SCALES)]
     m.offsets = (garment - np.einsum("vk,vkc->vc", w, base[m.refs])) / offset_scales(m, base)
-    assert np.abs(fit_vertices(m, base) - garment).max() < 1e-9
+    assert np.abs(bound_positions(m, base) - garment).max() < 1e-9
     return m
 
 
@@ -65,7 +66,7 @@ def main() -> None:
         body, base = body_from_config(cfg), base_mesh_vertices(cfg).numpy()
         bv, bf = body.vertices.double().numpy(), body.faces.numpy()
         row = []
-        for name, pts in [("tight top", fit_vertices(m, base))] + [(g, base[np.unique(f)]) for g, f in helper.items()]:
+        for name, pts in [("tight top", bound_positions(m, base))] + [(g, base[np.unique(f)]) for g, f in helper.items()]:
             _, st = push_out(pts, bv, bf, 0.002)
             row.append(f"{name}: {st['inside']} inside ({100 * st['inside_fraction']:.1f}%, max "
                        f"{st['inside_depth_max_mm']:.1f} mm)")

@@ -28,12 +28,14 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pbc.core.runs import RunRecord, monitor  # noqa: E402
+from pbc.geometry.body.skeleton import skeleton_from_config  # noqa: E402
 from pbc.geometry.meshio import write_garment_mesh  # noqa: E402
-from pbc.geometry.skeleton import skeleton_from_config  # noqa: E402
+from pbc.inference.poses import read_motion  # noqa: E402
+from pbc.inference.predictor import ClothPredictor  # noqa: E402
+from pbc.jobs.predict import predict_sequence  # noqa: E402
+from pbc.jobs.writers import FrameObjWriter  # noqa: E402
 from pbc.motion.retarget import load_joint_map  # noqa: E402
-from pbc.motion.writers import FrameObjWriter  # noqa: E402
-from pbc.predict import ClothPredictor, predict_sequence, read_motion  # noqa: E402
-from pbc.runs import RunRecord, monitor  # noqa: E402
 
 GOAL_S = 60.0
 
@@ -88,16 +90,19 @@ def walk_bvh(path: Path, frames: int, fps: float = 120.0) -> Path:
 
 def stand_in_run(root: Path) -> Path:
     """The full-size body and shirt with stand-in offsets, and an untrained real-size whole model run."""
+    from pbc.core.config import load_garment_config
     from pbc.data.dataset import save_embedding
-    from pbc.geometry.body import build_body, save_body
-    from pbc.geometry.cage import save_cage
-    from pbc.geometry.garment import load_garment_config, make_tshirt, save_garment_obj
+    from pbc.geometry.body.base import save_body
+    from pbc.geometry.body.mannequin import build_mannequin
+    from pbc.geometry.cage.base import save_cage
+    from pbc.geometry.garment.base import save_garment_obj
+    from pbc.geometry.garment.tshirt import make_tshirt
     from pbc.geometry.shrinkwrap import embed_points
     from pbc.models.module import ClothModule
     from pbc.pixels.reconstruct import Skinner
     from pbc.sim.poses import euler_xzy_to_matrix
 
-    body = build_body(OmegaConf.load(ROOT / "conf/body/mannequin.yaml"))
+    body = build_mannequin(OmegaConf.load(ROOT / "conf/body/mannequin.yaml"))
     garment, cage = make_tshirt(load_garment_config(ROOT / "conf/garment/tshirt.yaml"))
     V, J = garment.vertices.shape[0], len(body.skeleton.names)
     emb = embed_points(garment.vertices.numpy(), body, np.zeros(V, np.int64), 16)

@@ -58,7 +58,7 @@ def paper_predictor(stitch_cfg):
 
     from hydra.utils import instantiate
 
-    from pbc.predict import ClothPredictor
+    from pbc.inference.predictor import ClothPredictor
 
     sys.path.insert(0, str(ROOT / "tests"))
     from helpers.evaluate_world import IMAGE, fake_dataset
@@ -89,16 +89,16 @@ def main() -> None:
     DEVICE = torch.device(args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
-    from pbc.predict import LoopPatchNet, StackedPatchNet
+    from pbc.inference.predictor import LoopPatchNet, StackedPatchNet
 
     stitch_cfg = OmegaConf.load(ROOT / "conf/stitch/average.yaml")
     if args.patches:
-        from pbc.predict import ClothPredictor
+        from pbc.inference.predictor import ClothPredictor
 
         pred = ClothPredictor.from_runs(args.whole, args.patches, stitch_cfg, device=DEVICE)
     else:
         pred = paper_predictor(stitch_cfg)
-    from pbc.evaluate import fit_training_pca
+    from pbc.inference.predictor import fit_training_pca
 
     pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
     dev_name = torch.cuda.get_device_name(DEVICE) if DEVICE.type == "cuda" else "CPU"

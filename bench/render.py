@@ -85,7 +85,8 @@ def main() -> None:
         x = to_offsets(verts, anchors, frames, "local")
         source = f"dataset {args.data} ({len(data)} samples, {n} used)"
     else:
-        from pbc.geometry.garment import load_garment_config, make_tshirt
+        from pbc.core.config import load_garment_config
+        from pbc.geometry.garment.tshirt import make_tshirt
 
         garment, _ = make_tshirt(load_garment_config(ROOT / "conf/garment/tshirt_coarse.yaml"))
         p = garment.vertices[None] * torch.linspace(0.5, 1.5, args.batch)[:, None, None]

@@ -34,12 +34,12 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pbc.config import load_config  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
 from pbc.data.datamodule import PoseVerts  # noqa: E402
-from pbc.losses import image_loss  # noqa: E402
+from pbc.jobs.train import datamodule, net_config  # noqa: E402
+from pbc.models.losses import image_loss  # noqa: E402
 from pbc.models.module import ClothModule  # noqa: E402
 from pbc.pixels.target import build_cache  # noqa: E402
-from pbc.train import datamodule, net_config  # noqa: E402
 
 NORMAL_WEIGHT = 0.01  # conf/loss/l1_normal.yaml's weight; the cost, not the value, is measured
 

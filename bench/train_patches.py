@@ -30,9 +30,9 @@ sys.path.insert(0, str(ROOT))
 
 from hydra.utils import instantiate  # noqa: E402
 
-from pbc.config import load_config  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
+from pbc.jobs.train import datamodule, net_config  # noqa: E402
 from pbc.models.module import ClothModule  # noqa: E402
-from pbc.train import datamodule, net_config  # noqa: E402
 
 
 def timed(fn, steps: int, dev: torch.device, warmup: int = 1) -> float:

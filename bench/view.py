@@ -42,7 +42,7 @@ def mean_ms(fn, poses, reps: int) -> float:
 
 
 def predictor_from(args):
-    from pbc.predict import ClothPredictor, stitch_config
+    from pbc.inference.predictor import ClothPredictor, stitch_config
 
     if args.whole or args.patches:
         return ClothPredictor.from_runs(args.whole, args.patches, stitch_config("average") if args.patches else None)
@@ -71,7 +71,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from pbc.view import ClothViewer, start_viewer, view_meshes
+    from pbc.jobs.view import ClothViewer, start_viewer, view_meshes
 
     pred = predictor_from(args)
     viewer: ClothViewer = start_viewer(pred, "127.0.0.1", 0, log=lambda *_: None)

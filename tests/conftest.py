@@ -32,7 +32,7 @@ def tiny_overrides(data_dir: Path | str, *extra: str) -> list[str]:
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory) -> Path:
     """Directory of a finished `data=tshirt_tiny` dataset made by the real pipeline (generate + drape)."""
-    from pbc.config import load_config
+    from pbc.core.config import load_config
     from pbc.data.generate import generate
 
     return generate(load_config(tiny_overrides(tmp_path_factory.mktemp("tiny_data"))))
@@ -64,7 +64,7 @@ def body_cfg():
 
 @pytest.fixture(scope="session")
 def skeleton(body_cfg):
-    from pbc.geometry.skeleton import skeleton_from_config
+    from pbc.geometry.body.skeleton import skeleton_from_config
 
     return skeleton_from_config(body_cfg)
 
@@ -72,9 +72,9 @@ def skeleton(body_cfg):
 @pytest.fixture(scope="session")
 def body(body_cfg):
     """The coarse mannequin (~1.5K vertices); treat as read-only."""
-    from pbc.geometry.body import build_body
+    from pbc.geometry.body.mannequin import build_mannequin
 
-    return build_body(body_cfg)
+    return build_mannequin(body_cfg)
 
 
 def pytest_collection_modifyitems(config, items):
@@ -113,7 +113,7 @@ def unit_tier_rules(request, monkeypatch):
 @pytest.fixture(scope="session")
 def anny_cfg():
     """The Anny body config; shared, so copy it before changing it."""
-    from pbc.config import load_config
+    from pbc.core.config import load_config
 
     return load_config(["body=anny"]).body
 
@@ -121,6 +121,6 @@ def anny_cfg():
 @pytest.fixture(scope="session")
 def anny_body(anny_cfg):
     """The Anny body (13,718 vertices, 20 posable joints); treat as read-only."""
-    from pbc.geometry.bodies import body_from_config
+    from pbc.geometry.body import body_from_config
 
     return body_from_config(anny_cfg)

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pbc.geometry.garment import load_garment_config, make_tshirt
+from pbc.core.config import load_garment_config
+from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.stitch.cage_basis import anisotropic_tensor, build_cage_basis
 from pbc.stitch.cage_study import figure4
 

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from pbc.data.dataset import load_dataset
-from pbc.geometry.body import pose_body
-from pbc.predict import contact_sheet
+from pbc.geometry.body.base import pose_body
+from pbc.jobs.writers import contact_sheet
 
 
 def main(pred_dir: str, data_dir: str, out: str) -> None:

@@ -12,15 +12,15 @@ import json
 import sys
 from pathlib import Path
 
-from pbc.report import Row, figures
-from pbc.runs import PATCH_PREFIX
+from pbc.jobs.report import Row, figures
+from pbc.core.runs import PATCH_PREFIX
 
 
 def redraw(folder: Path) -> dict[str, str]:
     data = json.loads((folder / "report.json").read_text())
     rows = {k: [Row(**r) for r in data.get(k, [])] for k in ("table1", "table2", "patches", "hierarchy")}
     for row in rows["patches"]:
-        # reports made before the scoped names (pbc.runs.scoped_name) hold a patch run's own-vertex error
+        # reports made before the scoped names (pbc.core.runs.scoped_name) hold a patch run's own-vertex error
         # under the plain name; the figure reads the scoped one
         for key in list(row.values):
             split, _, name = key.partition("/")

@@ -18,12 +18,12 @@ from __future__ import annotations
 import argparse
 
 from pbc.cli.errors import entry_point
-from pbc.config import load_config
-from pbc.geometry.anny_body import anny_cache_dir, cache_files, trim_anny_cache
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.measure import inside_fit, measurements
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.anny import anny_cache_dir, cache_files, trim_anny_cache
+from pbc.geometry.body.measure import inside_test_gap, measurements
+from pbc.geometry.body.skeleton import AXES
 from pbc.geometry.meshio import write_mesh
-from pbc.geometry.skeleton import AXES
 
 
 def show(cfg, body) -> str:
@@ -36,7 +36,7 @@ def show(cfg, body) -> str:
     lines.append(f"height {100 * m['height']:.1f} cm; girths: chest {100 * m['chest']:.1f} cm, waist "
                  f"{100 * m['waist']:.1f} cm, hips {100 * m['hips']:.1f} cm (at {100 * m['chest_at']:.0f}, "
                  f"{100 * m['waist_at']:.0f}, {100 * m['hips_at']:.0f} cm above the root)")
-    fit = inside_fit(body)
+    fit = inside_test_gap(body)
     lines.append(f"inside test vs mesh (|SDF| at the vertices): mean {100 * fit['mean']:.2f} cm, p95 "
                  f"{100 * fit['p95']:.2f} cm, max {100 * fit['max']:.2f} cm")
     lines.append(f"{'joint':<12}{'parent':<12}{'rest head (m)':<26}limits (deg, relative to rest)")

@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 
 from pbc.cli.errors import entry_point
-from pbc.config import load_config
-from pbc.geometry.autocage import auto_cage, cage_summary
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.cage import load_cage, save_cage
-from pbc.geometry.garment import load_garment_config, write_tshirt_cage
-from pbc.geometry.garments import garment_from_config, garment_needs_body
-from pbc.paths import resolve_path
+from pbc.core.config import load_config, load_garment_config
+from pbc.core.paths import resolve_path
+from pbc.geometry.body import body_from_config
+from pbc.geometry.cage.auto import auto_cage, cage_summary
+from pbc.geometry.cage.base import load_cage, save_cage
+from pbc.geometry.garment import garment_from_config, garment_needs_body
+from pbc.geometry.garment.tshirt import write_tshirt_cage
 
 
 def run(argv: list[str]) -> int:

@@ -12,9 +12,9 @@ import torch
 from omegaconf import OmegaConf
 
 from pbc.cli.errors import entry_point
+from pbc.core.io import write_json, write_text
+from pbc.core.paths import CONF_DIR
 from pbc.data.dataset import load_dataset
-from pbc.io import write_json, write_text
-from pbc.paths import CONF_DIR
 from pbc.pixels.target import make_target
 from pbc.stitch.cage_basis import build_cage_basis, reconstruction_error, tensor_from_config
 from pbc.stitch.cage_study import dataset_offsets, figure4, seam_study

@@ -8,7 +8,7 @@ import json
 
 from pbc.cli.errors import entry_point
 from pbc.edit import __doc__ as EDIT_DOC
-from pbc.edit import run_edit
+from pbc.jobs.edit import run_edit
 
 DESCRIPTION = EDIT_DOC.split("\n\n")[0]
 

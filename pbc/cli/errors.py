@@ -21,10 +21,10 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
-from pbc.config import load_config
-from pbc.io import DiskFull, LockHeld
-from pbc.paths import CONF_DIR
-from pbc.validate import suggest_config_key
+from pbc.core.config import load_config
+from pbc.core.io import DiskFull, LockHeld
+from pbc.core.paths import CONF_DIR
+from pbc.core.validate import suggest_config_key
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, LockHeld,
                DiskFull, HydraException, OmegaConfBaseException)
@@ -80,7 +80,7 @@ def entry_point(name: str, run: Callable[[list[str]], int | None]) -> Callable[[
 
 def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name: str = "config") -> None:
     """Run the Hydra job `task` (a function of the composed config) with command-line `args`, the configs
-    read from pbc's shipped conf/ (pbc.paths) wherever pbc is installed.
+    read from pbc's shipped conf/ (pbc.core.paths) wherever pbc is installed.
 
     Hydra prints an exception itself and exits 1; here it re-raises instead (HYDRA_FULL_ERROR for the
     duration) so the entry floor's handler decides. In a single run the task's own exception is carried
@@ -130,7 +130,7 @@ def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name
 
 def config_key_hint(message: str, args: list[str], config_name: str) -> str | None:
     """For a mistyped override (`trainer.max_epoch=3`): the key meant, from the config the other
-    overrides compose (pbc.validate.suggest_config_key); None when that is not the error."""
+    overrides compose (pbc.core.validate.suggest_config_key); None when that is not the error."""
     key = message.split("'")[1] if message.startswith("Could not override '") else None
     if key is None:
         return suggest_config_key(message)

@@ -11,8 +11,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from pbc.cli.errors import entry_point, run_hydra
-from pbc.evaluate import evaluate, markdown_table
-from pbc.validate import check_config
+from pbc.core.validate import check_config
+from pbc.jobs.evaluate import evaluate, markdown_table
 
 log = logging.getLogger(__name__)
 

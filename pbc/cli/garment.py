@@ -21,10 +21,11 @@ import tempfile
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
-from pbc.config import load_config
-from pbc.garment_fit import Fit, default_out, garment_overrides, inspect_file
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture, split_outfit
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.garment.outfit import split_outfit
+from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture
+from pbc.jobs.garment_fit import Fit, default_out, garment_overrides, inspect_file
 
 
 def run(argv: list[str]) -> int:

@@ -18,9 +18,9 @@ import time
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
+from pbc.core.runs import ModelKind, RunRecord, scoped_name
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
-from pbc.runs import ModelKind, RunRecord, scoped_name
 
 RUNS = Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "main"  # conf/paths: ${paths.log_dir}/main
 STEPS = [

@@ -12,19 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from pbc.cli.errors import entry_point
+from pbc.inference.poses import check_max_poses, read_motion, read_poses
+from pbc.inference.predictor import ClothPredictor, fit_training_pca, pretrained_run, stitch_config
+from pbc.jobs.predict import predict_sequence, predict_to_dir
 from pbc.motion.ranges import range_summary
 from pbc.motion.retarget import shipped_joint_maps
-from pbc.predict import (
-    ClothPredictor,
-    check_max_poses,
-    fit_training_pca,
-    predict_sequence,
-    predict_to_dir,
-    pretrained_run,
-    read_motion,
-    read_poses,
-    stitch_config,
-)
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
 

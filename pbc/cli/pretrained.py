@@ -6,9 +6,9 @@ from __future__ import annotations
 import argparse
 
 from pbc.cli.errors import entry_point
+from pbc.core.runs import RunRecord
 from pbc.pretrained import SHIPPED_DIR, pretrained_dir, shipped_models
 from pbc.pretrained.pack import CARD, pack_run
-from pbc.runs import RunRecord
 
 EXAMPLES = """examples:
   pbc pretrained list                                            # the shipped models and their test errors

@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.dataset import load_dataset
 from pbc.pixels.preview import preview as cloth_image_preview
 

@@ -8,10 +8,10 @@ import argparse
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
-from pbc.io import read_json
+from pbc.core.io import read_json
+from pbc.core.runs import SWEEP_RECORD
+from pbc.jobs.sweeps import build_sweep_report
 from pbc.report import __doc__ as REPORT_DOC
-from pbc.runs import SWEEP_RECORD
-from pbc.sweeps import build_sweep_report
 
 
 def run(argv: list[str]) -> int:

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from pbc.cli.errors import entry_point
-from pbc.sweeps import SWEEP_NAMES, run_sweep
+from pbc.jobs.sweeps import SWEEP_NAMES, run_sweep
 
 
 def run(argv: list[str]) -> int:

@@ -13,7 +13,7 @@ import logging
 from omegaconf import DictConfig
 
 from pbc.cli.errors import entry_point, run_hydra
-from pbc.train import record_failure, train
+from pbc.jobs.train import record_failure, train
 
 log = logging.getLogger(__name__)
 

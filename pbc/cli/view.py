@@ -1,15 +1,15 @@
 """`pbc view RUN [options]` (or `--pretrained NAME`): a local web viewer of a trained garment model, the body
-and the predicted garment live under joint sliders, in the browser (pbc.view does the work)."""
+and the predicted garment live under joint sliders, in the browser (pbc.jobs.view does the work)."""
 
 from __future__ import annotations
 
 import argparse
 
 from pbc.cli.errors import entry_point
-from pbc.predict import ClothPredictor, pretrained_run, stitch_config
+from pbc.inference.predictor import ClothPredictor, pretrained_run, stitch_config
+from pbc.jobs.view import check_port, load_sequence, start_viewer, url, view_config, wait_forever
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
-from pbc.view import check_port, load_sequence, start_viewer, url, view_config, wait_forever
 
 EXAMPLES = """examples:
   pbc view runs/main/latest/whole                                    # the whole-shirt model

@@ -24,13 +24,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from pbc.core.io import atomic_path, load_npy, load_npz, read_json
+from pbc.core.validate import ROTATION_TOL, identity_diff, rotation_errors
 from pbc.data.shapes import BodyShapes, load_shapes, person_body
-from pbc.geometry.body import Body, load_body
-from pbc.geometry.cage import Cage, load_cage
-from pbc.geometry.garment import Garment, load_garment_obj
+from pbc.geometry.body.base import Body, load_body
+from pbc.geometry.cage.base import Cage, load_cage
+from pbc.geometry.garment.base import Garment, load_garment_obj
 from pbc.geometry.shrinkwrap import Embedding
-from pbc.io import atomic_path, load_npy, load_npz, read_json
-from pbc.validate import ROTATION_TOL, identity_diff, rotation_errors
 
 FORMAT_VERSION = 1
 SPLITS = ("train", "val", "test")
@@ -201,7 +201,7 @@ def _file_version(d: Path) -> tuple:
 def check_dataset(data: ClothDataset, force: bool = False) -> None:
     """Read every sample once; one ValueError naming the bad sample ids and the fix.
 
-    Checked: poses finite and rotations (pbc.validate.ROTATION_TOL), vertices finite and every coordinate
+    Checked: poses finite and rotations (pbc.core.validate.ROTATION_TOL), vertices finite and every coordinate
     within PLAUSIBLE_REACH x the rest body's farthest point from the root. Skipped when this process already
     checked the same files (same size and mtime), unless `force`.
     """

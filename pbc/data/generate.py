@@ -36,15 +36,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
-from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.body import Body, pose_body, save_body
-from pbc.geometry.cage import Cage, save_cage
-from pbc.geometry.garment import Garment, save_garment_obj
-from pbc.geometry.garments import garment_from_config, garment_needs_body
-from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.io import (
+from pbc.core.io import (
     DiskFull,
     LockHeld,
     atomic_path,
@@ -57,10 +49,18 @@ from pbc.io import (
     save_npy,
     write_json,
 )
+from pbc.core.validate import check_config, identity_diff, moving_joints
+from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
+from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.base import Body, pose_body, save_body
+from pbc.geometry.cage.base import Cage, save_cage
+from pbc.geometry.garment import garment_from_config, garment_needs_body
+from pbc.geometry.garment.base import Garment, save_garment_obj
+from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.sim.batched import batched_drape_for_garment
 from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
-from pbc.validate import check_config, identity_diff, moving_joints
 
 log = logging.getLogger(__name__)
 
@@ -404,7 +404,7 @@ def _check_or_write_fingerprint(out: Path, fp: dict) -> None:
 def generate(cfg: DictConfig, wait_s: float = 0.0) -> Path:
     """Generate (or resume, or merge) the dataset configured by `cfg.data`. Returns its directory.
 
-    A second generator on the same directory is refused (pbc.io.LockHeld names the holder): a whole run
+    A second generator on the same directory is refused (pbc.core.io.LockHeld names the holder): a whole run
     or merge holds `.generate.lock` exclusively; shard runs share it and each holds its own shard lock,
     so shards of one dataset run side by side but never beside a merge (which removes work/).
     `wait_s` > 0 waits that long for the holder instead, with a log line (training's `ensure_dataset`:

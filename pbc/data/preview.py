@@ -23,14 +23,12 @@ from matplotlib.colors import Normalize  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
+from pbc.core.io import save_figure  # noqa: E402
 from pbc.data.dataset import ClothDataset, load_dataset  # noqa: E402
-from pbc.geometry.body import pose_body  # noqa: E402
-from pbc.geometry.meshio import write_garment_mesh, write_mesh  # noqa: E402
-from pbc.io import save_figure  # noqa: E402
+from pbc.geometry.body.base import pose_body  # noqa: E402
+from pbc.geometry.meshio import SIDE_NAMES, write_garment_mesh, write_mesh  # noqa: E402
 from pbc.pixels.preview import preview as cloth_image_preview  # noqa: E402
 from pbc.sim.poses import plot_angle_histograms  # noqa: E402
-
-SIDE_NAMES = ("front", "back")
 
 
 def plot_uv_layout(ds: ClothDataset, path: Path) -> Path:

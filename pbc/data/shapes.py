@@ -22,9 +22,9 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from torch import Tensor
 
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.body import Body
-from pbc.io import atomic_path, hash_arrays, load_npz
+from pbc.core.io import atomic_path, hash_arrays, load_npz
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.base import Body
 
 # mixed into the data seed, so the people's draw is a stream of its own (the poses keep theirs)
 SHAPE_STREAM = 23

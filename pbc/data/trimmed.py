@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pbc.core.io import load_npy, read_json, save_npy, write_json
 from pbc.data.dataset import SPLITS, ClothDataset, dataset_fingerprint
-from pbc.geometry.skeleton import AXES
-from pbc.io import load_npy, read_json, save_npy, write_json
+from pbc.geometry.body.skeleton import AXES
 
 TRAINING_FILE = "training.json"
 MEAN_FILE = "mean_offsets.npy"

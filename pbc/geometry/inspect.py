@@ -6,7 +6,7 @@ pictures; and an outfit in one mesh cut into its pieces, one OBJ each, named by 
     pbc garment inspect my.obj [body=... garment.uv_unit=...] --out figures/
     pbc garment split outfit.obj --out pieces/
 
-The measurements are pbc.geometry.fit's, the ones the import and the shrink-wrap check.
+The measurements are pbc.geometry.garment.checks's, the ones the import and the shrink-wrap check.
 """
 
 from __future__ import annotations
@@ -21,28 +21,23 @@ import torch
 from matplotlib.collections import PolyCollection
 from omegaconf import OmegaConf
 
-from pbc.geometry.autocage import auto_cage
-from pbc.geometry.body import Body, body_sdf
-from pbc.geometry.fit import (
+from pbc.core.io import atomic_path
+from pbc.geometry.body.base import Body, body_sdf
+from pbc.geometry.cage.auto import auto_cage
+from pbc.geometry.garment.checks import (
     body_region,
     droop_deg,
-    face_areas,
     face_patches,
-    fitted_uv_unit,
-    mesh_pieces,
-    name_unit,
     patch_stretch,
     rest_arm_directions,
     sleeve_axes,
 )
-from pbc.geometry.garment import uv_islands
-from pbc.geometry.obj_import import chart_names, check_mesh, import_garment, metres_per_unit, parse_obj
+from pbc.geometry.garment.obj_import import chart_names, check_mesh, import_garment
+from pbc.geometry.meshio import parse_obj
+from pbc.geometry.meshops import face_areas, uv_islands
 from pbc.geometry.shrinkwrap import wrap_positions
-from pbc.io import atomic_path
+from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
 
-# the body frame (metres, y up, root at the waist): a piece centred above HEAD_Y sits on the head, above
-# TOP_Y on the torso, above FEET_Y on the legs, below on the feet
-HEAD_Y, TOP_Y, FEET_Y = 0.60, -0.05, -0.80
 # a direction whose share of a chart's summed outward normal is below this faces no one way ("all round")
 FACING_MIN = 0.35
 
@@ -120,11 +115,11 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
         k = vid[int(gap[vid].argmax())]
         rows.append(ChartRow(id=c, name=name, centroid=np.average(t[sel].mean(1), axis=0, weights=a3[sel]),
                              facing=_facing(n[sel].sum(0), a3[sel].sum()), area_3d=float(a3[sel].sum()),
-                             area_uv=float(auv[sel].sum()), uv_unit=fitted_uv_unit(a3[sel].sum(), auv[sel].sum()),
+                             area_uv=float(auv[sel].sum()), uv_unit=uv_unit_from_areas(a3[sel].sum(), auv[sel].sum()),
                              distance_max=float(gap[k]), region=body_region(body, p[k])))
     uv_range = float(np.ptp(mesh.uv[np.unique(mesh.face_uv)], axis=0).max())
     stated = str(gcfg.get("uv_unit", "auto"))
-    fit_all = fitted_uv_unit(a3.sum(), auv.sum())
+    fit_all = uv_unit_from_areas(a3.sum(), auv.sum())
     if stated != "auto" and max(metres_per_unit(_number(stated), "garment.uv_unit") / fit_all,
                                 fit_all / metres_per_unit(_number(stated), "garment.uv_unit")) <= 1.25:
         unit = stated
@@ -221,10 +216,6 @@ def format_report(report: Report, limits: dict) -> str:
     return "\n".join(lines)
 
 
-# --------------------------------------------------------------------------------------------------
-# pictures
-
-
 def _colours(n: int):
     return matplotlib.colormaps["tab20"](np.arange(n) % 20)
 
@@ -280,79 +271,3 @@ def _save(fig, path) -> Path:
         fig.savefig(tmp, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path
-
-
-# --------------------------------------------------------------------------------------------------
-# an outfit in one mesh -> its pieces
-
-
-def piece_name(centre_y: float) -> str:
-    """Where a piece centred at height centre_y (m, body frame) sits."""
-    if centre_y > HEAD_Y:
-        return "head"
-    if centre_y > TOP_Y:
-        return "top"
-    if centre_y > FEET_Y:
-        return "bottom"
-    return "feet"
-
-
-def obj_mesh_text(mesh, header: str) -> str:
-    """An OBJ of a parsed mesh (pbc.geometry.obj_import.ObjMesh): its vertices, UVs, triangles and `g` groups,
-    so a re-import names the same charts (`pbc garment fit` inspects a MakeHuman garment fitted to the body)."""
-    lines = [f"# {header}"]
-    lines += ["v " + " ".join(f"{x:.6g}" for x in v) for v in mesh.vertices]
-    lines += ["vt " + " ".join(f"{x:.6g}" for x in t) for t in mesh.uv]
-    group = None
-    for fv, ft, g in zip(mesh.faces, mesh.face_uv, mesh.face_group, strict=True):
-        if g != group:
-            lines.append(f"g {mesh.groups[g]}")
-            group = g
-        lines.append("f " + " ".join(f"{int(a) + 1}/{int(b) + 1}" for a, b in zip(fv, ft, strict=True)))
-    return "\n".join(lines) + "\n"
-
-
-def split_outfit(path, out_dir, position_unit="m", position_offset=(0.0, 0.0, 0.0)) -> list[tuple[str, Path, int]]:
-    """Cut an OBJ holding several separate pieces (connected through no vertex) into one OBJ each, in the
-    file's own units and polygons (v, vt, `g` groups kept; indices renumbered), named by where each sits
-    (`piece_name` of its centre in the body frame; `top_2` when two sit alike). Returns (name, path,
-    polygons) per piece, highest first."""
-    path, out_dir = Path(path), Path(out_dir)
-    mesh = parse_obj(path.read_text(), str(path))
-    piece = mesh_pieces(mesh.faces, len(mesh.vertices))
-    p = mesh.vertices * metres_per_unit(position_unit, "garment.position_unit") + np.asarray(position_offset)
-    ids = sorted(range(int(piece.max()) + 1), key=lambda k: -p[piece == k, 1].mean())
-    if len(ids) < 2:
-        raise ValueError(f"{path}: one connected piece only; nothing to split (pbc garment inspect shows its charts)")
-    # each `f` line's polygon back from its fan triangles: (v0, v1, v2), (v0, v2, v3), ...
-    polys: dict[int, tuple[list[int], list[int], int]] = {}
-    for k, line in enumerate(mesh.face_line):
-        if line not in polys:
-            polys[line] = (list(mesh.faces[k]), list(mesh.face_uv[k]), int(mesh.face_group[k]))
-        else:
-            polys[line][0].append(int(mesh.faces[k, 2]))
-            polys[line][1].append(int(mesh.face_uv[k, 2]))
-    out, seen = [], {}
-    for k in ids:
-        base = piece_name(float(p[piece == k, 1].mean()))
-        seen[base] = seen.get(base, 0) + 1
-        name = base if seen[base] == 1 else f"{base}_{seen[base]}"
-        mine = [v for v in polys.values() if piece[v[0][0]] == k]
-        vids = np.unique(np.concatenate([m[0] for m in mine]))
-        tids = np.unique(np.concatenate([m[1] for m in mine]))
-        vmap = {int(v): i + 1 for i, v in enumerate(vids)}
-        tmap = {int(v): i + 1 for i, v in enumerate(tids)}
-        lines = [f"# {name}: piece of {path.name} cut by pbc garment split"]
-        lines += ["v " + " ".join(f"{x:.6g}" for x in mesh.vertices[v]) for v in vids]
-        lines += ["vt " + " ".join(f"{x:.6g}" for x in mesh.uv[t]) for t in tids]
-        group = None
-        for fv, ft, g in mine:
-            if g != group:
-                lines.append(f"g {mesh.groups[g]}")
-                group = g
-            lines.append("f " + " ".join(f"{vmap[int(a)]}/{tmap[int(b)]}" for a, b in zip(fv, ft, strict=True)))
-        target = out_dir / f"{name}.obj"
-        with atomic_path(target, suffix=".obj") as tmp:
-            Path(tmp).write_text("\n".join(lines) + "\n")
-        out.append((name, target, len(mine)))
-    return out

@@ -3,7 +3,7 @@ and :func:`read_obj`, the reader that gives a textured OBJ back as written.
 
 Every mesh pbc writes for people to open (dataset previews, the training run's ``meshes/``, pbc.evaluate,
 pbc.predict) goes through :func:`write_garment_mesh` or :func:`write_mesh`, atomically. The dataset's own
-``garment.obj`` (``pbc.geometry.garment.save_garment_obj``) is another format built from the same
+``garment.obj`` (``pbc.geometry.garment.base.save_garment_obj``) is another format built from the same
 :func:`obj_text`: exact floats, the pattern's raw UVs, no normals, read back bit-exact.
 
 The garment OBJ, what a viewer (Blender, MeshLab, ``trimesh.load(path, process=False)``) needs:
@@ -30,15 +30,21 @@ vertex and the charts are cut at the seams).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from pbc.io import atomic_path, write_text
+from pbc.core.io import atomic_path, write_text
+from pbc.geometry.meshops import vertex_normals
 
 FORMATS = (".obj", ".ply")
-SIDES = ("front", "back")
+
+
+# the two sides of a garment's cloth image (each UV chart lies on one): `Garment.face_side` 0 and 1, and the
+# OBJ groups of pbc's garment files
+SIDE_NAMES = ("front", "back")
 
 
 def _np(x) -> np.ndarray:
@@ -47,21 +53,6 @@ def _np(x) -> np.ndarray:
 
 def _fixed(x: float) -> str:
     return f"{x:.6f}"
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit vertex normals (V, 3), the area-weighted mean of the incident faces' normals.
-
-    vertices (V, 3), faces (F, 3) counter-clockwise seen from the side the normals point to. A vertex in
-    no face (or only in degenerate ones) gets (0, 0, 0)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length = 2 * area
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def obj_text(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray | None = None,
@@ -134,7 +125,7 @@ def write_garment_mesh(path: str | Path, garment, vertices=None, vertex_ids=None
                        header: Sequence[str] = ()) -> Path:
     """Write a garment shape as OBJ (v, vt, vn, ``f v/vt/vn``, see the module doc) or PLY, by suffix.
 
-    garment: a ``pbc.geometry.garment.Garment`` (faces, uv, face_uv, face_side); vertices (V, 3) its
+    garment: a ``pbc.geometry.garment.base.Garment`` (faces, uv, face_uv, face_side); vertices (V, 3) its
     shape (default: the rest shape), a tensor or array; vertex_ids: write only the submesh of these
     vertices (a patch: its faces with all three corners inside; v in vertex_ids order, and the file's
     header lists the ids). Raises ValueError for a shape that does not fit the garment or NaNs."""
@@ -158,7 +149,7 @@ def write_garment_mesh(path: str | Path, garment, vertices=None, vertex_ids=None
     uv_side = np.zeros(len(uv), dtype=np.int64)
     uv_side[np.asarray(face_uv).reshape(-1)] = np.repeat(side, 3)
     atlas = np.stack([(uv[:, 0] + uv_side) / 2, 1 - uv[:, 1]], 1)
-    groups = [(name, side == s) for s, name in enumerate(SIDES)]
+    groups = [(name, side == s) for s, name in enumerate(SIDE_NAMES)]
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text(path, obj_text(v, faces, atlas, face_uv, normals, groups, head))
     return path
@@ -236,3 +227,129 @@ def read_obj(path: str | Path) -> UVMesh:
         raise ValueError(f"{where}: no faces (f lines)")
     return UVMesh(np.asarray(verts, np.float64).reshape(-1, 3), np.asarray(faces, np.int64),
                   np.asarray(uvs, np.float64).reshape(-1, 2), np.asarray(fuvs, np.int64))
+
+
+# OBJ statements that carry nothing a garment needs (materials, smoothing, normals, objects, lines)
+IGNORED = {"usemtl", "mtllib", "s", "o", "vn", "vp", "l", "p", "#"}
+
+
+@dataclass
+class ObjMesh:
+    """The polygons of an OBJ, triangulated; indices 0-based. Lines are 1-based, for error messages."""
+
+    vertices: np.ndarray  # (V, 3) float64, file units
+    uv: np.ndarray  # (T, 2) float64, file convention (v up)
+    faces: np.ndarray  # (F, 3) int64 vertex ids
+    face_uv: np.ndarray  # (F, 3) int64 vt ids
+    face_group: np.ndarray  # (F,) int64 index into groups
+    face_line: np.ndarray  # (F,) int64 the `f` line each triangle came from
+    groups: list[str]
+    vertex_line: np.ndarray  # (V,) int64 the `v` line of each vertex
+
+
+def _index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
+    """A 1-based (or negative, relative) OBJ index -> 0-based, with an error naming the line."""
+    try:
+        k = int(token)
+    except ValueError:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {token!r} is not an integer") from None
+    if k == 0 or k > count or k < -count:
+        raise ValueError(f"{where}: line {lineno}: {kind} index {k} refers to no {kind} "
+                         f"({count} defined so far; OBJ indices start at 1, negative ones count back)")
+    return k - 1 if k > 0 else count + k
+
+
+def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
+    """Parse OBJ text into triangles (fan triangulation of each polygon, corners keep their vt).
+
+    ``where`` names the source in error messages (the file path).
+    """
+    verts, vlines, uvs = [], [], []
+    faces, fuvs, fgroups, flines = [], [], [], []
+    groups: list[str] = ["default"]
+    group = 0
+    lines = text.splitlines()
+    lineno = 0
+    pending = ""
+    for raw_no, raw in enumerate(lines, 1):
+        if raw.rstrip().endswith("\\"):  # a continued statement
+            pending += raw.rstrip()[:-1] + " "
+            continue
+        line, pending = pending + raw, ""
+        lineno = raw_no
+        parts = line.split("#", 1)[0].split()
+        if not parts:
+            continue
+        key = parts[0]
+        if key == "v":
+            if len(parts) < 4:
+                raise ValueError(f"{where}: line {lineno}: a vertex needs x y z, got {line.strip()!r}")
+            verts.append([float(x) for x in parts[1:4]])
+            vlines.append(lineno)
+        elif key == "vt":
+            if len(parts) < 3:
+                raise ValueError(f"{where}: line {lineno}: a texture coordinate needs u v, got {line.strip()!r}")
+            uvs.append([float(x) for x in parts[1:3]])
+        elif key == "g":
+            name = parts[1] if len(parts) > 1 else "default"
+            if name not in groups:
+                groups.append(name)
+            group = groups.index(name)
+        elif key == "f":
+            if len(parts) < 4:
+                raise ValueError(f"{where}: line {lineno}: a face needs at least 3 corners, got {len(parts) - 1}")
+            fv, ft = [], []
+            for corner in parts[1:]:
+                idx = corner.split("/")
+                if len(idx) < 2 or not idx[1]:
+                    raise ValueError(
+                        f"{where}: line {lineno}: face corner {corner!r} has no texture coordinate (vt) index; "
+                        "a garment needs UVs: unwrap it and export with UVs (Blender: 'Include UVs', "
+                        "Marvelous Designer / CLO: export with the 2D pattern as UV)")
+                fv.append(_index(idx[0], len(verts), "vertex", lineno, where))
+                ft.append(_index(idx[1], len(uvs), "texture coordinate", lineno, where))
+            if len(set(fv)) != len(fv):
+                raise ValueError(f"{where}: line {lineno}: the face uses a vertex twice; "
+                                 "remove degenerate faces (Blender: Mesh > Clean Up > Degenerate Dissolve)")
+            for k in range(1, len(fv) - 1):  # fan: every triangle keeps its corners' own vt
+                faces.append((fv[0], fv[k], fv[k + 1]))
+                fuvs.append((ft[0], ft[k], ft[k + 1]))
+                fgroups.append(group)
+                flines.append(lineno)
+        elif key in IGNORED or key.startswith("#"):
+            continue
+        # other statements (curves, surfaces, display attributes) carry nothing a garment needs
+    if not verts:
+        raise ValueError(f"{where}: no vertices (v lines)")
+    if not faces:
+        raise ValueError(f"{where}: no faces (f lines)")
+    if not uvs:
+        raise ValueError(f"{where}: no texture coordinates (vt lines); a garment needs UVs: unwrap it "
+                         "(one island per pattern piece) and export with UVs")
+    used = sorted(set(fgroups))
+    remap = {g: k for k, g in enumerate(used)}
+    return ObjMesh(
+        vertices=np.asarray(verts, np.float64),
+        uv=np.asarray(uvs, np.float64),
+        faces=np.asarray(faces, np.int64),
+        face_uv=np.asarray(fuvs, np.int64),
+        face_group=np.asarray([remap[g] for g in fgroups], np.int64),
+        face_line=np.asarray(flines, np.int64),
+        groups=[groups[g] for g in used],
+        vertex_line=np.asarray(vlines, np.int64),
+    )
+
+
+def obj_mesh_text(mesh, header: str) -> str:
+    """An OBJ of a parsed mesh (pbc.geometry.garment.obj_import.ObjMesh): its vertices, UVs, triangles and `g` groups,
+    so a re-import names the same charts (`pbc garment fit` inspects a MakeHuman garment fitted to the body)."""
+    lines = [f"# {header}"]
+    lines += ["v " + " ".join(f"{x:.6g}" for x in v) for v in mesh.vertices]
+    lines += ["vt " + " ".join(f"{x:.6g}" for x in t) for t in mesh.uv]
+    group = None
+    for fv, ft, g in zip(mesh.faces, mesh.face_uv, mesh.face_group, strict=True):
+        if g != group:
+            lines.append(f"g {mesh.groups[g]}")
+            group = g
+        lines.append("f " + " ".join(f"{int(a) + 1}/{int(b) + 1}" for a, b in zip(fv, ft, strict=True)))
+    return "\n".join(lines) + "\n"

@@ -20,19 +20,18 @@ import trimesh
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-from pbc.geometry.body import Body, body_sdf
-from pbc.geometry.fit import (
+from pbc.geometry.body.base import Body, body_sdf
+from pbc.geometry.garment.base import Garment
+from pbc.geometry.garment.checks import (
     chart_names_from_cage,
     check_far,
     check_sleeves,
     check_stretch,
-    face_areas,
     face_patches,
     patch_stretch,
     sleeve_axes,
 )
-from pbc.geometry.garment import Garment, solve_dirichlet
-from pbc.geometry.obj_import import face_charts
+from pbc.geometry.meshops import face_areas, face_charts, solve_dirichlet
 
 # a joint (or a point of a spine bone) this close to x = 0 is on the body's centre line (m); not exactly 0:
 # a measured body is not perfectly symmetric (Anny's neck02 sits 0.2 mm off the mid-plane)
@@ -331,7 +330,7 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)
     chart_names = chart_names_from_cage(cage, face_chart, faces)
-    # the checks before any drape (pbc.geometry.fit): each names the part, the number and the fix, where a
+    # the checks before any drape (pbc.geometry.garment.checks): each names the part, the number and the fix, where a
     # drape would only say minutes later that every sample was discarded
     far = sw.get("max_start_distance")
     if far is not None:

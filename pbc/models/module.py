@@ -28,15 +28,16 @@ from hydra.utils import instantiate  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from torch import Tensor  # noqa: E402
 
+from pbc.core.runs import monitor, scoped_name  # noqa: E402
+from pbc.core.validate import as_poses  # noqa: E402
 from pbc.geometry.meshio import submesh, write_garment_mesh  # noqa: E402
-from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss  # noqa: E402
-from pbc.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose  # noqa: E402
+from pbc.geometry.meshops import vertex_normals  # noqa: E402
 from pbc.models.decoder import pose_features  # noqa: E402
 from pbc.models.fc import fit_pca as fit_pca_values  # noqa: E402
-from pbc.pixels.reconstruct import edge_lengths, vertex_normals  # noqa: E402
+from pbc.models.losses import edge_loss, image_loss, normal_loss, vertex_value_loss  # noqa: E402
+from pbc.models.metrics import normal_cosine_distance, vertex_error_cm, vertex_error_cm_per_pose  # noqa: E402
+from pbc.pixels.reconstruct import edge_lengths  # noqa: E402
 from pbc.pixels.target import KINDS, VertexTarget  # noqa: E402
-from pbc.runs import monitor, scoped_name  # noqa: E402
-from pbc.validate import as_poses  # noqa: E402
 
 log = logging.getLogger(__name__)
 # the identity keys a checkpoint must share with the run that loads it
@@ -67,7 +68,7 @@ class ClothModule(L.LightningModule):
             false = the paper's plain decoder).
         optimizer: a ``_partial_`` optimiser node (``model.optimizer``); None = Adam at ``lr``.
         scheduler: an optional ``_partial_`` LR scheduler node (``model.scheduler``), stepped per epoch.
-        training_identity: what a resumed run must match (``pbc.validate.training_identity``: model, loss,
+        training_identity: what a resumed run must match (``pbc.core.validate.training_identity``: model, loss,
             optimiser, batch, image sizes, seed, data fingerprint); ``pbc.train`` stores it here so every
             checkpoint carries it, and refuses to resume a checkpoint of another one.
         check_rotation: test that input poses are rotations in :meth:`forward`; None (default) = outside
@@ -119,7 +120,7 @@ class ClothModule(L.LightningModule):
     def forward(self, pose: Tensor) -> Tensor:
         """pose (B, J*9) or (B, J, 3, 3) (torch or numpy) -> the net's output for the batch.
 
-        Checked first (pbc.validate.as_poses): shape, finiteness and (see ``check_rotation``) rotations; a
+        Checked first (pbc.core.validate.as_poses): shape, finiteness and (see ``check_rotation``) rotations; a
         single pose is refused rather than read as a batch of J*9 scalars.
         """
         # the joints of the pose the net reads (all of them, or a garment's own: the necktie keeps 4 of 10)

@@ -23,7 +23,7 @@ import lightning as L
 from lightning.pytorch.callbacks import ModelSummary, RichModelSummary
 from lightning.pytorch.utilities.warnings import PossibleUserWarning
 
-from pbc.runs import monitor
+from pbc.core.runs import monitor
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ _DROP_TIPS = _DropTips()
 
 def silence_training_noise() -> None:
     """Filter Lightning's tips and the warnings of :data:`NOISE_WARNINGS`; idempotent (called by
-    ``pbc.train.train`` before the Trainer is built, since the litlogger tip is logged by its constructor)."""
+    ``pbc.jobs.train.train`` before the Trainer is built, since the litlogger tip is logged by its constructor)."""
     for message, category in NOISE_WARNINGS:
         warnings.filterwarnings("ignore", message=message, category=category)
     info = logging.getLogger(LIGHTNING_INFO_LOGGER)
@@ -83,7 +83,7 @@ class EpochLine(L.Callback):
 
         epoch 3/20  train loss 0.1234  val/vertex_error_cm 2.491  12.3 s/epoch  ETA 3m27s
 
-    The validation metric is the checkpoint monitor of the module's kind (``pbc.runs.monitor``: a patch
+    The validation metric is the checkpoint monitor of the module's kind (``pbc.core.runs.monitor``: a patch
     model's ``val/patch_vertex_error_cm``); "-" in an epoch without validation.
     """
 
@@ -141,7 +141,7 @@ class EpochLine(L.Callback):
 
 
 def metric_table(scores: dict[str, dict[str, float]]) -> str:
-    """{split: {metric: value}} (``pbc.train.score``) -> a plain table, one row per metric with its full
+    """{split: {metric: value}} (``pbc.jobs.train.score``) -> a plain table, one row per metric with its full
     name, one column per split; a metric a split lacks is blank."""
     splits = [s for s in scores if scores[s]]
     names = sorted({k for s in splits for k in scores[s]})

@@ -24,13 +24,14 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from pbc.io import atomic_path
-from pbc.losses import edge_loss, image_loss, normal_loss
-from pbc.metrics import normal_cosine_distance, vertex_error_cm
+from pbc.core.io import atomic_path
+from pbc.core.runs import PATCH_EXPORT_DIR, ModelKind, RunRecord, scoped_name
+from pbc.geometry.meshops import vertex_normals
 from pbc.models.decoder import ConvDecoder, add_buffer_defaults, group_strides, pose_features, set_pose_joints
+from pbc.models.losses import edge_loss, image_loss, normal_loss
+from pbc.models.metrics import normal_cosine_distance, vertex_error_cm
 from pbc.models.module import ClothModule
-from pbc.pixels.reconstruct import edge_lengths, vertex_normals
-from pbc.runs import PATCH_EXPORT_DIR, ModelKind, RunRecord, scoped_name
+from pbc.pixels.reconstruct import edge_lengths
 
 log = logging.getLogger(__name__)
 DECODER = "pbc.models.decoder.ConvDecoder"

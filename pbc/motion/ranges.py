@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from pbc.geometry.skeleton import AXES, xzy_angles
+from pbc.geometry.body.skeleton import AXES, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
 
 
@@ -77,7 +77,7 @@ def clamp_to_range(poses, rng: np.ndarray, tol: float = 0.0) -> np.ndarray:
 
 
 def range_record(poses, names: Sequence[str], split: str = "train") -> dict:
-    """What a run records of its training poses (N, J, 3, 3) (pbc.runs.RunRecord.pose_range, written by
+    """What a run records of its training poses (N, J, 3, 3) (pbc.core.runs.RunRecord.pose_range, written by
     pbc.train): the per-joint, per-axis [min, max] degrees (`angle_range`) keyed by joint name, so predict
     compares new poses with it without the dataset."""
     return range_table_record(angle_range(poses), names, len(poses), split)

@@ -23,9 +23,9 @@ import numpy as np
 from omegaconf import OmegaConf
 from scipy.spatial.transform import Rotation, Slerp
 
-from pbc.geometry.skeleton import Skeleton
+from pbc.core.paths import CONF_DIR
+from pbc.geometry.body.skeleton import Skeleton
 from pbc.motion.bvh import Bvh, BvhError
-from pbc.paths import CONF_DIR
 
 MOTION_CONF = CONF_DIR / "motion"
 SETTINGS = "sequence"  # conf/motion/sequence.yaml: not a joint map

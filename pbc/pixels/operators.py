@@ -34,8 +34,8 @@ import torch
 from scipy import ndimage
 from torch import Tensor
 
-from pbc.io import atomic_path, is_writable_dir, out_of_space, user_cache_dir
-from pbc.validate import FULL_IMAGE_WINDOW
+from pbc.core.io import atomic_path, is_writable_dir, out_of_space, user_cache_dir
+from pbc.core.validate import FULL_IMAGE_WINDOW
 
 OPERATOR_VERSION = 1
 BOX_RESOLUTION = 512  # Patch.box_512 is a pixel box in a 512 image: the cage's contract (docs/interfaces.md)
@@ -233,7 +233,7 @@ def _read_cache(path: Path, resolution: int) -> dict[str, np.ndarray] | None:
 
 def cache_dirs(cache_dir: str | Path | None) -> list[Path]:
     """Where operators are looked for, in order: `cache_dir` (e.g. `<dataset>/operators`), then the user
-    cache dir (pbc.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators),
+    cache dir (pbc.core.io.user_cache_dir("operators"): $PBC_CACHE_DIR/operators, else ~/.cache/pbc/operators),
     which also takes them when `cache_dir` cannot (read-only, or a full disk that still looks writable)."""
     if cache_dir is None:
         return []

@@ -20,7 +20,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from pbc.io import save_figure  # noqa: E402
+from pbc.core.io import save_figure  # noqa: E402
+from pbc.geometry.meshio import SIDE_NAMES
 from pbc.pixels.frames import to_offsets  # noqa: E402
 from pbc.pixels.operators import ImageOperators, image_sizes  # noqa: E402
 from pbc.pixels.reconstruct import Skinner  # noqa: E402
@@ -28,7 +29,6 @@ from pbc.pixels.target import image_operators, make_target  # noqa: E402
 
 # channel names of the offsets in each space (pbc.pixels.frames)
 CHANNELS = {"local": ("du", "dv", "dn"), "root": ("dx", "dy", "dz"), "position": ("x", "y", "z")}
-SIDE_NAMES = ("front", "back")
 
 
 def cloth_image_figure(images: np.ndarray, mask: np.ndarray, path: Path, titles: list[str],

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pbc.geometry.skeleton import forward_kinematics, linear_blend_skinning
+from pbc.geometry.body.skeleton import forward_kinematics, linear_blend_skinning
 from pbc.pixels.frames import FrameBuilder, embedded_anchors, embedded_body_normals, from_offsets
 
 
@@ -107,22 +107,6 @@ class _LocalEmbedding:
 def images_to_positions(images: Tensor, ops, anchors: Tensor, frames: Tensor, space: str = "local") -> Tensor:
     """Cloth images (B, 6, H, W) -> garment positions (B, V, 3): sample S, then add to the cloth pixels."""
     return from_offsets(ops.sample(images), anchors, frames, space)
-
-
-def vertex_normals(positions: Tensor, faces: Tensor) -> Tensor:
-    """Area-weighted unit vertex normals: positions (B, V, 3), faces (F, 3) -> (B, V, 3)."""
-    faces = faces.to(positions.device)
-    a, b, c = (positions.index_select(1, faces[:, k]) for k in range(3))  # (B, F, 3) each
-    e1, e2 = b - a, c - a
-    # the cross product by components: torch.cross on (B, F, 3) costs several times more on the CPU,
-    # and one index_add per corner avoids materialising the (B, 3F, 3) expanded copy (forward and backward)
-    x1, y1, z1 = e1.unbind(-1)
-    x2, y2, z2 = e2.unbind(-1)
-    n_f = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], dim=-1)
-    n = positions.new_zeros(positions.shape)
-    for k in range(3):
-        n = n.index_add(1, faces[:, k], n_f)
-    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def mesh_edges(faces: Tensor) -> Tensor:

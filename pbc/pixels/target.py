@@ -35,10 +35,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from pbc.core.validate import KINDS
+from pbc.geometry.meshops import vertex_normals
 from pbc.pixels.frames import SPACES, from_offsets, to_offsets
 from pbc.pixels.operators import ImageOperators, PatchCrop, image_sizes
-from pbc.pixels.reconstruct import Skinner, mesh_edges, vertex_normals
-from pbc.validate import KINDS
+from pbc.pixels.reconstruct import Skinner, mesh_edges
 
 
 def image_operators(dataset, image_cfg, which: str, cache_dir: str | Path | None = None) -> ImageOperators:

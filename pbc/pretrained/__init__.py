@@ -2,7 +2,7 @@
 install) without training: `pbc predict --pretrained tshirt`, `ClothPredictor.from_pretrained("tshirt")`.
 
 Each shipped model is a folder here (pbc/pretrained/<name>/) laid out as a training run dir, so every
-reader of runs opens it unchanged: metrics.json (a pbc.runs.RunRecord whose data record points at its own
+reader of runs opens it unchanged: metrics.json (a pbc.core.runs.RunRecord whose data record points at its own
 data/ folder, relative to the run, and whose pose_range is the training poses' joint-angle range),
 checkpoints/weights_fp16.ckpt (the network's state dict in half precision), data/ (the dataset cut to its
 test split plus the training split's range and mean offsets: pbc.data.trimmed) and MODEL_CARD.md (what it

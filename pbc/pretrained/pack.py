@@ -22,14 +22,15 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from pbc.core.io import load_checkpoint, write_text
+from pbc.core.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
 from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
-from pbc.io import load_checkpoint, write_text
+from pbc.inference.poses import training_pose_range
+from pbc.inference.predictor import ClothPredictor
 from pbc.motion.ranges import range_from_record, range_table_record
 from pbc.pixels.frames import from_offsets
-from pbc.predict import ClothPredictor, training_pose_range
 from pbc.pretrained import SHIPPED_DIR
-from pbc.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 
 WEIGHTS = "weights_fp16.ckpt"
 CARD = "MODEL_CARD.md"

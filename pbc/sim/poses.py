@@ -26,9 +26,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
 
-from pbc.geometry.body import Body, body_sdf, bones_sdf  # noqa: E402
-from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning  # noqa: E402
-from pbc.io import save_figure  # noqa: E402
+from pbc.core.io import save_figure  # noqa: E402
+from pbc.geometry.body.base import Body, body_sdf, bones_sdf  # noqa: E402
+from pbc.geometry.body.skeleton import Skeleton, forward_kinematics, linear_blend_skinning  # noqa: E402
 
 TORSO, LEFT_ARM, RIGHT_ARM = 0, 1, 2
 X, Y, Z = 0, 1, 2
@@ -288,7 +288,7 @@ def sample_poses(
 def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
     """Write a PNG of per-joint, per-axis angle histograms with the limits marked (like Fig. 12).
 
-    angles (n, J, 3) degrees. Written atomically (pbc.io.save_figure).
+    angles (n, J, 3) degrees. Written atomically (pbc.core.io.save_figure).
     """
     a = np.asarray(torch.as_tensor(angles).detach().cpu())
     J = skel.num_joints

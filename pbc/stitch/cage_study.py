@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch import Tensor  # noqa: E402
 
-from pbc.io import save_figure  # noqa: E402
+from pbc.core.io import save_figure  # noqa: E402
 from pbc.pixels.reconstruct import mesh_edges  # noqa: E402
 from pbc.pixels.target import image_operators, make_target, patch_crops  # noqa: E402
 from pbc.stitch.cage_basis import PatchBasis  # noqa: E402

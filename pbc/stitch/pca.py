@@ -16,8 +16,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from pbc.core.io import atomic_path
 from pbc.data.dataset import dataset_fingerprint, fingerprint_diff
-from pbc.io import atomic_path
 from pbc.models.fc import principal_components
 
 

@@ -8,7 +8,7 @@ import torch
 from helpers.predict_device import decoders, every_tensor
 from helpers.run_if import run_if
 
-from pbc.predict import LoopPatchNet, StackedPatchNet
+from pbc.inference.predictor import LoopPatchNet, StackedPatchNet
 
 
 @run_if(cuda=True)

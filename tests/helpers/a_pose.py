@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pbc.config import load_config
-from pbc.geometry.garment import make_tshirt
+from pbc.core.config import load_config
+from pbc.geometry.garment.tshirt import make_tshirt
 
 # where the procedural shirt's sleeves leave its panels (|x|, m) and the arm axis they turn about (y, m)
 SLEEVE_ROOT_X = 0.28

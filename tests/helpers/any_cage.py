@@ -19,7 +19,7 @@ SMALL_IMAGES = ["image.whole_resolution=64", "image.patch_resolution=128"]
 
 
 def _stitch_cfg(method: str = "average"):
-    from pbc.predict import stitch_config
+    from pbc.inference.predictor import stitch_config
 
     return stitch_config(method)
 

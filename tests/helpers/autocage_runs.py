@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pbc.geometry.autocage import _components, _edges
+from pbc.geometry.cage.auto import _components, _edges
 
 IMAGE = (512, 160, 16)
 

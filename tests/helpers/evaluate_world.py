@@ -10,8 +10,8 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from pbc.core.runs import RunRecord, monitor
 from pbc.data.dataset import ClothDataset
-from pbc.runs import RunRecord, monitor
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,9 +36,10 @@ def _rotations(n: int, j: int, seed: int = 0) -> np.ndarray:
 
 def fake_dataset(d: Path) -> ClothDataset:
     """Coarse T-shirt + cage, a shrunk-garment body, N random poses, smooth pose-dependent offsets."""
-    from pbc.geometry.body import Body
-    from pbc.geometry.garment import load_garment_config, make_tshirt
-    from pbc.geometry.skeleton import skeleton_from_config
+    from pbc.core.config import load_garment_config
+    from pbc.geometry.body.base import Body
+    from pbc.geometry.body.skeleton import skeleton_from_config
+    from pbc.geometry.garment.tshirt import make_tshirt
     from pbc.pixels.reconstruct import Skinner
 
     garment, cage = make_tshirt(load_garment_config(ROOT / "conf/garment/tshirt_coarse.yaml"))

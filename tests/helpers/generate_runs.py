@@ -6,7 +6,7 @@ from pathlib import Path
 
 from conftest import tiny_overrides
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 

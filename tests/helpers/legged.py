@@ -9,7 +9,8 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from pbc.geometry.body import Body, build_body
+from pbc.geometry.body.base import Body
+from pbc.geometry.body.mannequin import build_mannequin
 
 MANNEQUIN = Path(__file__).resolve().parents[2] / "conf" / "body" / "mannequin.yaml"
 ANNY = Path(__file__).resolve().parents[2] / "conf" / "body" / "anny.yaml"
@@ -51,4 +52,4 @@ def legged_body_config():
 @lru_cache(maxsize=1)
 def legged_body() -> Body:
     """The legged mannequin, built once per process (about a second); treat as read-only."""
-    return build_body(legged_body_config())
+    return build_mannequin(legged_body_config())

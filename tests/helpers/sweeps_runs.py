@@ -6,7 +6,7 @@ from pathlib import Path
 
 from hydra import compose
 
-import pbc.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
+import pbc.core.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -62,7 +62,7 @@ def tube_top_obj(cols: int = 16, rows: int = 6, band_rows: int = 2, rx: float = 
 def tube_top_dataset(root: Path) -> tuple[Path, list[str], Path]:
     """Write the tube top's OBJ under `root` and make its dataset (import -> automatic cage -> shrink-wrap ->
     three drapes on the coarse body) -> (root, the config overrides it was made with, the dataset dir)."""
-    from pbc.config import load_config
+    from pbc.core.config import load_config
     from pbc.data.generate import generate
 
     path = root / "top.obj"

@@ -10,19 +10,12 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.config import load_config
-from pbc.geometry.anny_body import (
-    ANNY_TO_PBC,
-    anny_rest,
-    arm_angle_deg,
-    check_phenotype,
-    joint_table,
-    load_anny_model,
-)
-from pbc.geometry.bodies import body_from_config
-from pbc.geometry.body import body_sdf, load_body, pose_body, save_body
-from pbc.geometry.sizing import fitted_config
-from pbc.geometry.skeleton import forward_kinematics
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.anny import ANNY_TO_PBC, anny_rest, arm_angle_deg, check_phenotype, joint_table, load_anny_model
+from pbc.geometry.body.base import body_sdf, load_body, pose_body, save_body
+from pbc.geometry.body.skeleton import forward_kinematics
+from pbc.geometry.garment.sizing import sized_config
 from pbc.sim.poses import SamplingSettings, euler_xzy_to_matrix, sample_angles, sample_poses
 
 
@@ -112,29 +105,29 @@ def test_turned_rest_pose_is_config(anny_body):
 
 
 def test_shirt_sized_to_anny_wraps_onto_it():
-    # the shirt preset sized to the T-posed Anny (garment.fit_to_body): its sleeves sit on Anny's arm axis, not
+    # the shirt preset sized to the T-posed Anny (garment.size_to_body): its sleeves sit on Anny's arm axis, not
     # the mannequin's 5 cm lower, and the wrap stretches no patch past the limit the drape would discard
     from pbc.data.generate import build_scene  # noqa: PLC0415 - a drape-stage import, only this test needs it
 
-    cfg = load_config(["body=anny_tpose", "garment=tshirt_coarse", "garment.fit_to_body.enabled=true"])
+    cfg = load_config(["body=anny_tpose", "garment=tshirt_coarse", "garment.size_to_body.enabled=true"])
     scene, stats = build_scene(cfg)
     sk = scene.body.skeleton
     arm_y = float(sk.rest_heads[sk.index("l_arm"), 1])
     v = np.asarray(scene.garment.vertices)
-    sized = fitted_config(cfg.garment, scene.body)
+    sized = sized_config(cfg.garment, scene.body)
     half_torso = (0.5 * float(sized.chest_girth) + float(sized.chest_ease)) / 2.0  # the panel's half width
     sleeves = v[np.abs(v[:, 0]) > half_torso + 0.02]
     assert len(sleeves) > 0 and abs(float(sleeves[:, 1].mean()) - arm_y) < 0.03
     assert stats["patch_stretch_max"] < float(cfg.garment.shrinkwrap.max_patch_stretch)
-    # against the arm's skin there (pbc.geometry.fit.sleeve_axes): 7.9 degrees, the straight procedural sleeve
+    # against the arm's skin there (pbc.geometry.garment.checks.sleeve_axes): 7.9 degrees, the straight procedural sleeve
     # against the slope of Anny's deltoid (against the arm bones it read 1-5; a MakeHuman T-shirt read 18-22 there)
     assert max(stats["sleeve_left_angle_deg"], stats["sleeve_right_angle_deg"]) < 10.0
 
 
 def test_phenotype_trial_is_another_person_on_the_same_mesh(anny_cfg, anny_body):
-    # the wrong-body study on Anny (pbc.robustness): a taller person, the same connectivity (the embedding holds)
-    from pbc.geometry.measure import measurements  # noqa: PLC0415 - only this test measures
-    from pbc.robustness import load_settings, trial_body  # noqa: PLC0415 - a job module, only this test needs it
+    # the wrong-body study on Anny (pbc.jobs.robustness): a taller person, the same connectivity (the embedding holds)
+    from pbc.geometry.body.measure import measurements  # noqa: PLC0415 - only this test measures
+    from pbc.jobs.robustness import load_settings, trial_body  # noqa: PLC0415 - a job module, only this test needs it
 
     taller = trial_body(anny_body, "phenotype_height_0.20", load_settings(), anny_cfg)
     assert torch.equal(taller.faces, anny_body.faces) and taller.vertices.shape == anny_body.vertices.shape
@@ -149,7 +142,7 @@ def test_necktie_sized_to_anny_sits_at_its_neck():
     # the tie's collar follows Anny's neck joint (12 cm above the mannequin's) and its band the neck's radius
     from pbc.data.generate import build_scene  # noqa: PLC0415 - a drape-stage import, only this test needs it
 
-    cfg = load_config(["data=necktie_small", "body=anny_tpose", "garment.fit_to_body.enabled=true"])
+    cfg = load_config(["data=necktie_small", "body=anny_tpose", "garment.size_to_body.enabled=true"])
     scene, stats = build_scene(cfg)
     sk = scene.body.skeleton
     neck_y = float(sk.rest_heads[sk.index("neck"), 1])

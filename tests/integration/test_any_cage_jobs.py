@@ -32,8 +32,8 @@ def trained(foreign):
 
 
 def test_stitched_prediction_and_evaluation_on_a_cage_of_another_patch_count(trained, tmp_path):
-    from pbc.evaluate import evaluate
-    from pbc.predict import ClothPredictor, fit_training_pca
+    from pbc.inference.predictor import ClothPredictor, fit_training_pca
+    from pbc.jobs.evaluate import evaluate
 
     root, whole, patches = trained
     pred = ClothPredictor.from_runs(whole, patches, _stitch_cfg("average"))

@@ -7,13 +7,13 @@ import pytest
 import torch
 from helpers.autocage_runs import IMAGE, _check_patches_connected
 
-from pbc.geometry.cage import validate_cage
-from pbc.geometry.garments import garment_from_config
+from pbc.geometry.cage.base import validate_cage
+from pbc.geometry.garment import garment_from_config
 
 
 def test_a_garment_pbc_did_not_make_goes_through(foreign):
     """Import -> automatic cage -> shrink-wrap -> drapes, and the dataset reads back with a valid cage."""
-    from pbc.config import load_config
+    from pbc.core.config import load_config
     from pbc.data.dataset import load_dataset
     from pbc.data.generate import build_scene
 
@@ -60,7 +60,7 @@ def test_smoke_training_on_a_garment_pbc_did_not_make(foreign, exp):
                        env=dict(os.environ, PBC_ROOT=str(root)), capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     metrics = json.loads((run / "metrics.json").read_text())
-    from pbc.runs import scoped_name
+    from pbc.core.runs import scoped_name
 
     error = scoped_name("vertex_error_cm", "patch" if exp.startswith("patch") else "whole")  # its scope in its name
     assert metrics["status"] == "ok" and np.isfinite(metrics["test"][error])

@@ -18,13 +18,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.cli import exit_code  # noqa: E402
 
 from pbc.cli.predict import main as predict_main  # noqa: E402
-from pbc.config import load_config  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
 from pbc.data.dataset import load_dataset  # noqa: E402
 from pbc.data.generate import generate  # noqa: E402
-from pbc.geometry.body import pose_body  # noqa: E402
-from pbc.predict import ClothPredictor  # noqa: E402
+from pbc.geometry.body.base import pose_body  # noqa: E402
+from pbc.inference.predictor import ClothPredictor  # noqa: E402
 
-PEOPLE = ["body=anny_tpose", "data=tshirt_tiny", "garment.fit_to_body.enabled=true", "data.num_samples=6",
+PEOPLE = ["body=anny_tpose", "data=tshirt_tiny", "garment.size_to_body.enabled=true", "data.num_samples=6",
           "data.body_shape={height:[0.2,0.8]}", "data.body_shapes=2", "data.workers=1"]
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pbc.geometry.body import pose_body
-from pbc.geometry.skeleton import forward_kinematics
+from pbc.geometry.body.base import pose_body
+from pbc.geometry.body.skeleton import forward_kinematics
 from pbc.motion.bvh import Bvh, read_bvh
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.generate import build_scene, drape_batch, drape_pose, generate
 from pbc.sim import batched as batched_mod
 from pbc.sim.drape import check_garment_result
@@ -36,7 +36,7 @@ def skin(scene, poses):
     """(B, V, 3) starts and (B, Vb, 3) posed bodies, as `drape_batch` makes them."""
     import torch
 
-    from pbc.geometry.body import pose_body
+    from pbc.geometry.body.base import pose_body
     from pbc.geometry.shrinkwrap import embedded_points
 
     starts, bodies = [], []

@@ -27,10 +27,10 @@ from helpers.cli import exit_code  # noqa: E402
 from helpers.mhclo_assets import bind_to_tights, hand_fit, write_mhclo_for_obj  # noqa: E402
 
 from pbc.cli.garment import main  # noqa: E402
-from pbc.config import load_config  # noqa: E402
-from pbc.geometry.anny_body import base_mesh_vertices  # noqa: E402
-from pbc.geometry.bodies import body_from_config  # noqa: E402
-from pbc.geometry.mhclo import surface_distance  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
+from pbc.geometry.body import body_from_config  # noqa: E402
+from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
+from pbc.geometry.meshops import surface_distance  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)

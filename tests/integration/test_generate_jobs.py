@@ -17,7 +17,7 @@ from conftest import TINY_SAMPLES as N
 from conftest import tiny_overrides
 from helpers.generate_runs import tiny_cfg
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import generate
 

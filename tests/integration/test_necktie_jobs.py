@@ -7,8 +7,8 @@ import pytest
 import torch
 from helpers.necktie_runs import TIE_DATA
 
-from pbc.config import load_config
-from pbc.geometry.garments import garment_from_config
+from pbc.core.config import load_config
+from pbc.geometry.garment import garment_from_config
 
 
 @pytest.fixture(scope="module")
@@ -37,10 +37,10 @@ def test_the_necktie_trains_and_predicts_end_to_end(tmp_path):
     import sys
     from pathlib import Path
 
-    from pbc.config import load_config
+    from pbc.core.config import load_config
     from pbc.data.dataset import load_dataset
     from pbc.data.generate import generate
-    from pbc.predict import ClothPredictor
+    from pbc.inference.predictor import ClothPredictor
 
     overrides = [*TIE_DATA, f"paths.data_dir={tmp_path}"]
     data_dir = generate(load_config(overrides))

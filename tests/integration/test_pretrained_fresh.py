@@ -13,13 +13,13 @@ import time
 import numpy as np
 import torch
 
-from pbc.config import load_config
+from pbc.core.config import load_config
+from pbc.core.runs import RunRecord
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import generate
 from pbc.data.trimmed import recorded_mean_offsets
-from pbc.predict import ClothPredictor, pretrained_run
+from pbc.inference.predictor import ClothPredictor, pretrained_run
 from pbc.pretrained.pack import score
-from pbc.runs import RunRecord
 
 FRESH_SEED = 1009  # the shipped model's data used seed 0: other poses, drawn by the same sampler
 FRESH_POSES = 6

@@ -1,4 +1,4 @@
-"""The wrong-body study (pbc.robustness) end to end as a sweep of the runner (pbc.sweeps) at scale=smoke on
+"""The wrong-body study (pbc.jobs.robustness) end to end as a sweep of the runner (pbc.sweeps) at scale=smoke on
 the real tiny data: one model per body, the report and Figs. 9-10 from the run records."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ def test_study_is_a_sweep_of_the_runner(tiny_dataset, tmp_path):
     run record) and the report (robustness.json/md, Figs. 9-10) read back from those records."""
     from conftest import TINY_SAMPLES
 
-    from pbc.runs import OK, RunRecord
-    from pbc.sweeps import run_sweep
+    from pbc.core.runs import OK, RunRecord
+    from pbc.jobs.sweeps import run_sweep
 
     sweep = tmp_path / "sweep"
     trials = ["shape_0.0", "shape_2.0"]  # the artifact bodies go through the same code (unit tests)
@@ -27,7 +27,7 @@ def test_study_is_a_sweep_of_the_runner(tiny_dataset, tmp_path):
     rec = json.loads((sweep / "sweep.json").read_text())
     assert rc == 0, rec["steps"]
     assert [s["step"] for s in rec["steps"]] == ["data", "bodies", "train"]
-    assert rec["steps"][1]["call"] == "pbc.robustness.prepare_bodies"
+    assert rec["steps"][1]["call"] == "pbc.jobs.robustness.prepare_bodies"
     for name in trials:  # one run dir per trial, beside its body; its record names the body it trained on
         record = RunRecord.read(sweep / name)
         assert record.status == OK and record.config["robustness"]["trial"] == name

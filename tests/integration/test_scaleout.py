@@ -21,7 +21,7 @@ from pathlib import Path
 
 from conftest import tiny_overrides
 
-from pbc.config import load_config
+from pbc.core.config import load_config
 from pbc.data.generate import generate
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -16,7 +16,7 @@ from helpers.sweeps_runs import CONF, _compose
 from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
-from pbc.runs import OK, load_runs, sweep_values
+from pbc.core.runs import OK, load_runs, sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
 SEARCH: list[str] = []  # the sweep group is in conf/: no extra search path

@@ -28,8 +28,8 @@ def test_every_config_composes_and_instantiates():
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    from pbc.config import load_config
-    from pbc.validate import check_config
+    from pbc.core.config import load_config
+    from pbc.core.validate import check_config
 
     for exp in _group_options("experiment"):
         cfg = load_config([f"+experiment={exp}", "paths.output_dir=/tmp/x"])

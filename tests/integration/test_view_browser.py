@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "tests" / "unit"))
 from helpers.evaluate_world import save_run  # noqa: E402
 from test_view import tiny_predictor  # noqa: E402
 
-from pbc.view import clamp_to_limits, pose_to_angles, start_viewer, url, view_meshes  # noqa: E402
+from pbc.jobs.view import clamp_to_limits, pose_to_angles, start_viewer, url, view_meshes  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 # the brief's flags: no GPU (software WebGL), nothing fetched from outside, a fresh profile per launch
@@ -199,7 +199,7 @@ def test_the_command_on_a_port_in_use_says_so_and_takes_the_next_free_one(tiny_d
 
 def write_figure(whole_run: str, patch_runs: list[str] | None, out: Path) -> Path:
     """The README's screenshot: the viewer on `whole_run` in headless Chromium, the first test pose."""
-    from pbc.predict import ClothPredictor, stitch_config
+    from pbc.inference.predictor import ClothPredictor, stitch_config
 
     predictor = ClothPredictor.from_runs(whole_run, patch_runs, stitch_config("pca") if patch_runs else None)
     viewer = start_viewer(predictor, "127.0.0.1", 0)

@@ -50,7 +50,7 @@ def run(cmd: list, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_the_wheel_ships_pbc_and_its_configs_not_the_checkout(installed):
     bin_dir, work = installed
-    r = run([bin_dir / "python", "-c", "import pbc, pbc.paths as p; print(pbc.__file__); print(p.CONF_DIR); "
+    r = run([bin_dir / "python", "-c", "import pbc, pbc.core.paths as p; print(pbc.__file__); print(p.CONF_DIR); "
              "print(p.PATCHES_DIR)"], work)
     assert r.returncode == 0, r.stderr
     pkg, conf, patches = r.stdout.split()

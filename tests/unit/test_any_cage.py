@@ -23,8 +23,8 @@ def test_a_stitcher_for_a_cage_of_another_patch_count_returns_the_field_of_exact
     """Crops rendered from a known offset field, assembled and sampled by a stitcher built for the tube
     top's automatic cage (not 28 patches): `average` gives the field back at every vertex, and crops of
     ones give ones, i.e. the blend weights sum to 1 at every vertex (a vertex no crop covers would read 0)."""
-    from pbc.geometry.autocage import auto_cage
-    from pbc.geometry.obj_import import import_garment
+    from pbc.geometry.cage.auto import auto_cage
+    from pbc.geometry.garment.obj_import import import_garment
     from pbc.pixels.operators import ImageOperators
     from pbc.stitch.seams import build_stitcher
 

@@ -6,11 +6,12 @@ import pytest
 from helpers.autocage_runs import IMAGE, _check_patches_connected
 from helpers.tube_top import CHARTS, tube_top_obj
 
-from pbc.geometry.autocage import auto_cage
-from pbc.geometry.cage import load_cage, save_cage
-from pbc.geometry.garment import load_garment_config, make_tshirt
-from pbc.geometry.garments import garment_from_config
-from pbc.geometry.obj_import import import_garment
+from pbc.core.config import load_garment_config
+from pbc.geometry.cage.auto import auto_cage
+from pbc.geometry.cage.base import load_cage, save_cage
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment.obj_import import import_garment
+from pbc.geometry.garment.tshirt import make_tshirt
 
 
 def test_auto_cage_of_the_shirt_is_valid_connected_and_editable(tmp_path):
@@ -59,7 +60,7 @@ def test_cli_writes_an_editable_cage(tmp_path, capsys):
 
 
 def test_a_cage_file_of_another_garment_is_refused_with_the_fix(tmp_path):
-    from pbc.config import load_config
+    from pbc.core.config import load_config
 
     path = tmp_path / "top.obj"
     path.write_text(tube_top_obj())

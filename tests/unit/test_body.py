@@ -10,8 +10,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.body import body_sdf, build_body, load_body, pose_body, save_body
-from pbc.geometry.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
+from pbc.geometry.body.base import body_sdf, load_body, pose_body, save_body
+from pbc.geometry.body.mannequin import build_mannequin
+from pbc.geometry.body.skeleton import Skeleton, forward_kinematics, linear_blend_skinning
 
 BODY_CONFIG = Path(__file__).resolve().parents[2] / "conf" / "body" / "mannequin.yaml"
 TRIANGLES_DEFAULT = (5_000, 20_000)  # the range conf/body/mannequin.yaml promises at its default voxel
@@ -103,7 +104,7 @@ def test_default_body_watertight_and_sized():
 
     cfg = OmegaConf.load(BODY_CONFIG)  # the default voxel size, as the pipeline builds it
     t0 = time.perf_counter()
-    body = build_body(cfg)
+    body = build_mannequin(cfg)
     seconds = time.perf_counter() - t0
     mesh = trimesh.Trimesh(body.vertices.numpy(), body.faces.numpy(), process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent
@@ -115,7 +116,7 @@ def test_default_body_watertight_and_sized():
 def test_coarse_body_is_watertight_and_deterministic(body, body_cfg):
     import trimesh
 
-    again = build_body(body_cfg)
+    again = build_mannequin(body_cfg)
     assert torch.equal(again.vertices, body.vertices) and torch.equal(again.faces, body.faces)
     assert torch.equal(again.weights, body.weights) and torch.equal(again.parts, body.parts)
 

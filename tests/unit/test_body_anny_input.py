@@ -11,9 +11,9 @@ import trimesh
 from omegaconf import OmegaConf
 
 from pbc.cli import body as body_cli
-from pbc.config import load_config
-from pbc.geometry import anny_body
-from pbc.geometry.anny_body import check_phenotype, check_topology, joint_table, merge_weights
+from pbc.core.config import load_config
+from pbc.geometry.body import anny as anny_body
+from pbc.geometry.body.anny import check_phenotype, check_topology, joint_table, merge_weights
 
 RANGES = {"age": [0.5, 1.0], "height": [0.1, 0.9]}
 

@@ -14,11 +14,11 @@ import pytest
 import torch
 from helpers.evaluate_world import IMAGE, fake_dataset
 
-from pbc.config import load_config
+from pbc.core.config import load_config, load_garment_config
 from pbc.data.datamodule import ClothDataModule
 from pbc.data.generate import _cheap_fingerprint
 from pbc.data.shapes import BodyShapes, load_shapes, person_body, sample_phenotypes, save_shapes
-from pbc.geometry.garment import load_garment_config, make_tshirt
+from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.pixels.reconstruct import Skinner
 from pbc.pixels.target import make_target
 

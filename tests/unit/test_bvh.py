@@ -18,12 +18,12 @@ from test_predict import fake_run
 from test_robustness import stand_in_dataset
 
 from pbc.cli.predict import main
+from pbc.geometry.body.skeleton import skeleton_from_config, xzy_angles
 from pbc.geometry.meshio import write_garment_mesh
-from pbc.geometry.skeleton import skeleton_from_config, xzy_angles
+from pbc.jobs.writers import FrameObjWriter, render_frames
 from pbc.motion.bvh import BvhError, parse_bvh, read_bvh
 from pbc.motion.ranges import angle_range, clamp_to_range, range_report
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, parse_frames
-from pbc.motion.writers import FrameObjWriter, render_frames
 from pbc.sim.poses import euler_xzy_to_matrix
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -11,7 +11,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.skeleton import forward_kinematics, skeleton_from_config
+from pbc.geometry.body.skeleton import forward_kinematics, skeleton_from_config
 from pbc.motion.bvh import read_bvh
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, parse_frames
 

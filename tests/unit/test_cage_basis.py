@@ -64,7 +64,8 @@ def test_anisotropy_spreads_along_its_axis():
 
 @pytest.fixture(scope="module")
 def shirt():
-    from pbc.geometry.garment import load_garment_config, make_tshirt
+    from pbc.core.config import load_garment_config
+    from pbc.geometry.garment.tshirt import make_tshirt
     from pbc.pixels.operators import ImageOperators
 
     garment, cage = make_tshirt(load_garment_config("conf/garment/tshirt_coarse.yaml"))

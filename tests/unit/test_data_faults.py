@@ -15,9 +15,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import pbc.io
-from pbc.config import load_config
-from pbc.io import DiskFull, LockHeld, dir_lock, write_text
+import pbc.core.io
+from pbc.core.config import load_config
+from pbc.core.io import DiskFull, LockHeld, dir_lock, write_text
 
 
 # ============================================================================ drape workers
@@ -64,7 +64,7 @@ def _hold_then_finish(out: Path, seconds: float, held: threading.Event, finish: 
 
 def test_training_waits_for_the_job_making_its_data(tmp_path, monkeypatch, caplog):
     import pbc.data.generate as gen
-    from pbc.train import ensure_dataset
+    from pbc.jobs.train import ensure_dataset
 
     cfg = load_config(["data=tshirt_tiny", f"paths.data_dir={tmp_path}", "data.lock_wait_s=60"])
     out = Path(cfg.data.dir)
@@ -83,7 +83,7 @@ def test_training_waits_for_the_job_making_its_data(tmp_path, monkeypatch, caplo
 
 def test_training_stops_waiting_after_lock_wait_s_naming_the_setting(tmp_path, monkeypatch):
     import pbc.data.generate as gen
-    from pbc.train import ensure_dataset
+    from pbc.jobs.train import ensure_dataset
 
     cfg = load_config(["data=tshirt_tiny", f"paths.data_dir={tmp_path}", "data.lock_wait_s=0.5"])
     out = Path(cfg.data.dir)
@@ -137,7 +137,7 @@ def test_merge_refuses_a_disk_too_small_before_writing_anything(tmp_path, monkey
     from pbc.data.generate import merge
 
     out, args = _fake_run(tmp_path, monkeypatch)
-    monkeypatch.setattr(pbc.io.shutil, "disk_usage", lambda path: SimpleNamespace(total=10**9, used=10**9, free=1000))
+    monkeypatch.setattr(pbc.core.io.shutil, "disk_usage", lambda path: SimpleNamespace(total=10**9, used=10**9, free=1000))
     with pytest.raises(DiskFull, match=rf"no space left on the device holding dataset {out}: .* needed, 1000 B free; "
                                        "free space there .*paths.data_dir.* the drapes in work/ are kept"):
         merge(*args)
@@ -151,7 +151,7 @@ def test_disk_full_during_the_merge_is_one_named_error_and_no_half_dataset(tmp_p
     from pbc.data.generate import merge
 
     out, args = _fake_run(tmp_path, monkeypatch)
-    monkeypatch.setattr(pbc.io.shutil, "disk_usage", _big_disk())
+    monkeypatch.setattr(pbc.core.io.shutil, "disk_usage", _big_disk())
     real_save = np.save
 
     def fail_verts(file, arr, *a, **k):
@@ -163,7 +163,7 @@ def test_disk_full_during_the_merge_is_one_named_error_and_no_half_dataset(tmp_p
                 raise RuntimeError("np.save failed") from e  # the OSError arrives chained, one link down
         return real_save(file, arr, *a, **k)
 
-    monkeypatch.setattr(pbc.io.np, "save", fail_verts)
+    monkeypatch.setattr(pbc.core.io.np, "save", fail_verts)
     with pytest.raises(DiskFull) as exc:
         merge(*args)
     msg = str(exc.value)
@@ -172,7 +172,7 @@ def test_disk_full_during_the_merge_is_one_named_error_and_no_half_dataset(tmp_p
     assert sorted(p.name for p in out.iterdir()) == ["work"]  # garment.obj ... poses.npy removed, no temp file
     assert len(list((out / "work" / "samples").glob("*.npz"))) == 4
 
-    monkeypatch.setattr(pbc.io.np, "save", real_save)  # room again: the same merge finishes
+    monkeypatch.setattr(pbc.core.io.np, "save", real_save)  # room again: the same merge finishes
     merge(*args)
     assert (out / "manifest.json").is_file() and np.load(out / "verts.npy").shape == (4, 50, 3)
 
@@ -190,7 +190,7 @@ def test_merge_names_the_unfinished_shard(tmp_path, monkeypatch):
 # ============================================================================ operator cache on a full disk
 @pytest.fixture(scope="module")
 def coarse_garment():
-    from pbc.geometry.garment import make_tshirt
+    from pbc.geometry.garment.tshirt import make_tshirt
 
     return make_tshirt(load_config(["data=tshirt_tiny"]).garment)[0]
 

@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 import torch
 
-from pbc.edit import EditSpec, apply_edit, patch_mask, place_feature, png_mask, reconstruct, rect_mask
-from pbc.runs import RunRecord, monitor
+from pbc.core.runs import RunRecord, monitor
+from pbc.jobs.edit import EditSpec, apply_edit, patch_mask, place_feature, png_mask, reconstruct, rect_mask
 
 RES = 64
 
 
 @pytest.fixture(scope="module")
 def scene():
-    from pbc.geometry.garment import load_garment_config, make_tshirt
+    from pbc.core.config import load_garment_config
+    from pbc.geometry.garment.tshirt import make_tshirt
     from pbc.pixels.frames import to_offsets
     from pbc.pixels.operators import ImageOperators
 
@@ -127,7 +128,7 @@ def test_prediction_source_edits_a_models_image(tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     from helpers.evaluate_world import IMAGE, fake_dataset
 
-    from pbc.edit import source_from_dataset
+    from pbc.jobs.edit import source_from_dataset
 
     ds = fake_dataset(tmp_path / "ds")
     run = _whole_run(tmp_path / "whole")

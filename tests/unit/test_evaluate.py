@@ -40,7 +40,7 @@ def patched_load(world, monkeypatch):
 
 
 def test_select_patch_runs_reports_every_problem(world, tmp_path):
-    from pbc.predict import select_patch_runs
+    from pbc.core.runs import select_patch_runs
 
     root, ds, whole = world
     runs = [root / "runs" / "patches" / f"{k}_patch_{k:02d}" for k in range(28)]
@@ -63,12 +63,12 @@ def test_select_patch_runs_reports_every_problem(world, tmp_path):
 @pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 def test_predictor_on_the_gpu_matches_the_cpu(world, patched_load):
-    from pbc.predict import ClothPredictor
+    from pbc.inference.predictor import ClothPredictor
 
     root, ds, whole = world
     cpu = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("pca"))
     gpu = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("pca"), device="cuda")
-    from pbc.evaluate import fit_training_pca
+    from pbc.inference.predictor import fit_training_pca
 
     cpu.stitcher.pca = gpu.stitcher.pca = fit_training_pca(cpu, 16, 64)  # set after construction, as evaluate does
     pose = torch.from_numpy(ds.poses[:3]).float()
@@ -80,7 +80,7 @@ def test_predictor_on_the_gpu_matches_the_cpu(world, patched_load):
 def test_evaluate_the_whole_model_alone(world, patched_load, tmp_path):
     """patch_runs=null: the whole model against the training mean shape and its image floor, no stitch."""
 
-    from pbc.evaluate import evaluate
+    from pbc.jobs.evaluate import evaluate
 
     root, ds, whole = world
     cfg = OmegaConf.create({"whole_run": str(whole), "patch_runs": None, "methods": ["average"], "split": "test",
@@ -100,8 +100,8 @@ def test_evaluate_the_whole_model_alone(world, patched_load, tmp_path):
 
 def test_stacked_patch_net_carries_each_mean_image():
     """The stacked 28-model form adds every decoder's own output_mean, as the loop does."""
+    from pbc.inference.predictor import LoopPatchNet, StackedPatchNet
     from pbc.models.decoder import ConvDecoder
-    from pbc.predict import LoopPatchNet, StackedPatchNet
 
     torch.manual_seed(0)
     nets = [ConvDecoder(90, 3, (40, 40), (5, 5), 32, first_layer="linear") for _ in range(3)]
@@ -124,8 +124,8 @@ def test_stacked_patch_net_carries_each_mean_image():
 @pytest.mark.parametrize("batch", [1, 6])  # 6 > bmm_max_batch: the all-grouped path
 def test_stacked_patch_net_bfloat16_close_to_float32(batch):
     """The bf16 fast path returns float32 crops within bf16 rounding of the exact loop."""
+    from pbc.inference.predictor import LoopPatchNet, StackedPatchNet
     from pbc.models.decoder import ConvDecoder
-    from pbc.predict import LoopPatchNet, StackedPatchNet
 
     torch.manual_seed(1)
     nets = [ConvDecoder(90, 3, (40, 40), (5, 5), 32, first_layer="linear") for _ in range(3)]
@@ -150,7 +150,7 @@ def test_stacked_patch_net_bfloat16_close_to_float32(batch):
 
 
 def test_predictor_rejects_unknown_precision(tmp_path):
-    from pbc.predict import ClothPredictor
+    from pbc.inference.predictor import ClothPredictor
 
     with pytest.raises(ValueError, match="precision must be one of"):
         ClothPredictor(fake_dataset(tmp_path / "fake"), IMAGE, None, [], OmegaConf.load(
@@ -160,7 +160,7 @@ def test_predictor_rejects_unknown_precision(tmp_path):
 @pytest.fixture(scope="module")
 def predictor(world):
     """One predictor for the door tests (building one costs seconds)."""
-    from pbc.predict import ClothPredictor
+    from pbc.inference.predictor import ClothPredictor
 
     root, ds, whole = world
     with pytest.MonkeyPatch.context() as mp:
@@ -192,7 +192,7 @@ def test_predictor_checks_its_poses_first(world, predictor):
 
 
 def test_predictor_refuses_a_pca_basis_of_another_dataset(predictor, tmp_path):
-    from pbc.evaluate import fit_training_pca
+    from pbc.inference.predictor import fit_training_pca
     from pbc.stitch.pca import load_pca, save_pca
 
     pred = predictor
@@ -211,7 +211,7 @@ def test_predictor_refuses_a_pca_basis_of_another_dataset(predictor, tmp_path):
 
 
 def test_stacked_patch_net_matches_loop(world, patched_load):
-    from pbc.predict import ClothPredictor, LoopPatchNet
+    from pbc.inference.predictor import ClothPredictor, LoopPatchNet
 
     root, ds, whole = world
     pred = ClothPredictor.from_runs(whole, root / "runs" / "patches", _stitch_cfg("average"))
@@ -227,7 +227,7 @@ def test_stacked_patch_net_matches_loop(world, patched_load):
 
 
 def test_evaluate_writes_all_outputs(world, patched_load, tmp_path):
-    from pbc.evaluate import evaluate
+    from pbc.jobs.evaluate import evaluate
 
     root, ds, whole = world
     cfg = OmegaConf.create({"whole_run": str(whole), "patch_runs": str(root / "runs" / "patches"),

@@ -19,9 +19,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.config import load_config
-from pbc.io import LockHeld, dir_lock, load_checkpoint, load_npz, read_json, write_json
-from pbc.validate import as_poses, check_config, check_resume, identity_diff, rotation_errors, training_identity
+from pbc.core.config import load_config
+from pbc.core.io import LockHeld, dir_lock, load_checkpoint, load_npz, read_json, write_json
+from pbc.core.validate import as_poses, check_config, check_resume, identity_diff, rotation_errors, training_identity
 
 J = 10
 
@@ -313,7 +313,7 @@ def test_corrupt_checkpoint_and_json_name_the_file(tmp_path):
 
 
 def test_read_only_output_dir_is_named(tmp_path):
-    from pbc.io import require_writable_dir
+    from pbc.core.io import require_writable_dir
 
     blocker = tmp_path / "runs"
     blocker.write_text("a file where the runs dir would be")
@@ -325,7 +325,7 @@ def test_read_only_output_dir_is_named(tmp_path):
 # ============================================================================ operator cache
 @pytest.fixture(scope="module")
 def coarse_garment():
-    from pbc.geometry.garment import make_tshirt
+    from pbc.geometry.garment.tshirt import make_tshirt
 
     return make_tshirt(load_config(["data=tshirt_tiny"]).garment)[0]
 
@@ -361,7 +361,7 @@ class FakeData:
     def __init__(self, d: Path, poses: np.ndarray, verts: np.ndarray):
         from types import SimpleNamespace
 
-        from pbc.io import load_npy, save_npy
+        from pbc.core.io import load_npy, save_npy
 
         save_npy(d / "poses.npy", poses)
         save_npy(d / "verts.npy", verts)
@@ -395,18 +395,19 @@ def test_every_bad_sample_is_named_when_the_dataset_opens(tmp_path):
 
 def _tiny_dataset_dir(root: Path, n: int = 6) -> Path:
     """A loadable dataset dir of the coarse shirt: identity-ish poses, rest-shape vertices, no drape."""
+    from pbc.core.io import save_npy
     from pbc.data.dataset import save_embedding
     from pbc.data.generate import _cheap_fingerprint, garment_from_config
-    from pbc.geometry.body import build_body, save_body
-    from pbc.geometry.cage import save_cage
-    from pbc.geometry.garment import save_garment_obj
+    from pbc.geometry.body.base import save_body
+    from pbc.geometry.body.mannequin import build_mannequin
+    from pbc.geometry.cage.base import save_cage
+    from pbc.geometry.garment.base import save_garment_obj
     from pbc.geometry.shrinkwrap import Embedding
-    from pbc.io import save_npy
 
     cfg = load_config(["data=tshirt_tiny", f"data.num_samples={n}"])
     bcfg = cfg.body.copy()
     bcfg.mesh.voxel_size = 0.03
-    body = build_body(bcfg)
+    body = build_mannequin(bcfg)
     garment, cage = garment_from_config(cfg.garment)
     V = garment.vertices.shape[0]
     d = root / "ds"
@@ -545,7 +546,7 @@ def _cfg(data_dir: Path, out: Path, *extra: str):
 
 @pytest.fixture(scope="module")
 def trained(tiny_dir, tmp_path_factory):
-    from pbc.train import train
+    from pbc.jobs.train import train
 
     runs = tmp_path_factory.mktemp("runs")
     metrics = train(_cfg(tiny_dir, runs / "a"))
@@ -554,7 +555,7 @@ def trained(tiny_dir, tmp_path_factory):
 
 
 def test_resume_last_adopts_only_a_run_of_the_same_training(trained, tiny_dir):
-    from pbc.train import resolve_ckpt_path, train
+    from pbc.jobs.train import resolve_ckpt_path, train
 
     runs, metrics = trained
     ident, training = metrics["identity"], metrics["training_identity"]
@@ -576,7 +577,7 @@ def test_resume_last_adopts_only_a_run_of_the_same_training(trained, tiny_dir):
 
 
 def test_train_refuses_a_dataset_made_with_other_settings(tiny_dir, tmp_path):
-    from pbc.train import train
+    from pbc.jobs.train import train
 
     with pytest.raises(ValueError, match=r"other settings(.|\n)*num_samples: dataset 6 vs config 9"):
         train(_cfg(tiny_dir, tmp_path / "r", "data.num_samples=9"))
@@ -587,7 +588,7 @@ def test_train_refuses_a_dataset_made_with_other_settings(tiny_dir, tmp_path):
                                            ("true", r"model.patch_id=True \(bool\)"),
                                            ("99", r"(unknown patch_id 99|patch_id=99).*0..27")])
 def test_train_checks_config_types_at_the_door(tiny_dir, tmp_path, value, needle):
-    from pbc.train import train
+    from pbc.jobs.train import train
 
     cfg = load_config(["data=tshirt_tiny", "data.num_samples=6", "+experiment=patch_03", f"model.patch_id={value}",
                        f"data.dir={tiny_dir}", f"paths.output_dir={tmp_path / 'r'}"])
@@ -597,7 +598,7 @@ def test_train_checks_config_types_at_the_door(tiny_dir, tmp_path, value, needle
 
 
 def test_train_names_a_read_only_run_dir_first(tiny_dir, tmp_path):
-    from pbc.train import train
+    from pbc.jobs.train import train
 
     blocker = tmp_path / "runs"
     blocker.write_text("a file where the runs dir would be")  # read-only for root too
@@ -606,8 +607,8 @@ def test_train_names_a_read_only_run_dir_first(tiny_dir, tmp_path):
 
 
 def test_run_remembers_its_data_from_any_shell(trained, tiny_dir, tmp_path, monkeypatch):
-    from pbc.predict import open_run_dataset
-    from pbc.runs import read_run
+    from pbc.core.runs import read_run
+    from pbc.inference.predictor import open_run_dataset
 
     runs, metrics = trained
     assert metrics["data"]["dir"] == str(tiny_dir.resolve())
@@ -648,9 +649,9 @@ def test_module_forward_checks_its_poses(trained):
 
 
 def test_corrupt_run_files_are_named(trained, tmp_path):
+    from pbc.core.runs import read_run
     from pbc.data.generate import _read_sample
-    from pbc.predict import load_decoder
-    from pbc.runs import read_run
+    from pbc.inference.predictor import load_decoder
 
     runs, _ = trained
     run = tmp_path / "run"
@@ -687,7 +688,7 @@ def test_rotation_check_is_float32_exact_under_bf16_autocast():
     """Validation under trainer.precision=bf16-mixed: proper rotations pass (a bf16 product would not)."""
     from scipy.spatial.transform import Rotation
 
-    from pbc.validate import ROTATION_TOL, rotation_errors
+    from pbc.core.validate import ROTATION_TOL, rotation_errors
 
     rot = torch.from_numpy(Rotation.random(70, random_state=0).as_matrix()).float()
     with torch.autocast("cpu", dtype=torch.bfloat16):

@@ -56,7 +56,7 @@ def test_training_bar_shows_loss_and_val_error():
 
 def test_cpu_trainer_logs_within_an_epoch_of_the_default_data():
     """Lightning warns when an epoch has fewer batches than log_every_n_steps (tshirt_small: 5)."""
-    from pbc.config import load_config
+    from pbc.core.config import load_config
     from pbc.data.generate import split_sizes
 
     cfg = load_config(["trainer=cpu", "data=tshirt_small", "paths.output_dir=/tmp/x"])
@@ -124,7 +124,7 @@ def test_panel_tag_in_the_event_file(tmp_path):
 
 # ------------------------------------------------------------------------------------- per-pose spread
 def test_per_pose_vertex_error_matches_the_mean():
-    from pbc.metrics import vertex_error_cm, vertex_error_cm_per_pose
+    from pbc.models.metrics import vertex_error_cm, vertex_error_cm_per_pose
 
     gen = torch.Generator().manual_seed(1)
     gt = torch.randn(5, 40, 3, generator=gen)
@@ -140,7 +140,7 @@ def test_per_pose_vertex_error_matches_the_mean():
 # ------------------------------------------------------------------------------------ dataset preview
 def test_sample_figure_holds_raised_arms(tmp_path, body):
     from pbc.data.preview import plot_samples, view_limits
-    from pbc.geometry.body import pose_body
+    from pbc.geometry.body.base import pose_body
 
     poses = np.tile(np.eye(3, dtype=np.float32), (2, body.skeleton.num_joints, 1, 1))
     rest = pose_body(body, torch.from_numpy(poses[:1]))[0].numpy()
@@ -162,7 +162,7 @@ def test_sample_figure_holds_raised_arms(tmp_path, body):
 def test_report_paths_are_relative(tmp_path):
     from test_report import make_run, patch_metrics
 
-    from pbc import report
+    from pbc.jobs import report
 
     sweep = tmp_path / "sweep"
     for i in range(6):
@@ -192,7 +192,7 @@ def test_report_paths_are_relative(tmp_path):
 
 @pytest.mark.parametrize("inside", [True, False])
 def test_relative_paths_leave_other_names_alone(tmp_path, inside):
-    from pbc.report import relative_paths
+    from pbc.jobs.report import relative_paths
 
     sweep = tmp_path / "s"
     out = sweep if inside else tmp_path / "r"

@@ -1,4 +1,4 @@
-"""Figure labels say what each panel shows: Fig. 10's panels (pbc.robustness.fig10) each carry their own cloth's
+"""Figure labels say what each panel shows: Fig. 10's panels (pbc.jobs.robustness.fig10) each carry their own cloth's
 numbers, not the other panel's; drawn from synthetic meshes, no model."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
-import pbc.robustness as robustness
+import pbc.jobs.robustness as robustness
 
 
 def _sheet(n: int = 5, z: float = 0.0):
@@ -52,7 +52,7 @@ def test_fig10_titles_each_panel_with_its_own_cloth(tmp_path, monkeypatch):
 
 def _sweep_runs(tmp_path):
     """A hierarchy-like sweep: 28 patch runs and the whole model, each with a train and a val curve."""
-    from pbc.runs import OK, Run
+    from pbc.core.runs import OK, Run
 
     names = [f"patch_{i:02d}" for i in range(28)] + ["whole"]
     return [Run(path=tmp_path / n, name=n, choices={"experiment": n, "loss": "l1", "sweep": "hierarchy"},
@@ -63,7 +63,7 @@ def _sweep_runs(tmp_path):
 
 
 def test_curve_styles_fold_numbered_runs_into_one_colormap(tmp_path):
-    from pbc.report import curve_styles, label_of
+    from pbc.jobs.report import curve_styles, label_of
 
     runs = _sweep_runs(tmp_path)
     styles, families = curve_styles([label_of(r, runs) for r in runs])
@@ -82,7 +82,7 @@ def test_curve_styles_fold_numbered_runs_into_one_colormap(tmp_path):
 def test_learning_curves_legend_is_short_and_outside(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    from pbc import report
+    from pbc.jobs import report
 
     runs = _sweep_runs(tmp_path)
     made = {}
@@ -106,9 +106,9 @@ def test_learning_curves_legend_is_short_and_outside(tmp_path, monkeypatch):
 def test_hierarchy_title_promises_error_bars_only_when_drawn(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    from pbc import report
-    from pbc.report import PATCH_VERTEX, VERTEX, Row
-    from pbc.runs import OK
+    from pbc.jobs import report
+    from pbc.core.runs import OK
+    from pbc.jobs.report import PATCH_VERTEX, VERTEX, Row
 
     def rows(with_std):
         return [Row(label=f"patch_{i:02d}", select={}, status=OK,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pbc.garment_fit import default_out, garment_overrides
+from pbc.jobs.garment_fit import default_out, garment_overrides
 
 
 def test_each_piece_of_an_outfit_gets_its_own_fit_dir(tmp_path):

@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from pbc.geometry.cage import Cage, boundary_loops, cage_to_json, crop_origin, load_cage, save_cage, validate_cage
-from pbc.geometry.garment import load_garment_config, load_garment_obj, make_tshirt, save_garment_obj
+from pbc.core.config import load_garment_config
+from pbc.geometry.cage.base import Cage, cage_to_json, crop_origin, load_cage, save_cage, validate_cage
+from pbc.geometry.garment.base import load_garment_obj, save_garment_obj
+from pbc.geometry.garment.tshirt import make_tshirt
+from pbc.geometry.meshops import boundary_loops
 
 ROOT = Path(__file__).resolve().parents[2]
 

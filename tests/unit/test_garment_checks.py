@@ -15,12 +15,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.a_pose import IMPORT, outfit_obj  # noqa: E402
 
 from pbc.cli import COMMANDS  # noqa: E402
-from pbc.config import load_config  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
 from pbc.data.generate import discard_summary  # noqa: E402
-from pbc.geometry.fit import check_uv_unit, sleeve_axes  # noqa: E402
-from pbc.geometry.garments import garment_from_config  # noqa: E402
-from pbc.geometry.inspect import inspect_garment, split_outfit  # noqa: E402
+from pbc.geometry.garment import garment_from_config  # noqa: E402
+from pbc.geometry.garment.checks import sleeve_axes
+from pbc.geometry.garment.outfit import split_outfit
+from pbc.geometry.inspect import inspect_garment  # noqa: E402
 from pbc.geometry.shrinkwrap import shrinkwrap  # noqa: E402
+from pbc.geometry.units import check_uv_unit  # noqa: E402
 
 
 def _write(tmp_path, name, text):

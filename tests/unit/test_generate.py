@@ -37,8 +37,8 @@ def test_user_garment_goes_through_the_same_door(tmp_path: Path):
     import torch
 
     from pbc.data.generate import garment_from_config
-    from pbc.geometry.cage import save_cage
-    from pbc.geometry.garment import save_garment_obj
+    from pbc.geometry.cage.base import save_cage
+    from pbc.geometry.garment.base import save_garment_obj
 
     procedural, cage = garment_from_config(tiny_cfg(tmp_path).garment)
     save_garment_obj(procedural, tmp_path / "shirt.obj")

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from pbc.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
-from pbc.metrics import normal_cosine_distance, vertex_error_cm
+from pbc.models.losses import edge_loss, image_loss, normal_loss, vertex_value_loss
+from pbc.models.metrics import normal_cosine_distance, vertex_error_cm
 
 
 def test_image_loss_masked_mean_per_piece_summed():

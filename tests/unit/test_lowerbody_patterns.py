@@ -1,4 +1,4 @@
-"""The lower-body garments (pbc/geometry/lowerbody.py) on a tiny hand-made body with legs (tests/helpers/legged.py):
+"""The lower-body garments (pbc/geometry/garment/lowerbody.py) on a tiny hand-made body with legs (tests/helpers/legged.py):
 charts and UVs, seams sewn where a skirt / trousers have them, sizes that follow the body; and the legs' pose
 pruning (pbc/sim/poses.py): legs within limits, crossed legs pruned, a no-op where the legs stay at rest."""
 
@@ -12,12 +12,12 @@ import torch
 from helpers.legged import MANNEQUIN, legged_body, legged_body_config
 from omegaconf import OmegaConf
 
-from pbc.config import load_config
-from pbc.geometry.body import build_body
-from pbc.geometry.cage import boundary_loops
-from pbc.geometry.garments import garment_from_config, garment_needs_body
-from pbc.geometry.lowerbody import lower_landmarks
-from pbc.geometry.measure import measurements
+from pbc.core.config import load_config
+from pbc.geometry.body.mannequin import build_mannequin
+from pbc.geometry.body.measure import measurements
+from pbc.geometry.garment import garment_from_config, garment_needs_body
+from pbc.geometry.garment.lowerbody import lower_landmarks
+from pbc.geometry.meshops import boundary_loops
 from pbc.sim.poses import (
     SamplingSettings,
     euler_xzy_to_matrix,
@@ -127,7 +127,7 @@ def test_sizes_follow_the_body(name):
     cfg = OmegaConf.load(MANNEQUIN)
     cfg.mesh.voxel_size = 0.04
     with pytest.raises(ValueError, match="no joints .*body=anny"):
-        garment_from_config(_gcfg(name), build_body(cfg))
+        garment_from_config(_gcfg(name), build_mannequin(cfg))
 
 
 # ------------------------------------------------------------------------------------------ leg pruning

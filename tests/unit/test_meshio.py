@@ -9,8 +9,11 @@ import pytest
 import torch
 import trimesh
 
-from pbc.geometry.garment import load_garment_config, load_garment_obj, make_tshirt, save_garment_obj
-from pbc.geometry.meshio import submesh, vertex_normals, write_garment_mesh, write_mesh
+from pbc.core.config import load_garment_config
+from pbc.geometry.garment.base import load_garment_obj, save_garment_obj
+from pbc.geometry.garment.tshirt import make_tshirt
+from pbc.geometry.meshio import submesh, write_garment_mesh, write_mesh
+from pbc.geometry.meshops import vertex_normals
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pbc.geometry.garment import load_garment_config, make_tshirt
+from pbc.core.config import load_garment_config
+from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.geometry.meshio import read_obj, write_garment_mesh
 
 ROOT = Path(__file__).resolve().parents[2]

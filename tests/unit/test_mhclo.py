@@ -1,4 +1,4 @@
-"""MakeHuman-format clothes (pbc/geometry/mhclo.py) on hand-made base meshes: the parser (real-world quirks and
+"""MakeHuman-format clothes (pbc/geometry/garment/mhclo.py) on hand-made base meshes: the parser (real-world quirks and
 each corrupt input), the fit against a hand computation, the push-out of what sits inside the body, an outfit's
 pieces, and the refusals before anything is built (no Anny here: tests/integration/test_mhclo_jobs.py fits to it)."""
 
@@ -14,22 +14,20 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.mhclo_assets import grid_faces, hand_fit, write_mhclo  # noqa: E402
 
-from pbc.config import load_config  # noqa: E402
-from pbc.geometry.garments import garment_from_config, garment_needs_body  # noqa: E402
-from pbc.geometry.mhclo import (  # noqa: E402
+from pbc.core.config import load_config  # noqa: E402
+from pbc.geometry.garment import garment_from_config, garment_needs_body  # noqa: E402
+from pbc.geometry.garment.mhclo import (
     BASE_UNIT,
+    bound_mesh,
+    bound_positions,
     check_anny_body,
-    fit_vertices,
-    fitted_mesh,
-    name_pieces,
     parse_mhclo,
-    push_out,
     read_garment_obj,
     read_mhclo,
-    select_piece,
-    surface_distance,
 )
-from pbc.geometry.obj_import import parse_obj  # noqa: E402
+from pbc.geometry.garment.outfit import name_pieces, select_piece
+from pbc.geometry.meshio import parse_obj  # noqa: E402
+from pbc.geometry.meshops import push_out, surface_distance
 
 # a tiny base mesh (metres, pbc frame): 6 vertices, the scale pairs 0-1 (x), 0-2 (y), 0-3 (z)
 BASE = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, 0.4], [0.1, 0.1, 0.1],
@@ -72,20 +70,20 @@ def test_parser_reads_makeclothes_output_with_its_quirks():
 
 def test_fit_is_the_weighted_sum_plus_the_scaled_offset():
     m = parse_mhclo(TEXT, "/x/tiny.mhclo")
-    got = fit_vertices(m, BASE)
+    got = bound_positions(m, BASE)
     # by hand: sx = 0.2 / 1, sy = 0.3 / 2, sz = 0.4 / 8
     want0 = 0.5 * BASE[0] + 0.3 * BASE[1] + 0.2 * BASE[2] + np.array([0.2 * 1.0, 0.15 * -2.0, 0.05 * 0.5])
     want2 = 0.2 * BASE[3] + 0.2 * BASE[4] + 0.6 * BASE[5] + np.array([0.0, 0.0, 0.05 * -1.0])
     np.testing.assert_allclose(got, [want0, BASE[4], want2], atol=1e-12)
     np.testing.assert_allclose(got, hand_fit(BASE, m.refs, m.weights, m.offsets, SCALES), atol=1e-12)
     # a body twice as large: the weighted part and the offsets both double
-    np.testing.assert_allclose(fit_vertices(m, 2 * BASE), 2 * got, atol=1e-12)
+    np.testing.assert_allclose(bound_positions(m, 2 * BASE), 2 * got, atol=1e-12)
 
 
 def test_missing_scale_lines_keep_the_base_mesh_size():
     text = "\n".join(line for line in TEXT.splitlines() if "_scale" not in line)
     m = parse_mhclo(text, "tiny.mhclo")
-    got = fit_vertices(m, BASE)
+    got = bound_positions(m, BASE)
     np.testing.assert_allclose(got[0], 0.5 * BASE[0] + 0.3 * BASE[1] + 0.2 * BASE[2] + BASE_UNIT * m.offsets[0])
 
 
@@ -109,10 +107,10 @@ def test_corrupt_mhclo_is_one_error_naming_the_line(text, message):
 def test_vertex_beyond_the_base_mesh_is_refused_naming_the_line():
     m = parse_mhclo("verts 0\n0 1 2 0.3 0.3 0.4 0 0 0\n1 9 2 0.3 0.3 0.4 0 0 0\n", "g.mhclo")
     with pytest.raises(ValueError, match=r"g.mhclo: line 3: base-mesh vertex 9 is beyond the base mesh \(6 vertices"):
-        fit_vertices(m, BASE)
+        bound_positions(m, BASE)
     m = parse_mhclo("z_scale 0 60 1.0\nverts 0\n1\n", "g.mhclo")
     with pytest.raises(ValueError, match="line 1: base-mesh vertex 60 is beyond"):
-        fit_vertices(m, BASE)
+        bound_positions(m, BASE)
 
 
 def test_missing_files_and_a_vertex_count_mismatch(tmp_path):
@@ -195,7 +193,7 @@ def test_fitted_mesh_places_pushes_and_cuts(tmp_path):
     offsets[:4] = -v[:4] / np.linalg.norm(v[:4], axis=1, keepdims=True) * 0.05  # 0.05 units = 5 mm inwards
     path = write_mhclo(tmp_path, refs, w, offsets, v[:n * n] * 10, n, scales={})
     m = read_mhclo(path)
-    mesh, stats = fitted_mesh(m, v, v, f, margin=0.002, candidates=12)
+    mesh, stats = bound_mesh(m, v, v, f, margin=0.002, candidates=12)
     assert stats["inside"] == 4 and stats["vertices"] == 9
     dist = surface_distance(mesh.vertices, v, f)[0]
     np.testing.assert_allclose(dist[:4], 0.002, atol=2e-6)

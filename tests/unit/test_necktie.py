@@ -7,11 +7,10 @@ import pytest
 import torch
 from hydra.utils import instantiate
 
-from pbc.config import load_config
-from pbc.geometry.cage import boundary_loops
-from pbc.geometry.garments import garment_from_config
-from pbc.geometry.necktie import necktie_pattern
-from pbc.geometry.obj_import import face_charts, signed_uv_area
+from pbc.core.config import load_config
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment.necktie import necktie_pattern
+from pbc.geometry.meshops import boundary_loops, face_charts, signed_uv_area
 from pbc.models.decoder import count_parameters
 
 
@@ -98,8 +97,8 @@ def test_necktie_shrink_wraps_onto_the_mannequin(cfg, tie, body):
 
 
 def test_necktie_obj_round_trip_keeps_the_sampled_uvs(tie, tmp_path):
-    from pbc.geometry.cage import validate_cage
-    from pbc.geometry.garment import load_garment_obj, save_garment_obj
+    from pbc.geometry.cage.base import validate_cage
+    from pbc.geometry.garment.base import load_garment_obj, save_garment_obj
 
     g, cage = tie
     save_garment_obj(g, tmp_path / "tie.obj")
@@ -189,7 +188,7 @@ def test_net_config_sizes_the_tie_net_from_the_target_and_the_skeleton(cfg, body
 
     from omegaconf import OmegaConf
 
-    from pbc.train import net_config
+    from pbc.jobs.train import net_config
 
     target = SimpleNamespace(image_size=(64, 256), channels=3, skinner=SimpleNamespace(skeleton=body.skeleton))
     net = net_config(cfg, target)
@@ -202,7 +201,7 @@ def test_net_config_sizes_the_tie_net_from_the_target_and_the_skeleton(cfg, body
 
 
 def test_a_dataset_posing_joints_the_model_does_not_read_is_refused(body):
-    from pbc.validate import check_pose_joints, moving_joints
+    from pbc.core.validate import check_pose_joints, moving_joints
 
     names = body.skeleton.names
     poses = torch.eye(3).expand(5, len(names), 3, 3).clone()

@@ -1,4 +1,4 @@
-"""Real OBJ files in (pbc.geometry.obj_import): small hand-written OBJ strings, as other tools write them."""
+"""Real OBJ files in (pbc.geometry.garment.obj_import): small hand-written OBJ strings, as other tools write them."""
 
 from __future__ import annotations
 
@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from pbc.geometry.garment import load_garment_obj
-from pbc.geometry.garments import load_any_obj
-from pbc.geometry.obj_import import import_garment, parse_obj, signed_uv_area
+from pbc.geometry.garment import load_any_obj
+from pbc.geometry.garment.base import load_garment_obj
+from pbc.geometry.garment.obj_import import import_garment
+from pbc.geometry.meshio import parse_obj
+from pbc.geometry.meshops import signed_uv_area
 
 
 def tube_obj(cols: int = 8, rows: int = 3, radius: float = 0.2, height: float = 0.3, relative: bool = False,
@@ -186,7 +188,7 @@ def test_parse_ignores_materials_smoothing_objects_and_continuations():
 def test_pbc_round_trip_keeps_where_vertices_are_sampled(tmp_path):
     """A vertex with two uvs on one side (two charts sharing an image, or a seam inside one chart) reads
     back at the uv it was imported with, so a cage made for the import fits the dataset's garment."""
-    from pbc.geometry.garment import save_garment_obj
+    from pbc.geometry.garment.base import save_garment_obj
 
     text = tube_obj()
     # both islands on the front image (they are placed apart in UV), the back seam inside one chart too

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 import torch
 
+from pbc.geometry.meshops import vertex_normals
 from pbc.pixels.frames import FrameBuilder, from_offsets, tangent_frames, to_offsets
 from pbc.pixels.operators import ImageOperators, load_or_build, operator_key, rasterize
-from pbc.pixels.reconstruct import edge_lengths, images_to_positions, mesh_edges, vertex_normals
+from pbc.pixels.reconstruct import edge_lengths, images_to_positions, mesh_edges
 
 
 def tube_garment(n: int = 8, m: int = 10, radius: float = 0.2, height: float = 0.5):

@@ -14,15 +14,16 @@ from test_bvh import clip_text, random_poses
 from test_predict import fake_run
 from test_robustness import stand_in_dataset
 
-import pbc.predict
+import pbc.inference.poses
 from pbc.cli.predict import main
+from pbc.core.runs import RunRecord
 from pbc.data.dataset import load_dataset
+from pbc.inference.predictor import ClothPredictor
+from pbc.jobs.predict import predict_sequence
+from pbc.jobs.train import pose_range_record
 from pbc.motion.bvh import read_bvh
 from pbc.motion.ranges import angle_range, range_from_record
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map
-from pbc.predict import ClothPredictor, predict_sequence
-from pbc.runs import RunRecord
-from pbc.train import training_pose_range
 
 
 @pytest.fixture(scope="module")
@@ -34,14 +35,14 @@ def recording_run(d, data_dir):
     """A fake finished run whose record holds its training range, as pbc.train writes it."""
     run = fake_run(d, data_dir)
     record = RunRecord.read(run)
-    record.pose_range = training_pose_range(load_dataset(data_dir))
+    record.pose_range = pose_range_record(load_dataset(data_dir))
     record.write(run)
     return run
 
 
 def test_train_records_the_training_splits_range(dataset_dir, tmp_path):
     ds = load_dataset(dataset_dir)
-    rec = training_pose_range(ds)
+    rec = pose_range_record(ds)
     names = list(ds.body.skeleton.names)
     idx = ds.split("train")
     assert rec["split"] == "train" and rec["poses"] == len(idx) > 0 and list(rec["deg"]) == names
@@ -64,7 +65,7 @@ def test_a_run_whose_dataset_is_gone_still_flags_the_frames(dataset_dir, tmp_pat
     predictor = ClothPredictor.from_runs(run)  # opens the data (garment, body, embedding)...
     shutil.rmtree(data)  # ...then the dataset is deleted
     # the range must come from the run: reading the dataset's training poses is an error here
-    monkeypatch.setattr(pbc.predict, "training_pose_range", lambda ds: pytest.fail("read the dataset's poses"))
+    monkeypatch.setattr(pbc.inference.poses, "training_pose_range", lambda ds: pytest.fail("read the dataset's poses"))
     clip = tmp_path / "clip.bvh"
     clip.write_text(clip_text(random_poses(6, seed=3)))
     bvh = read_bvh(clip)

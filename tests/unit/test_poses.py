@@ -9,7 +9,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.skeleton import Skeleton
+from pbc.geometry.body.skeleton import Skeleton
 from pbc.sim.poses import (
     SamplingSettings,
     arm_probe_indices,

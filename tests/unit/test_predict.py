@@ -17,8 +17,8 @@ from test_robustness import stand_in_dataset
 
 from pbc import cli
 from pbc.cli.predict import main
-from pbc.predict import ClothPredictor, load_decoder, stitch_config
-from pbc.runs import RunRecord, monitor
+from pbc.core.runs import RunRecord, monitor
+from pbc.inference.predictor import ClothPredictor, load_decoder, stitch_config
 
 ROOT = Path(__file__).resolve().parents[2]
 IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 160,
@@ -165,7 +165,7 @@ def test_cli_with_patch_models_and_a_seam_method(setup, patch_sweep, tmp_path):
     res = json.loads((out / "predict.json").read_text())
     assert res["model"] == "patches" and res["method"] == "pca"
     # the files hold what the predictor answers for these poses: the stitched patches, not the whole model
-    from pbc.predict import fit_training_pca
+    from pbc.inference.predictor import fit_training_pca
 
     pred = ClothPredictor.from_runs(whole, patch_sweep, stitch_config("pca"))
     pred.stitcher.pca = fit_training_pca(pred, 128, 4096)
@@ -176,7 +176,7 @@ def test_cli_with_patch_models_and_a_seam_method(setup, patch_sweep, tmp_path):
 
 @pytest.mark.parametrize("method", ["average", "pca", "cage"])
 def test_stitch_config_equals_hydras(method):
-    from pbc.config import load_config
+    from pbc.core.config import load_config
 
     assert stitch_config(method) == load_config([f"stitch={method}"], config_name="evaluate").stitch
 

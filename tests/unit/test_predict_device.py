@@ -8,7 +8,13 @@ import pytest
 import torch
 from helpers.predict_device import decoders, every_tensor
 
-from pbc.predict import DEFAULT_LAYER_MODES, GPU_LAYER_MODES, LoopPatchNet, StackedPatchNet, default_layer_modes
+from pbc.inference.predictor import (
+    DEFAULT_LAYER_MODES,
+    GPU_LAYER_MODES,
+    LoopPatchNet,
+    StackedPatchNet,
+    default_layer_modes,
+)
 
 
 @pytest.mark.parametrize("modes", [None, ("bmm",) * 3, ("grouped",) * 3])

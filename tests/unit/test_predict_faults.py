@@ -15,7 +15,8 @@ import torch
 from test_predict import IMAGE, fake_run
 from test_robustness import stand_in_dataset
 
-from pbc.predict import ClothPredictor, PoseSet, check_max_poses, load_decoder, read_poses, stitch_config
+from pbc.inference.poses import PoseSet, check_max_poses, read_poses
+from pbc.inference.predictor import ClothPredictor, load_decoder, stitch_config
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +47,7 @@ def test_predictor_refuses_an_unknown_model_name(runs):
 
 
 def test_predict_to_dir_checks_the_model_before_making_its_folder(runs, tmp_path):
-    from pbc.predict import predict_to_dir
+    from pbc.jobs.predict import predict_to_dir
 
     data, whole, _ = runs
     pred = ClothPredictor.from_runs(whole)
@@ -124,7 +125,7 @@ def test_first_poses_keeps_names_truth_and_people_in_step():
 @pytest.mark.parametrize("field, flag", [("normal", "--normal"), ("shift_u", "--shift-u"), ("normal_gain",
                                          "--normal-gain"), ("feature_amplitude", "--feature-amplitude")])
 def test_edit_refuses_non_finite_values(field, flag):
-    from pbc.edit import EditSpec
+    from pbc.jobs.edit import EditSpec
 
     for v in (float("nan"), float("inf")):
         with pytest.raises(ValueError, match=rf"edit values must be finite numbers(.|\n)*{field}={v!r} \({flag}\)"):
@@ -132,7 +133,7 @@ def test_edit_refuses_non_finite_values(field, flag):
 
 
 def test_edit_with_nan_writes_nothing(tmp_path):
-    from pbc.edit import run_edit
+    from pbc.jobs.edit import run_edit
 
     out = tmp_path / "edit"
     args = argparse.Namespace(overrides=[], resolution=None, data_dir=str(tmp_path / "no_data"), sample=0, run=None,

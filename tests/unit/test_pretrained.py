@@ -21,14 +21,15 @@ import pbc.pretrained
 import pbc.pretrained.pack as pack
 from pbc.cli import predict as predict_cli
 from pbc.cli import pretrained as pretrained_cli
+from pbc.core.runs import RunRecord
 from pbc.data.dataset import load_dataset, save_embedding
 from pbc.data.trimmed import recorded_mean_offsets
-from pbc.geometry.body import save_body
-from pbc.geometry.cage import save_cage
-from pbc.geometry.garment import save_garment_obj
+from pbc.geometry.body.base import save_body
+from pbc.geometry.cage.base import save_cage
+from pbc.geometry.garment.base import save_garment_obj
+from pbc.inference.poses import run_pose_range, training_pose_range
+from pbc.inference.predictor import ClothPredictor, pretrained_run
 from pbc.motion.ranges import range_from_record
-from pbc.predict import ClothPredictor, pretrained_run, run_pose_range, training_pose_range
-from pbc.runs import RunRecord
 
 # fp16 weights against the fp32 checkpoint they came from, positions in cm: half precision keeps ~3 digits
 # of each weight, so a prediction moves by ~1e-3 of its offsets (a few mm here, a few cm on the shirt)
@@ -170,7 +171,7 @@ def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
     assert exit_code(predict_cli.main, [str(shipped[1]), "--pretrained", "standin", "--poses", "test"]) == 2
     assert exit_code(predict_cli.main, ["--pretrained", "standin", "--poses", "train"]) == 2
     assert "carries only its test split; use --poses test" in capsys.readouterr().err
-    from pbc.evaluate import evaluate
+    from pbc.jobs.evaluate import evaluate
 
     cfg = OmegaConf.create({"whole_run": "pretrained:standin", "patch_runs": None, "methods": ["average"],
                             "split": "test", "max_samples": None, "batch_size": 8, "num_previews": 1,

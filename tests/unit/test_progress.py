@@ -55,7 +55,7 @@ class Tiny(L.LightningModule):
         return loss
 
     def validation_step(self, batch, batch_idx):
-        from pbc.runs import monitor
+        from pbc.core.runs import monitor
 
         self.log(monitor(self.hparams.kind), 100 * self._err(batch))
 
@@ -200,8 +200,8 @@ def test_metric_table_keeps_full_names():
 
 
 def test_score_logs_the_plain_table_not_lightnings(caplog):
-    """pbc.train.score asks Lightning for no table (verbose=False) and logs its own, every name in full."""
-    from pbc.train import score
+    """pbc.jobs.train.score asks Lightning for no table (verbose=False) and logs its own, every name in full."""
+    from pbc.jobs.train import score
 
     calls = {}
 
@@ -248,7 +248,7 @@ def test_silence_training_noise_drops_tips_and_named_warnings_only(caplog):
 def test_bf16_on_the_cpu_only_with_native_units(monkeypatch, flags, fast):
     import warnings
 
-    import pbc.predict as predict
+    import pbc.inference.predictor as predict
 
     monkeypatch.setattr(predict, "cpu_flags", lambda: flags)
     assert predict.bf16_is_fast("cpu") is fast
@@ -264,7 +264,7 @@ def test_bf16_on_the_cpu_only_with_native_units(monkeypatch, flags, fast):
 
 @pytest.mark.parametrize("native", [True, False])
 def test_bf16_on_cuda_asks_for_native_support(monkeypatch, native):
-    import pbc.predict as predict
+    import pbc.inference.predictor as predict
 
     asked = {}
 
@@ -281,7 +281,7 @@ def test_bf16_on_cuda_asks_for_native_support(monkeypatch, native):
 def test_cpu_flags_without_proc_cpuinfo_asks_torch(monkeypatch):
     import builtins
 
-    import pbc.predict as predict
+    import pbc.inference.predictor as predict
 
     real_open = builtins.open
 
@@ -304,7 +304,7 @@ def test_predictor_runs_the_precision_the_device_supports(monkeypatch, tmp_path,
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
-    import pbc.predict as predict
+    import pbc.inference.predictor as predict
 
     monkeypatch.setattr(predict, "cpu_flags", lambda: flags)
     whole = OmegaConf.merge({"image": IMAGE}, {"n": OmegaConf.load(ROOT / "conf/model/whole.yaml").net})

@@ -1,7 +1,7 @@
 """pbc.report on synthetic sweep dirs laid out exactly as pbc.train / pbc.evaluate leave them.
 
 No training here: each run dir gets `.hydra/*.yaml`, a `metrics.json` written as pbc.train writes it
-(`pbc.runs.RunRecord`) and a
+(`pbc.core.runs.RunRecord`) and a
 TensorBoard events file, so the report's reading, tables, claims and failure handling are checked in
 a second.
 """
@@ -16,9 +16,9 @@ import pytest
 import yaml
 from helpers.cli import exit_code
 
-from pbc import report, sweeps
+from pbc.jobs import report, sweeps
 from pbc.cli import report as report_cli
-from pbc.runs import FAILED, INCOMPLETE, OK, RunRecord, load_runs
+from pbc.core.runs import FAILED, INCOMPLETE, OK, RunRecord, load_runs
 
 
 def make_run(
@@ -249,7 +249,7 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
 def test_patch_metrics_say_their_scope(tmp_path):
     """A patch run's vertex metrics cover its patch only: recorded and read back as patch_*, shown so in the
     report, never as a whole-garment number; a whole run's keep their names."""
-    from pbc.runs import monitor, scoped_name
+    from pbc.core.runs import monitor, scoped_name
 
     assert monitor("whole") == "val/vertex_error_cm" and monitor("patch") == "val/patch_vertex_error_cm"
     assert monitor("patches") == "val/vertex_error_cm"  # the stacked run's mean over its patches

@@ -1,4 +1,4 @@
-"""The wrong-body study (pbc.geometry.sculpt, pbc.robustness): the sculpted bodies, the painted weights and
+"""The wrong-body study (pbc.geometry.body.sculpt, pbc.jobs.robustness): the sculpted bodies, the painted weights and
 the whole chain at scale=smoke (one model per body, report, Figs. 9-10) on a stand-in dataset made in
 seconds: the coarse body and shirt, the shirt embedded at its closest body points, smooth offsets."""
 
@@ -12,7 +12,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.sculpt import body_vertex_normals, paint_weights, sculpt_displacement, shaped_body
+from pbc.geometry.body.sculpt import paint_weights, sculpt_displacement, shaped_body
+from pbc.geometry.meshops import vertex_normals
 
 ROOT = Path(__file__).resolve().parents[2]
 N = 12
@@ -20,10 +21,12 @@ N = 12
 
 def stand_in_dataset(d: Path, body) -> Path:
     """A dataset dir (the real file layout) of the coarse shirt on `body`: N poses, smooth offsets."""
+    from pbc.core.config import load_garment_config
     from pbc.data.dataset import save_embedding
-    from pbc.geometry.body import save_body
-    from pbc.geometry.cage import save_cage
-    from pbc.geometry.garment import load_garment_config, make_tshirt, save_garment_obj
+    from pbc.geometry.body.base import save_body
+    from pbc.geometry.cage.base import save_cage
+    from pbc.geometry.garment.base import save_garment_obj
+    from pbc.geometry.garment.tshirt import make_tshirt
     from pbc.geometry.shrinkwrap import embed_points
     from pbc.pixels.reconstruct import Skinner
 
@@ -54,7 +57,7 @@ def stand_in_dataset(d: Path, body) -> Path:
 
 
 def settings():
-    from pbc.robustness import load_settings
+    from pbc.jobs.robustness import load_settings
 
     return load_settings()
 
@@ -62,7 +65,7 @@ def settings():
 def test_sculpt_thickens_chest_and_belly_linearly(body):
     rob = settings()
     disp = sculpt_displacement(body, OmegaConf.to_container(rob.sculpt.bumps), part=0)
-    n = body_vertex_normals(body.vertices, body.faces)
+    n = vertex_normals(body.vertices, body.faces)
     along = (disp * n).sum(-1)
     # only the torso moves, outward, by at most the bumps' summed depth, and the front of the belly moves most
     total = sum(float(b.depth) for b in rob.sculpt.bumps)
@@ -101,7 +104,7 @@ def test_painted_weights_follow_the_arm(body):
 def test_a_dataset_of_several_people_is_refused_before_any_trial_is_made(tmp_path, body):
     # its trial dirs lacked shapes.npz and person.npy, so every trial failed later on a missing file
     from pbc.data.shapes import BodyShapes, save_shapes
-    from pbc.robustness import make_bodies
+    from pbc.jobs.robustness import make_bodies
 
     d = stand_in_dataset(tmp_path / "data", body)
     J = len(body.skeleton.names)

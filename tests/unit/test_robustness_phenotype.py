@@ -1,4 +1,4 @@
-"""The wrong-body study's phenotype trials (pbc.robustness): names, parsing, and the refusal on a body that has
+"""The wrong-body study's phenotype trials (pbc.jobs.robustness): names, parsing, and the refusal on a body that has
 no phenotype. The Anny bodies themselves are built in tests/integration/test_anny.py."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from pbc.robustness import load_settings, phenotype_of, phenotype_trials, trial_body, trial_names
+from pbc.jobs.robustness import load_settings, phenotype_of, phenotype_trials, trial_body, trial_names
 
 
 def test_phenotype_trials_are_named_and_parsed_back():
@@ -37,7 +37,7 @@ def _row(trial, shape, test):
 def test_fig9_draws_the_phenotype_panel_and_drops_an_empty_sculpt_panel(tmp_path):
     from PIL import Image  # noqa: PLC0415 - only this test reads the image back
 
-    from pbc.robustness import fig9  # noqa: PLC0415 - plotting helpers, only this test draws
+    from pbc.jobs.robustness import fig9  # noqa: PLC0415 - plotting helpers, only this test draws
 
     pheno = [_row("shape_0.0", 0.0, 3.0), _row("phenotype_height_0.20", None, 3.2)]
     both = pheno + [_row("shape_1.0", 1.0, 3.1), _row("paint_torso", None, 3.3)]

@@ -1,4 +1,4 @@
-"""The run record (pbc.runs.RunRecord): the one reader and writer of metrics.json. Its kind is validated
+"""The run record (pbc.core.runs.RunRecord): the one reader and writer of metrics.json. Its kind is validated
 when a record is made (so on every read and write), a finished training record names the metric that chose
 its checkpoint, metric names are scoped for patch models, and the run-dir reader (load_run / read_run)
 reads every record through it: a bad record reads as a failed run, and the predictor's read_run refuses
@@ -10,17 +10,7 @@ import json
 
 import pytest
 
-from pbc.runs import (
-    FAILED,
-    INCOMPLETE,
-    OK,
-    ModelKind,
-    RunRecord,
-    load_run,
-    monitor,
-    read_run,
-    scoped_name,
-)
+from pbc.core.runs import FAILED, INCOMPLETE, OK, ModelKind, RunRecord, load_run, monitor, read_run, scoped_name
 
 
 def _whole(**kw) -> RunRecord:
@@ -141,7 +131,7 @@ def test_expected_jobs_follow_the_command_line(tmp_path):
     report does not list the trials that were never launched as missing."""
     import yaml
 
-    from pbc.runs import expected_jobs
+    from pbc.core.runs import expected_jobs
 
     mr = {"hydra": {"sweeper": {"params": {"robustness.trial": "shape_0.0,shape_0.5,paint_torso", "loss": "l1,l2"}},
                     "overrides": {"task": ["scale=smoke", "robustness.trial=shape_0.0,paint_torso"]}}}

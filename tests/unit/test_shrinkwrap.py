@@ -9,8 +9,10 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.body import body_sdf, build_body
-from pbc.geometry.garment import load_garment_config, make_tshirt
+from pbc.core.config import load_garment_config
+from pbc.geometry.body.base import body_sdf
+from pbc.geometry.body.mannequin import build_mannequin
+from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.geometry.shrinkwrap import embed_points, embedded_points, vertex_parts, wrap_positions
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -21,7 +23,7 @@ COARSE_VOXEL = 0.025  # a coarse body mesh keeps the test in seconds
 def wrapped():
     bcfg = OmegaConf.load(ROOT / "conf" / "body" / "mannequin.yaml")
     bcfg.mesh.voxel_size = COARSE_VOXEL
-    body = build_body(bcfg)
+    body = build_mannequin(bcfg)
     conf = ROOT / "conf"
     cfg = load_garment_config(conf / "garment" / "tshirt_coarse.yaml", conf / "image" / "default.yaml")
     garment, cage = make_tshirt(cfg)

@@ -1,4 +1,4 @@
-"""Procedural garments sized to the body (pbc.geometry.sizing, `garment.fit_to_body`): the reference is the
+"""Procedural garments sized to the body (pbc.geometry.garment.sizing, `garment.size_to_body`): the reference is the
 mannequin's own measurements, so sizing to it changes nothing; on a bigger body each rule follows its landmark."""
 
 from __future__ import annotations
@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from pbc.config import load_config
-from pbc.geometry.garments import garment_from_config, garment_needs_body
-from pbc.geometry.sizing import fitted_config, landmarks, size_necktie, size_tshirt
+from pbc.core.config import load_config
+from pbc.geometry.garment import garment_from_config, garment_needs_body
+from pbc.geometry.garment.sizing import landmarks, size_necktie, size_tshirt, sized_config
 
 
 def _sized(overrides=()):
-    gcfg = load_config(["garment.fit_to_body.enabled=true", *overrides]).garment
-    return gcfg, dict(gcfg.fit_to_body.reference)
+    gcfg = load_config(["garment.size_to_body.enabled=true", *overrides]).garment
+    return gcfg, dict(gcfg.size_to_body.reference)
 
 
 def test_reference_is_the_mannequins_own_measurements(body):
@@ -53,7 +53,7 @@ def test_sized_shirt_on_a_bigger_body_is_bigger(body):
     garment, cage = garment_from_config(gcfg, body)
     m = landmarks(body)
     bigger = {k: v * 1.15 for k, v in m.items()}
-    sized = OmegaConf.merge(gcfg, size_tshirt(gcfg, bigger), {"cage": None, "fit_to_body": {"enabled": False}})
+    sized = OmegaConf.merge(gcfg, size_tshirt(gcfg, bigger), {"cage": None, "size_to_body": {"enabled": False}})
     big, big_cage = garment_from_config(sized)
     assert big.num_vertices > garment.num_vertices  # a wider, longer pattern on the same grid spacing
     assert np.ptp(np.asarray(big.vertices)[:, 1]) > np.ptp(np.asarray(garment.vertices)[:, 1])
@@ -74,5 +74,5 @@ def test_sizing_needs_the_body_and_a_procedural_garment():
     with pytest.raises(ValueError, match=r"garment_from_config\(gcfg, body\)"):
         garment_from_config(gcfg)
     obj = OmegaConf.merge(gcfg, {"kind": "obj"})
-    with pytest.raises(ValueError, match="fit_to_body.enabled=true sizes the procedural garments"):
-        fitted_config(obj, body=None)
+    with pytest.raises(ValueError, match="size_to_body.enabled=true sizes the procedural garments"):
+        sized_config(obj, body=None)

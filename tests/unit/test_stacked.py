@@ -11,10 +11,10 @@ import pytest
 import torch
 from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
 
+from pbc.core.runs import ModelKind, RunRecord, find_runs, monitor, select_patch_runs
 from pbc.models.module import ClothModule
 from pbc.models.stacked import StackedDecoder, StackedPatchModule, export_patch_runs
 from pbc.pixels.target import PatchesTarget, PatchTarget, make_target
-from pbc.runs import ModelKind, RunRecord, find_runs, monitor, select_patch_runs
 
 IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution": 512, "crop_size": 256,
          "margin": 16, "pad": 16, "exact_sample": True, "method": "sparse"}
@@ -154,7 +154,7 @@ def test_one_step_of_the_stacked_job_equals_the_single_patch_steps(world):
 
 
 def test_export_loads_as_single_patch_runs(world, tmp_path):
-    from pbc.predict import load_decoder
+    from pbc.inference.predictor import load_decoder
 
     ds, _ = world
     stacked, _ = _modules(world)

@@ -11,9 +11,9 @@ from helpers.sweeps_runs import CONF, SCALES, _compose
 from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
-import pbc.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
-from pbc import sweeps
-from pbc.runs import sweep_values
+import pbc.core.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
+from pbc.jobs import sweeps
+from pbc.core.runs import sweep_values
 
 ROOT = Path(__file__).resolve().parents[2]
 SEARCH: list[str] = []  # the sweep group is in conf/: no extra search path
@@ -126,7 +126,7 @@ def test_robustness_is_a_sweep_of_the_runner(tmp_path):
 def test_robustness_trial_runs_on_its_body():
     from hydra.core.hydra_config import HydraConfig
 
-    from pbc.robustness import load_settings, selected_trials, trial_names
+    from pbc.jobs.robustness import load_settings, selected_trials, trial_names
 
     cfg = _compose(["+sweep=robustness", "scale=smoke", "robustness.trial=paint_torso",
                     "hydra.sweep.dir=/sweep"])

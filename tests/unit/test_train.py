@@ -67,7 +67,7 @@ def e2e_root(tmp_path_factory):
 def test_module_optimiser_and_scheduler_come_from_the_config():
     from hydra.utils import instantiate
 
-    from pbc.config import load_config
+    from pbc.core.config import load_config
 
     cfg = load_config(["model=patch", "model.lr=0.005", "image.crop_size=80", "paths.output_dir=/tmp/x"])
     m = instantiate(cfg.model, identity={}, summary={})

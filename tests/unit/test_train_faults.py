@@ -1,6 +1,6 @@
 """Issue 26, training side: the run-dir lock, a run dir holding another training, the best checkpoint of a
 resumed run, and mistyped trainer keys. Synthetic (a scripted two-parameter Lightning module, no data):
-`pbc.train.train` is stopped where it would open the dataset, so these tests prove the doors, not a run."""
+`pbc.jobs.train.train` is stopped where it would open the dataset, so these tests prove the doors, not a run."""
 
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-import pbc.train as pbc_train
-from pbc.config import load_config
-from pbc.io import LockHeld, dir_lock
-from pbc.train import KeepBestOfResumedRun, RunDirInUse, RunDirTaken, record_failure
-from pbc.validate import check_config, suggest_config_key
+import pbc.jobs.train as pbc_train
+from pbc.core.config import load_config
+from pbc.core.io import LockHeld, dir_lock
+from pbc.core.validate import check_config, suggest_config_key
+from pbc.jobs.train import KeepBestOfResumedRun, RunDirInUse, RunDirTaken, record_failure
 
 
 class ReachedTheData(Exception):
@@ -149,7 +149,7 @@ def test_resumed_run_tests_the_best_checkpoint_of_both_run_dirs(tmp_path, shippe
 
 
 def test_a_resumed_training_gets_the_carry_callback(tmp_path):
-    from pbc.train import trainer_callbacks
+    from pbc.jobs.train import trainer_callbacks
 
     cfg = _cfg(tmp_path / "run")
     ck = str(tmp_path / "killed" / "checkpoints" / "last.ckpt")

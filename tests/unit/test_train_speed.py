@@ -16,7 +16,7 @@ from helpers.synthetic import FakeSkinner, batch_for, two_chart_garment
 from helpers.train_speed_world import IMAGE, N, datamodule, module, reference_normals, targets
 
 from pbc.data.datamodule import ClothDataModule
-from pbc.pixels.reconstruct import vertex_normals
+from pbc.geometry.meshops import vertex_normals
 from pbc.pixels.target import build_cache, make_target
 
 

@@ -19,12 +19,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from helpers.evaluate_world import IMAGE, ROOT, _rotations, fake_dataset  # noqa: E402
 
 from pbc.cli import view as view_cli  # noqa: E402
-from pbc.geometry.body import pose_body  # noqa: E402
-from pbc.geometry.skeleton import skeleton_from_config  # noqa: E402
-from pbc.models.decoder import ConvDecoder  # noqa: E402
-from pbc.predict import ClothPredictor  # noqa: E402
-from pbc.sim.poses import euler_xzy_to_matrix  # noqa: E402
-from pbc.view import (  # noqa: E402
+from pbc.geometry.body.base import pose_body  # noqa: E402
+from pbc.geometry.body.skeleton import skeleton_from_config  # noqa: E402
+from pbc.inference.predictor import ClothPredictor  # noqa: E402
+from pbc.jobs.view import (
     angles_to_pose,
     check_port,
     clamp_to_limits,
@@ -35,6 +33,8 @@ from pbc.view import (  # noqa: E402
     view_config,
     view_meshes,
 )
+from pbc.models.decoder import ConvDecoder  # noqa: E402
+from pbc.sim.poses import euler_xzy_to_matrix  # noqa: E402
 
 SKELETON = skeleton_from_config(OmegaConf.load(ROOT / "conf/body/mannequin.yaml"))
 

@@ -1,0 +1,36 @@
+"""Where pbc's shipped files live: `conf/` (the Hydra configs) and `patches/` (the committed cages).
+
+A source checkout (and the editable install `make venv` makes) keeps them at the top of the repository,
+the layout users edit; a wheel ships the same files inside the package (pyproject.toml maps them to
+`pbc/conf` and `pbc/patches`), so an installed pbc runs every command from any directory. Everything that
+reads a shipped file asks here, so the two layouts never disagree.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1]  # pbc/ (this file is pbc/core/paths.py)
+
+
+def _shipped(name: str) -> Path:
+    source = PACKAGE_DIR.parent / name  # the checkout's own copy wins: it is the one being edited
+    return source if source.is_dir() else PACKAGE_DIR / name
+
+
+CONF_DIR = _shipped("conf")
+PATCHES_DIR = _shipped("patches")
+# the folder shipped relative paths in configs (e.g. `garment.cage: patches/tshirt.json`) are read against
+SHIPPED_ROOT = PATCHES_DIR.parent
+
+
+def resolve_path(path: str | os.PathLike) -> Path:
+    """A path from a config: as given when it exists or is absolute, else one of pbc's shipped files
+    (`patches/...`, `conf/...`) wherever this install keeps them."""
+    p = Path(path)
+    if p.is_absolute() or p.exists():
+        return p
+    if p.parts and p.parts[0] == "conf":
+        return CONF_DIR.joinpath(*p.parts[1:])
+    return SHIPPED_ROOT / p

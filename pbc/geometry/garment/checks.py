@@ -1,0 +1,249 @@
+"""How a garment sits on the rest body, measured before any drape (issue 24): the UV unit against the 3D
+areas, each part's distance to the body and the body region there, the sleeves' angle against the body's
+rest arms, and the shrink-wrap's stretch per chart.
+
+One job: measure, and turn a measurement past its threshold into one ValueError naming the chart or part,
+the number, the setting and the fix. The thresholds live in conf/ (``garment.uv_unit_tolerance``,
+``garment.shrinkwrap.max_start_distance`` / ``max_sleeve_angle_deg`` / ``max_patch_stretch``); the import
+(`obj_import`) and the shrink-wrap (`shrinkwrap`) call these checks, `inspect` reports the same numbers.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+
+from pbc.geometry.meshops import mesh_pieces
+
+# the mannequin's part rows (pbc.geometry.body.Body.parts): 0 torso, 1 left arm, 2 right arm
+PART_NAMES = ("torso", "left arm", "right arm")
+
+
+# a joint this close to x = 0 is on the body's centre line (m): a measured body is not exactly symmetric
+MIDPLANE_TOL = 1e-3
+
+
+def chart_names_from_cage(cage, face_chart: np.ndarray, faces: np.ndarray) -> list[str]:
+    """A name per chart when only the cage is at hand: the common prefix of the names of the cage patches
+    holding its vertices, less a trailing patch number (auto cage ``sleeve_03`` -> ``sleeve``; the shirt's
+    ``front_chest_left`` ... -> ``front``); ``chart k`` when nothing is shared."""
+    f = np.asarray(faces)
+    nv = int(f.max()) + 1
+    owner = cage.vertex_patch(nv)
+    # a vertex on a seam belongs to two charts and to one patch: only the chart's own vertices count
+    charts_of = np.zeros((nv, int(face_chart.max()) + 1), bool)
+    charts_of[f.ravel(), np.repeat(face_chart, 3)] = True
+    own = charts_of.sum(1) == 1
+    names = []
+    for c in range(charts_of.shape[1]):
+        mine = charts_of[:, c] & own
+        ids = np.unique(owner[mine if mine.any() else charts_of[:, c]])
+        patch_names = [cage.patches[i].name for i in ids if i >= 0]
+        prefix = os.path.commonprefix(patch_names) if patch_names else ""
+        if len(patch_names) == 1:
+            prefix = re.sub(r"_\d+$", "", prefix)
+        prefix = re.sub(r"_\d*$", "", prefix).rstrip("_")
+        names.append(prefix or f"chart {c}")
+    return names
+
+
+def _joint_heads(body) -> tuple[list[str], np.ndarray]:
+    """Joint names and rest heads, the fixed root (origin) first."""
+    heads = body.skeleton.rest_heads.double().cpu().numpy()
+    return ["root", *body.skeleton.names], np.vstack([np.zeros(3), heads])
+
+
+def body_region(body, point) -> str:
+    """Where on the rest body a point is, in words: the nearest body part and joint, and, below the body's
+    lowest point, that the body has no legs there."""
+    p = np.asarray(point, np.float64)
+    bv = body.vertices.double().cpu().numpy()
+    k = int(np.linalg.norm(bv - p, axis=1).argmin())
+    parts = body.parts.cpu().numpy()[:, k]
+    part = " / ".join(PART_NAMES[i] if i < len(PART_NAMES) else f"part {i}" for i in np.flatnonzero(parts))
+    names, heads = _joint_heads(body)
+    j = int(np.linalg.norm(heads - p, axis=1).argmin())
+    where = f"nearest body part: {part or 'none'}, nearest joint: {names[j]}"
+    low = float(bv[:, 1].min())
+    if p[1] < low:
+        lowest = names[int(np.linalg.norm(heads - bv[bv[:, 1].argmin()], axis=1).argmin())]
+        return (f"below the body, which ends at y = {low:.2f} m (near its joint {lowest}): this body has no "
+                f"legs there; {where}")
+    return where
+
+
+def rest_arm_directions(body) -> dict[str, np.ndarray]:
+    """{'left': (3,), 'right': (3,)} unit directions of the body's rest arms, from the skeleton's rest heads:
+    the chain from the centre line out to the outermost joint of each side (shoulder -> arm -> forearm ...);
+    with three joints or more, from the second (the arm) to the tip, else along the last bone."""
+    names, heads = _joint_heads(body)
+    parents = [-1] + [p + 1 for p in body.skeleton.parents]  # into names/heads (root first)
+    out = {}
+    for sgn, side in ((1.0, "left"), (-1.0, "right")):
+        tip = int(np.argmax(sgn * heads[:, 0]))
+        chain = [tip]
+        while parents[chain[-1]] >= 0 and abs(heads[parents[chain[-1]], 0]) > MIDPLANE_TOL:
+            chain.append(parents[chain[-1]])
+        chain = chain[::-1]  # centre -> tip
+        start = chain[1] if len(chain) >= 3 else max(parents[tip], 0)
+        d = heads[tip] - heads[start]
+        out[side] = d / max(np.linalg.norm(d), 1e-12)
+        out[f"{side}_joint"] = heads[chain[0]]
+        out[f"{side}_arm_x"] = float(abs(heads[chain[1] if len(chain) >= 2 else tip, 0]))
+    return out
+
+
+def droop_deg(direction: np.ndarray) -> float:
+    """Degrees of an outward direction below the horizontal (positive: down, as an A-pose)."""
+    d = np.asarray(direction, np.float64)
+    return float(np.degrees(np.arcsin(np.clip(-d[1] / max(np.linalg.norm(d), 1e-12), -1.0, 1.0)))) + 0.0  # no -0
+
+
+def tube_axis(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The axis of a tube-like surface (points (V, 3), faces (F, 3)): the direction its surface normals are
+    perpendicular to, the least eigenvector of sum area n n^T (exact for any tube, however short or wide), and
+    how tube-like it is (least / middle eigenvalue: 0 for a tube). None for fewer than 8 faces."""
+    if len(faces) < 8:
+        return None
+    t = np.asarray(points, np.float64)[faces]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # length = 2 x area
+    unit_n = n / np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
+    w, v = np.linalg.eigh((n[:, :, None] * unit_n[:, None, :]).sum(0))
+    return v[:, 0], float(w[0] / max(w[1], 1e-30))
+
+
+def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dict]:
+    """The axis of each sleeve of a garment at its rest positions (V, 3), against the body's rest arm.
+
+    A sleeve is the garment's surface beyond its side's arm joint, above the root, outer half of that
+    reach (so a shirt's side panels next to the torso are left out); its axis is `tube_axis`'s. It is
+    compared like with like: with the axis of the body's arm skin in the same band of reach (`tube_axis` of
+    the arm part's faces there), not with the arm's bones, whose line a short sleeve round a real shoulder does
+    not follow (MakeHuman T-shirts fitted to Anny read 18-22 degrees off Anny's arm bones, 1-7 off its skin).
+    Where the band holds no arm tube (a sleeve past the hand), the bone line from the arm joint to the tip
+    (`rest_arm_directions`) stands in. Returns {'left'/'right': {axis, arm, angle_deg (between them),
+    droop_deg, arm_droop_deg, faces}} for the sides that have a tube there.
+    """
+    p = np.asarray(positions, np.float64)
+    f = np.asarray(faces)
+    centre = p[f].mean(1)
+    arms = rest_arm_directions(body)
+    bv = body.vertices.double().cpu().numpy()
+    bf = body.faces.cpu().numpy()
+    body_centre = bv[bf].mean(1)
+    out = {}
+    for sgn, side, row in ((1.0, "left", 1), (-1.0, "right", 2)):
+        x0 = arms[f"{side}_arm_x"]
+        reach = sgn * centre[:, 0]
+        if reach.max() <= x0:
+            continue
+        lo, hi = x0 + 0.5 * (reach.max() - x0), reach.max()
+        sel = (reach > lo) & (centre[:, 1] > 0.0)
+        sleeve = tube_axis(p, f[sel])
+        if sleeve is None or sleeve[1] > 0.35:  # not a tube (a flat flap, a cape): no axis to compare
+            continue
+        axis = sleeve[0] * (1.0 if sgn * sleeve[0][0] >= 0 else -1.0)  # pointing away from the body
+        body_reach = sgn * body_centre[:, 0]
+        skin = tube_axis(bv, bf[body.parts[row].cpu().numpy()[bf].all(1) & (body_reach > lo) & (body_reach <= hi)
+                                & (body_centre[:, 1] > 0.0)])
+        arm = arms[side] if skin is None or skin[1] > 0.35 else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
+        angle = float(np.degrees(np.arccos(np.clip(abs(axis @ arm), 0.0, 1.0))))
+        out[side] = {"axis": axis, "arm": arm, "angle_deg": angle, "droop_deg": droop_deg(axis),
+                     "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum())}
+    return out
+
+
+def check_sleeves(positions: np.ndarray, faces: np.ndarray, body, max_angle_deg: float) -> dict[str, dict]:
+    """`sleeve_axes`, refused when a sleeve's axis is more than ``max_angle_deg`` off the body's rest arm:
+    the shrink-wrap pulls the sleeve onto the rest arm and stretches it (an A-posed sleeve on the T-posed
+    mannequin: 7x), and every drape is then discarded minutes later."""
+    axes = sleeve_axes(positions, faces, body)
+    bad = {s: a for s, a in axes.items() if a["angle_deg"] > max_angle_deg}
+    if bad:
+        side, a = max(bad.items(), key=lambda kv: kv[1]["angle_deg"])
+        turn = a["droop_deg"] - a["arm_droop_deg"]
+        raise ValueError(
+            f"the garment's {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm (the sleeve "
+            f"points {a['droop_deg']:.0f} degrees below the horizontal, the rest arm {a['arm_droop_deg']:.0f}): "
+            "it was modelled on another rest pose (an A-pose?) and the shrink-wrap would stretch it onto the rest "
+            f"arm. Fix: rotate the sleeves {abs(turn):.0f} degrees {'up' if turn > 0 else 'down'} about the "
+            "shoulders in your modelling tool (or use a body whose rest arms match, body=...); the limit is "
+            f"garment.shrinkwrap.max_sleeve_angle_deg = {max_angle_deg:g}")
+    return axes
+
+
+def check_far(gap: np.ndarray, positions: np.ndarray, faces: np.ndarray, body, limit: float,
+              chart_names: list[str] | None = None, face_chart: np.ndarray | None = None) -> None:
+    """Refuse a garment with a vertex more than ``limit`` m from the rest body (gap (V,): the body SDF at
+    the garment's vertices), naming the part (its chart, and its connected piece when the mesh has several),
+    the distance and the body region there."""
+    if gap.max() <= limit:
+        return
+    p = np.asarray(positions, np.float64)
+    f = np.asarray(faces)
+    k = int(gap.argmax())
+    piece = mesh_pieces(f, len(p))
+    n_pieces = int(piece.max()) + 1
+    far = gap > limit
+    what = []
+    if chart_names is not None and face_chart is not None:
+        charts = sorted({int(c) for c in face_chart[far[f].any(1)]})
+        what.append("chart" + ("s " if len(charts) > 1 else " ") + ", ".join(f"'{chart_names[c]}'" for c in charts))
+    if n_pieces > 1:
+        mine = piece == piece[k]
+        what.append(f"piece {int(piece[k])} of the {n_pieces} separate pieces in this mesh "
+                    f"({int(mine.sum())} vertices, centre {np.round(p[mine].mean(0), 2).tolist()})")
+    part = "; ".join(what) or "the garment"
+    cut = (" Several pieces in one mesh: `pbc garment split` cuts them into one OBJ each." if n_pieces > 1 else "")
+    raise ValueError(
+        f"{part} is {gap[k]:.2f} m from the body at vertex {k} {np.round(p[k], 3).tolist()} "
+        f"({int(far.sum())} vertices beyond garment.shrinkwrap.max_start_distance = {limit:g} m); there: "
+        f"{body_region(body, p[k])}. Place the garment on the rest body (metres, y up, root at the waist, x to "
+        "the body's left: garment.position_unit / garment.position_offset), or drape only the parts this body "
+        f"has.{cut}")
+
+
+def face_patches(cage, faces: np.ndarray) -> np.ndarray:
+    """(F,) the cage patch holding most of each face's corners (-1 when none does)."""
+    f = np.asarray(faces)
+    owner = cage.vertex_patch(int(f.max()) + 1)[f]  # (F, 3)
+    out = owner[:, 0].copy()
+    out[(owner[:, 1] == owner[:, 2]) & (owner[:, 1] >= 0)] = owner[(owner[:, 1] == owner[:, 2]) & (owner[:, 1] >= 0), 1]
+    return out
+
+
+def patch_stretch(wrapped_area: np.ndarray, pattern_area: np.ndarray, face_patch: np.ndarray,
+                  num_patches: int) -> np.ndarray:
+    """(P,) the shrink-wrap's stretch per cage patch: its wrapped area over its pattern area. A patch, not a
+    face (a sliver at a seam does not decide) nor a chart (a sleeve pulled onto the wrong arm is a small
+    part of a panel that holds it)."""
+    ok = face_patch >= 0
+    a3 = np.bincount(face_patch[ok], wrapped_area[ok], num_patches)
+    a2 = np.bincount(face_patch[ok], pattern_area[ok], num_patches)
+    return a3 / np.maximum(a2, 1e-30)
+
+
+def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: list[str], limit: float,
+                  sleeves: dict | None = None) -> None:
+    """Refuse a shrink-wrap that stretches a cage patch past ``limit`` x its pattern area, naming the chart,
+    the patch, the stretch and the likely fix (the rest pose when a sleeve is off the rest arm, else the
+    UV unit)."""
+    bad = np.flatnonzero(stretch > limit)
+    if not len(bad):
+        return
+    k = int(bad[np.argmax(stretch[bad])])
+    listed = ", ".join(f"{patch_names[i]} {stretch[i]:.1f}x" for i in bad[np.argsort(-stretch[bad])][:6])
+    off = {s: a for s, a in (sleeves or {}).items() if a["angle_deg"] > 10.0}  # a sleeve clearly off its arm
+    if off:
+        side, a = max(off.items(), key=lambda kv: kv[1]["angle_deg"])
+        why = (f"the {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm: match the rest pose "
+               "(rotate the sleeves onto the rest arms)")
+    else:
+        why = ("the pattern is smaller than the garment: check garment.uv_unit (`pbc garment inspect` names the "
+               "one that fits)")
+    raise ValueError(
+        f"the shrink-wrap stretches chart '{patch_charts[k]}' (patch {patch_names[k]}) to {stretch[k]:.1f}x its "
+        f"pattern area (patches past garment.shrinkwrap.max_patch_stretch = {limit:g}: {listed}); its drapes "
+        f"would all be discarded (area_stretched). Likely cause: {why}, or place the garment closer to the body")

@@ -1,0 +1,217 @@
+"""Triangle-mesh operations every geometry module shares, as small pure functions on arrays.
+
+Areas, connected pieces, UV islands and charts, boundary loops, the cotangent Laplacian, the lumped mass,
+a Dirichlet solve, THE vertex-normal function (numpy or torch, batched or not), and point-to-surface
+distances. Nothing here knows what a body or a garment is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import torch
+import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def cotan_laplacian(points: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """Cotangent Laplacian L (V, V), negative semi-definite: (L x)_i = sum_j w_ij (x_j - x_i).
+
+    points (V, 2) or (V, 3), faces (F, 3). Weights are 0.5 (cot a + cot b) per edge.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.shape[1] == 2:
+        pts = np.concatenate([pts, np.zeros((len(pts), 1))], axis=1)
+    n = len(pts)
+    rows, cols, vals = [], [], []
+    for k in range(3):
+        i, j, o = faces[:, (k + 1) % 3], faces[:, (k + 2) % 3], faces[:, k]
+        a, b = pts[i] - pts[o], pts[j] - pts[o]
+        cross = np.linalg.norm(np.cross(a, b), axis=1)
+        cot = (a * b).sum(1) / np.maximum(cross, 1e-12)
+        rows += [i, j]
+        cols += [j, i]
+        vals += [0.5 * cot, 0.5 * cot]
+    w = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    w = w.tocsr()
+    return (w - sp.diags(np.asarray(w.sum(axis=1)).ravel())).tocsr()
+
+
+def lumped_mass(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Barycentric lumped vertex areas (V,) of a 2D or 3D triangle mesh."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.shape[1] == 2:
+        pts = np.concatenate([pts, np.zeros((len(pts), 1))], axis=1)
+    e1, e2 = pts[faces[:, 1]] - pts[faces[:, 0]], pts[faces[:, 2]] - pts[faces[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(pts))
+
+
+def solve_dirichlet(lap: sp.csr_matrix, rhs: np.ndarray, fixed: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Solve L x = rhs for the free rows with x[fixed] = values; free boundaries get natural Neumann.
+
+    lap (V, V), rhs (V, C) or (V,), fixed (K,) vertex ids, values (K, C) or (K,). Returns x like rhs.
+    """
+    n = lap.shape[0]
+    free = np.setdiff1d(np.arange(n), fixed)
+    x = np.zeros_like(rhs, dtype=np.float64)
+    x[fixed] = values
+    a = lap[free][:, free].tocsc()
+    b = rhs[free] - lap[free][:, fixed] @ values
+    x[free] = spla.splu(a).solve(np.asarray(b, dtype=np.float64))
+    return x
+
+
+def uv_islands(faces: np.ndarray, face_uv_coords: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+    """(F,) island id per face: faces joined across an edge whose two ends have the same UV in both.
+
+    faces (F, 3) vertex ids, face_uv_coords (F, 3, 2) each corner's UV. Works whether or not the
+    exporter shares vt entries between faces. Ids follow the first face of each island.
+    """
+    nf = len(faces)
+    rec_v, rec_uv, rec_f = [], [], []
+    for k in range(3):
+        a, b = faces[:, k], faces[:, (k + 1) % 3]
+        ua, ub = face_uv_coords[:, k], face_uv_coords[:, (k + 1) % 3]
+        swap = a > b
+        rec_v.append(np.stack([np.where(swap, b, a), np.where(swap, a, b)], 1))
+        rec_uv.append(np.concatenate([np.where(swap[:, None], ub, ua), np.where(swap[:, None], ua, ub)], 1))
+        rec_f.append(np.arange(nf))
+    ev, euv, ef = np.concatenate(rec_v), np.concatenate(rec_uv), np.concatenate(rec_f)
+    scale = max(float(np.ptp(face_uv_coords.reshape(-1, 2), axis=0).max()), 1e-12)
+    q = np.round(euv / (scale * tol)).astype(np.int64)  # equal UVs -> equal keys
+    key = np.concatenate([ev, q], 1)
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    same = inv[order][1:] == inv[order][:-1]
+    fa, fb = ef[order][:-1][same], ef[order][1:][same]
+    adj = sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(nf, nf))
+    _, label = connected_components(adj, directed=False)
+    first = {}
+    for lab in label:
+        first.setdefault(int(lab), len(first))
+    return np.asarray([first[int(lab)] for lab in label], np.int64)
+
+
+def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) triangle areas of points (V, 3) or (V, 2)."""
+    p = np.asarray(points, np.float64)
+    if p.shape[1] == 2:
+        p = np.concatenate([p, np.zeros((len(p), 1))], 1)
+    t = p[faces]
+    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+
+def mesh_pieces(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """(V,) connected piece of each vertex (pieces joined by shared vertices), numbered from 0."""
+    f = np.asarray(faces)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(num_vertices, num_vertices))
+    return connected_components(adj, directed=False)[1]
+
+
+def signed_uv_area(tri: np.ndarray) -> np.ndarray:
+    """(F,) signed area of UV triangles tri (F, 3, 2); positive counter-clockwise in (u, v)."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+def face_charts(garment, tol: float = 1e-7) -> np.ndarray:
+    """(F,) chart (UV island) id of each face of a Garment, islands numbered by first face."""
+    corners = garment.uv[garment.face_uv].double().cpu().numpy()
+    corners = corners + 2.0 * garment.face_side.cpu().numpy()[:, None, None]  # sides never join
+    return uv_islands(garment.faces.cpu().numpy(), corners, tol)
+
+
+def vertex_normals(vertices, faces):
+    """Unit vertex normals, the area-weighted mean of the incident faces' normals: vertices (..., V, 3),
+    faces (F, 3) counter-clockwise seen from the side the normals point to -> (..., V, 3).
+
+    The one vertex-normal function of pbc: a torch tensor gives a tensor (differentiable, on its device and
+    dtype: the normal loss back-propagates through it), a numpy array gives a float64 array. A vertex in no
+    face (or only in degenerate ones) gets (0, 0, 0).
+    """
+    if not isinstance(vertices, torch.Tensor):
+        v = torch.from_numpy(np.ascontiguousarray(vertices, dtype=np.float64))
+        return vertex_normals(v, torch.from_numpy(np.ascontiguousarray(faces, dtype=np.int64))).numpy()
+    faces = torch.as_tensor(faces, device=vertices.device)
+    a, b, c = (vertices.index_select(-2, faces[:, k]) for k in range(3))  # (..., F, 3) each
+    e1, e2 = b - a, c - a
+    # the cross product by components: torch.cross on (B, F, 3) costs several times more on the CPU,
+    # and one index_add per corner avoids materialising the (B, 3F, 3) expanded copy (forward and backward)
+    x1, y1, z1 = e1.unbind(-1)
+    x2, y2, z2 = e2.unbind(-1)
+    n_f = torch.stack([y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2], dim=-1)
+    n = vertices.new_zeros(vertices.shape)
+    for k in range(3):
+        n = n.index_add(-2, faces[:, k], n_f)
+    return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, candidates: int = 12
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed distance of points (P, 3) to a mesh (vertices (N, 3), faces (F, 3)), negative inside.
+
+    The closest point is searched among the `candidates` triangles with the nearest centroids; the sign is that
+    of the smooth (barycentrically interpolated) vertex normal there, which is right for points near the surface
+    of a closed mesh whether the closest point is inside a face, on an edge or at a vertex.
+    Returns (distance (P,), closest points (P, 3), unit outward normals there (P, 3)).
+    """
+    pts = np.asarray(points, np.float64)
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    tris = vertices[faces]
+    k = min(int(candidates), len(tris))
+    _, cand = cKDTree(tris.mean(1)).query(pts, k=k)
+    cand = np.asarray(cand).reshape(len(pts), k)
+    cp = trimesh.triangles.closest_point(tris[cand.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
+    best = np.linalg.norm(cp - pts[:, None], axis=2).argmin(1)
+    rows = np.arange(len(pts))
+    closest, face = cp[rows, best], cand[rows, best]
+    bary = np.clip(trimesh.triangles.points_to_barycentric(tris[face], closest), 0.0, None)
+    bary /= bary.sum(1, keepdims=True)
+    normal = np.einsum("pk,pkc->pc", bary, vertex_normals(vertices, faces)[faces[face]])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-20)
+    delta = pts - closest
+    dist = np.linalg.norm(delta, axis=1) * np.where((delta * normal).sum(1) < 0.0, -1.0, 1.0)
+    return dist, closest, normal
+
+
+def push_out(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, margin: float, candidates: int = 12
+             ) -> tuple[np.ndarray, dict]:
+    """Points (P, 3) inside the mesh moved to `margin` (m) outside it along the surface normal at their closest
+    point; the others unchanged. Returns (points (P, 3), stats: inside count and fraction, depth max and median
+    in mm)."""
+    if margin < 0:
+        raise ValueError(f"garment.push_out.margin must be >= 0 (metres outside the body), got {margin}")
+    dist, closest, normal = surface_distance(points, vertices, faces, candidates)
+    inside = dist < 0.0
+    out = np.array(points, np.float64)
+    out[inside] = closest[inside] + float(margin) * normal[inside]
+    depth = -dist[inside] * 1e3
+    stats = {"inside": int(inside.sum()), "inside_fraction": float(inside.mean()) if len(inside) else 0.0,
+             "inside_depth_max_mm": float(depth.max()) if len(depth) else 0.0,
+             "inside_depth_median_mm": float(np.median(depth)) if len(depth) else 0.0}
+    return out, stats
+
+
+def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Ordered vertex loops of the boundary edges of a manifold triangle mesh, faces (F, 3)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = {tuple(x) for x in e.tolist()}
+    nxt = {a: b for a, b in e.tolist() if (b, a) not in key}  # half-edges without a twin
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(np.asarray(loop, np.int64))
+    return loops

@@ -1,0 +1,1 @@
+"""Inference: trained runs -> garment meshes for any pose (``predictor``), and the poses asked for (``poses``)."""

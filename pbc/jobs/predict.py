@@ -1,0 +1,155 @@
+"""``pbc predict``'s job: the predictor's meshes of a set of poses (OBJ/PLY, the posed bodies, a contact
+sheet, ``predict.json``) or of a motion clip (a mesh per frame, the video, the animated GLB)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from pbc.core.io import require_writable_dir, save_npy, write_json
+from pbc.core.validate import as_poses
+from pbc.geometry.meshio import write_garment_mesh, write_mesh
+from pbc.inference.poses import posed_bodies, run_pose_range
+from pbc.inference.predictor import ClothPredictor, predict_poses
+from pbc.jobs.writers import FrameObjWriter, VideoWriter, camera, contact_sheet, render_frames, write_glb
+from pbc.motion.ranges import clamp_to_range, range_report
+from pbc.motion.retarget import Motion, motion_settings
+
+
+def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str], out: Path, fmt: str = "obj",
+                   body: bool = False, sheet: int = 12, batch_size: int = 16, model: str | None = None,
+                   truth: Tensor | None = None, info: dict | None = None, person=None) -> dict:
+    """Predict every pose and write, under `out`: meshes/<name>.<fmt> (garment with UVs and normals;
+    <name>_body.<fmt> with `body`), vertices.npy (N, V, 3) float32 metres, poses.npy (N, J, 3, 3),
+    contact_sheet.png (the first `sheet` poses), predict.json (what was run, files, and with `truth`
+    the vertex error against it). person: whose body each pose is on, in a dataset of several people (None:
+    the base person; one int; or (N,)); the garment and the body meshes follow it. Returns predict.json's
+    content."""
+    t0 = time.time()
+    model = predictor.check_model(model)  # before the output dir is made
+    predictor.check_person(person)
+    out = require_writable_dir(out, "prediction output directory")
+    verts = predict_poses(predictor, poses, batch_size, model, person=person)
+    ds = predictor.dataset
+    bodies = posed_bodies(ds, poses, person) if body or sheet else None
+    for k, name in enumerate(names):
+        write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
+                           header=[f"{name}: predicted by pbc.predict ({model}"
+                                   + (f", {predictor.method} seams)" if model == "patches" else ")")])
+        if body:
+            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+    result = dict(info or {}, model=model, method=predictor.method if model == "patches" else None,
+                  num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
+                  files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
+                  names=list(names))
+    if person is not None:
+        result["person"] = np.broadcast_to(np.asarray(person, np.int64), (len(names),)).tolist()
+    titles = list(names)
+    if truth is not None:
+        err = (verts - truth).norm(dim=-1).mean(1) * 100.0
+        result["vertex_error_cm"] = float(err.mean())
+        result["per_pose_vertex_error_cm"] = [round(float(e), 4) for e in err]
+        titles = [f"{t}: {float(e):.2f} cm" for t, e in zip(titles, err, strict=True)]
+    if sheet:
+        m = min(int(sheet), len(names))
+        contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[:m].numpy(), titles[:m],
+                      bodies[:m].numpy(), ds.body.faces.numpy())
+        result["files"]["contact_sheet"] = "contact_sheet.png"
+    result["seconds"] = round(time.time() - t0, 2)
+    write_json(out / "predict.json", result)
+    return result
+
+
+def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
+                     glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
+                     model: str | None = None, info: dict | None = None, progress: bool = True,
+                     person: int | None = None) -> dict:
+    """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
+    with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
+    k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
+    animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
+    the frames outside the training poses' range (`run_pose_range`), the seconds of each stage). `clamp`: joint
+    angles clamped into the training range before predicting (the flags are taken before). person: the
+    dataset's person k the clip is played on (None: the base person). Returns predict.json's content."""
+    t0 = time.time()
+    model = predictor.check_model(model)
+    predictor.check_person(person)
+    settings = motion_settings()
+    ds = predictor.dataset
+    names = list(ds.body.skeleton.names)
+    rng, range_source, range_note = run_pose_range(predictor)
+    tol = float(settings.range_tolerance_deg)
+    report = range_report(motion.poses, rng, names, tol)
+    poses_np = clamp_to_range(motion.poses, rng, tol) if clamp else motion.poses
+    report["clamped"] = bool(clamp)
+    poses, _ = as_poses(poses_np.astype(np.float32), len(names), joint_names=names, what="motion poses")
+    out = require_writable_dir(out, "prediction output directory")
+    stages = {"read": round(t0 - (info or {}).get("started", t0), 3)} if info and "started" in info else {}
+    t = time.time()
+    verts = predict_poses(predictor, poses, batch_size, model, progress, person)
+    stages["predict"] = round(time.time() - t, 3)
+    frame_names = [f"frame_{k:05d}" for k in range(len(poses))]
+    t = time.time()
+    bodies = posed_bodies(ds, poses, person)
+    stages["pose_body"] = round(time.time() - t, 3)
+    t = time.time()
+    files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
+    head = f"predicted by pbc.predict from {motion.table.name} motion ({model} model)"
+    if fmt == "obj":
+        writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
+                                header=[f"{frame_names[0]}: {head}"])
+        for k in range(1, len(poses)):
+            writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k], header=[f"{frame_names[k]}: {head}"])
+    else:
+        for k, name in enumerate(frame_names):
+            write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k], header=[f"{name}: {head}"])
+    if body:
+        for k, name in enumerate(frame_names):
+            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+    stages["meshes"] = round(time.time() - t, 3)
+    if video:
+        t = time.time()
+        v = settings.video
+        cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
+        every = max(1, round(motion.fps / float(v.max_fps)))
+        shown = torch.arange(0, len(poses), every)
+        vw = VideoWriter(out / f"motion.{video}", motion.fps / every, int(v.crf))
+        try:
+            for i in shown.split(8):
+                # the garment's back faces culled as the body's: the body fills its openings, so its inside
+                # hardly shows, and culling halves the faces to draw
+                vw.append(render_frames([(bodies[i], ds.body.faces, list(v.body_colour), 0.0, True),
+                                         (verts[i], ds.garment.faces, list(v.garment_colour),
+                                          float(v.garment_lift), True)], cam, list(v.light), list(v.background)))
+        except BaseException as e:
+            vw.close(e)
+            raise
+        vw.close()
+        files["video"] = f"motion.{video}"
+        files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4)}
+        stages["video"] = round(time.time() - t, 3)
+    if glb:
+        t = time.time()
+        write_glb(out / "garment.glb", ds.garment, verts.numpy(), motion.times)
+        files["glb"] = "garment.glb"
+        stages["glb"] = round(time.time() - t, 3)
+    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+    result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
+                  method=predictor.method if model == "patches" else None, num_poses=len(poses),
+                  num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
+                  motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
+                  pose_range=report, pose_range_source=range_source)
+    if person is not None:
+        result["person"] = int(person)
+    result["seconds_by_stage"] = stages
+    result["seconds"] = round(time.time() - t0, 2)
+    write_json(out / "predict.json", result)
+    return result
