@@ -37,10 +37,10 @@ from pbc.geometry.body.mannequin import build_mannequin
 from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.geometry.shrinkwrap import embedded_points, shrinkwrap
 from pbc.sim.drape import (
-    _part_meshes,
     check_garment_result,
     closest_points,
     drape_garment,
+    part_meshes,
     pattern_triangles,
     rest_triangle_areas,
     triangle_area_ratios,
@@ -87,7 +87,7 @@ def main(argv: list[str]) -> dict:
             sd, _ = closest_points(res.positions, bv[0].numpy(), body.faces.numpy())
             # what the solver enforces (D.6): clearance of each vertex from its own (capped) part mesh
             own = np.full(len(sd), np.inf)
-            for k, (pv, pf) in enumerate(_part_meshes(bv[0].numpy(), body.faces.numpy(), body.parts.numpy())):
+            for k, (pv, pf) in enumerate(part_meshes(bv[0].numpy(), body.faces.numpy(), body.parts.numpy())):
                 sel = emb.part.numpy() == k
                 if sel.any():
                     own[sel] = closest_points(res.positions[sel], pv, pf)[0]

@@ -66,7 +66,8 @@ def main() -> None:
         body, base = body_from_config(cfg), base_mesh_vertices(cfg).numpy()
         bv, bf = body.vertices.double().numpy(), body.faces.numpy()
         row = []
-        for name, pts in [("tight top", bound_positions(m, base))] + [(g, base[np.unique(f)]) for g, f in helper.items()]:
+        pieces = [("tight top", bound_positions(m, base))] + [(g, base[np.unique(f)]) for g, f in helper.items()]
+        for name, pts in pieces:
             _, st = push_out(pts, bv, bf, 0.002)
             row.append(f"{name}: {st['inside']} inside ({100 * st['inside_fraction']:.1f}%, max "
                        f"{st['inside_depth_max_mm']:.1f} mm)")

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 sys.path.insert(0, str(ROOT / "tests"))  # the stand-in shirt: tests/helpers/evaluate_world.py
 
-GOAL_UPDATES_S = 10.0  # issue 25: the whole model on 2 CPU cores
+GOAL_UPDATES_S = 10.0  # the viewer's goal: the whole model on 2 CPU cores
 
 
 def mean_ms(fn, poses, reps: int) -> float:

@@ -64,5 +64,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def run_as_module(name: str) -> None:
-    """`python -m pbc.NAME` for the job modules users know (pbc/train.py, ...): the same command."""
+    """`python -m pbc.NAME` for the commands users know by their module (pbc/train.py, ...: two-line aliases):
+    the same command."""
     command_main(name)(None)

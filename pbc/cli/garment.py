@@ -1,5 +1,5 @@
 """`pbc garment inspect|split|fit`: what a garment OBJ is before anything is draped, an outfit in one mesh
-cut into its pieces, and a garment file to a trained model in one command (issue 24).
+cut into its pieces, and a garment file to a trained model in one command.
 
     pbc garment inspect my.obj|my.mhclo [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
         one table of charts (id, name, centroid, facing, 3D and UV area, the uv_unit that fits, distance to

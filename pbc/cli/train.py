@@ -1,5 +1,5 @@
 """`pbc train +experiment=NAME [overrides]` (also `python -m pbc.train`): train one model, test it on its
-best checkpoint, write metrics.json; see pbc/train.py for what a run dir holds and how resume works.
+best checkpoint, write metrics.json; see pbc/jobs/train.py for what a run dir holds and how resume works.
 
 Returns (to a Hydra sweeper) the best value of the checkpoint monitor, so Optuna can minimise it. A failed
 run still writes metrics.json with "status": "failed", the error and its traceback; in a multirun the

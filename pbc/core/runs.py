@@ -349,7 +349,7 @@ class Run:
         return node
 
 
-def _read_yaml(path: Path):
+def read_yaml(path: Path):
     """A YAML file as plain containers (Hydra's .hydra/*.yaml, unresolved), or None when unreadable."""
     try:
         return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
@@ -407,7 +407,7 @@ def load_run(run_dir: str | Path, root: str | Path | None = None, events: bool =
     relative to (default: the run dir itself); events: read the TensorBoard curves."""
     run_dir = Path(run_dir)
     run = Run(path=run_dir, name=os.path.relpath(run_dir, root if root is not None else run_dir))
-    hydra_cfg = _read_yaml(run_dir / ".hydra" / "hydra.yaml") or {}
+    hydra_cfg = read_yaml(run_dir / ".hydra" / "hydra.yaml") or {}
     h = hydra_cfg.get("hydra", {}) if isinstance(hydra_cfg, dict) else {}
     run.job = str((h.get("job") or {}).get("name") or "")
     run.choices = {
@@ -415,11 +415,11 @@ def load_run(run_dir: str | Path, root: str | Path | None = None, events: bool =
         for k, v in ((h.get("runtime") or {}).get("choices") or {}).items()
         if v is not None and not k.startswith("hydra/")
     }
-    run.overrides = _parse_overrides(_read_yaml(run_dir / ".hydra" / "overrides.yaml"))
+    run.overrides = _parse_overrides(read_yaml(run_dir / ".hydra" / "overrides.yaml"))
     for k, v in run.overrides.items():
         if "." not in k:  # a group choice typed on the command line (a dotted key is a value override)
             run.choices.setdefault(k, v)
-    run.hydra_config = _read_yaml(run_dir / ".hydra" / "config.yaml") or {}
+    run.hydra_config = read_yaml(run_dir / ".hydra" / "config.yaml") or {}
 
     if (run_dir / METRICS_FILE).exists():
         try:
@@ -522,7 +522,7 @@ def expected_jobs(sweep_dir: Path) -> dict[str, list[str]]:
     """{key: values} the sweep was launched with (from Hydra's multirun.yaml), for naming missing runs: the
     sweeper's params, each replaced by the command line's value for the same key, as Hydra's sweeper does
     (`robustness.trial=shape_0.0,shape_2.0` runs those two only)."""
-    cfg = _read_yaml(Path(sweep_dir) / "multirun.yaml")
+    cfg = read_yaml(Path(sweep_dir) / "multirun.yaml")
     hydra = (cfg or {}).get("hydra") or {}
     params = dict((hydra.get("sweeper") or {}).get("params") or {})
     for line in (hydra.get("overrides") or {}).get("task") or []:

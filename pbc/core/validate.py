@@ -1,7 +1,8 @@
 """Checks at the doors: poses, configs and training identities, each failure one message saying what was
 passed and what to pass instead.
 
-Imports nothing from pbc, so every stage (data, models, predict, the CLIs) can call it first thing.
+On the ground floor (it imports only the run record's model kinds, pbc.core.runs), so every stage (data,
+models, inference, the jobs, the CLIs) can call it first thing.
 
     as_poses(pose, J)           any pose input -> (B, J, 3, 3) float32 tensor, or one clear ValueError/TypeError
     rotation_errors(R)          (..., 3, 3) -> per-matrix orthonormality and det errors (vectorised)

@@ -653,7 +653,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     manifest.update(
         num_vertices=int(scene.garment.vertices.shape[0]),
         joints=list(scene.body.skeleton.names),
-        # the joints the kept poses move (the rest stay at the T-pose): a garment's own joint set
+        # the joints the kept poses move (the rest stay at the rest pose): a garment's own joint set
         posed_joints=moving_joints(poses[kept], scene.body.skeleton.names),
         counts={"requested": len(poses), "kept": len(kept), "discarded": reasons},
         source_index=kept,

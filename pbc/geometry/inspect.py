@@ -1,4 +1,4 @@
-"""What a user's garment OBJ is, before anything is draped (issue 24): its charts (where each sits and faces,
+"""What a user's garment OBJ is, before anything is draped: its charts (where each sits and faces,
 its 3D and UV areas, the uv_unit that makes them agree), its distance to the body and the shrink-wrap's
 stretch per chart, the sleeves' angle against the body's rest arms, the settings to paste, and two
 pictures; and an outfit in one mesh cut into its pieces, one OBJ each, named by where they sit.
@@ -33,7 +33,7 @@ from pbc.geometry.garment.checks import (
     sleeve_axes,
 )
 from pbc.geometry.garment.obj_import import chart_names, check_mesh, import_garment
-from pbc.geometry.meshio import parse_obj
+from pbc.geometry.meshio import read_obj
 from pbc.geometry.meshops import face_areas, uv_islands
 from pbc.geometry.shrinkwrap import wrap_positions
 from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
@@ -88,7 +88,7 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     node (position_unit / position_offset / uv_unit / charts / shrinkwrap); wrap: also run the shrink-wrap
     (seconds) for its stretch per chart. Nothing is refused here: the numbers are what the checks read."""
     path = Path(path)
-    mesh = parse_obj(path.read_text(), str(path))
+    mesh = read_obj(path, "garment OBJ")
     check_mesh(mesh, str(path))
     p = mesh.vertices * metres_per_unit(gcfg.get("position_unit", "m"), "garment.position_unit")
     p = p + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0), np.float64)

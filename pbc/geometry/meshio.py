@@ -29,10 +29,10 @@ vertex and the charts are cut at the seams).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -170,65 +170,6 @@ def write_mesh(path: str | Path, vertices, faces, header: Sequence[str] = ()) ->
     return path
 
 
-class UVMesh(NamedTuple):
-    """A triangle mesh with face-indexed UVs, as an OBJ stores it: nothing merged, split or reordered."""
-
-    vertices: np.ndarray  # (V, 3) float64, the file's `v` lines in order
-    faces: np.ndarray  # (F, 3) int64 0-based vertex ids
-    uv: np.ndarray  # (T, 2) float64, the file's `vt` lines in order (OBJ convention: v up)
-    face_uv: np.ndarray  # (F, 3) int64 0-based ids into uv: corner k of face f sits at uv[face_uv[f, k]]
-
-
-def _obj_index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
-    """A 1-based (or negative, relative) OBJ index -> 0-based; ValueError naming the line otherwise."""
-    try:
-        k = int(token)
-    except ValueError:
-        raise ValueError(f"{where}: line {lineno}: {kind} index {token!r} is not an integer") from None
-    if k == 0 or not -count <= k <= count:
-        raise ValueError(f"{where}: line {lineno}: {kind} index {k} refers to no {kind} ({count} defined so far)")
-    return k - 1 if k > 0 else count + k
-
-
-def read_obj(path: str | Path) -> UVMesh:
-    """Read an OBJ with v, vt and ``f v/vt[/vn]`` lines (any pbc garment mesh, any tool's textured OBJ).
-
-    Vertices stay in the file's order, one per ``v`` line, and every face corner keeps its own ``vt``: a
-    vertex on a UV seam has one UV in each chart's faces. Polygons are fanned into triangles (each corner
-    keeps its vt); normals, groups, materials and other statements are skipped. Raises ValueError naming
-    the file and line for a face corner without a vt index, or an index that refers to nothing."""
-    path = Path(path)
-    where = str(path)
-    verts, uvs, faces, fuvs = [], [], [], []
-    with open(path) as fh:
-        for lineno, line in enumerate(fh, 1):
-            parts = line.split("#", 1)[0].split()
-            if not parts:
-                continue
-            if parts[0] == "v":
-                verts.append([float(x) for x in parts[1:4]])
-            elif parts[0] == "vt":
-                uvs.append([float(x) for x in parts[1:3]])
-            elif parts[0] == "f":
-                fv, ft = [], []
-                for corner in parts[1:]:
-                    idx = corner.split("/")
-                    if len(idx) < 2 or not idx[1]:
-                        raise ValueError(f"{where}: line {lineno}: face corner {corner!r} has no vt index "
-                                         "(read_obj reads textured meshes: export with UVs)")
-                    fv.append(_obj_index(idx[0], len(verts), "vertex", lineno, where))
-                    ft.append(_obj_index(idx[1], len(uvs), "texture coordinate", lineno, where))
-                if len(fv) < 3:
-                    raise ValueError(f"{where}: line {lineno}: a face needs at least 3 corners, got {len(fv)}")
-                for k in range(1, len(fv) - 1):
-                    faces.append((fv[0], fv[k], fv[k + 1]))
-                    fuvs.append((ft[0], ft[k], ft[k + 1]))
-    if not faces:
-        raise ValueError(f"{where}: no faces (f lines)")
-    return UVMesh(np.asarray(verts, np.float64).reshape(-1, 3), np.asarray(faces, np.int64),
-                  np.asarray(uvs, np.float64).reshape(-1, 2), np.asarray(fuvs, np.int64))
-
-
 # OBJ statements that carry nothing a garment needs (materials, smoothing, normals, objects, lines)
 IGNORED = {"usemtl", "mtllib", "s", "o", "vn", "vp", "l", "p", "#"}
 
@@ -245,6 +186,7 @@ class ObjMesh:
     face_line: np.ndarray  # (F,) int64 the `f` line each triangle came from
     groups: list[str]
     vertex_line: np.ndarray  # (V,) int64 the `v` line of each vertex
+    comments: list[str] = field(default_factory=list)  # the text of each whole-line `#` comment, in order
 
 
 def _index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
@@ -260,14 +202,18 @@ def _index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
 
 
 def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
-    """Parse OBJ text into triangles (fan triangulation of each polygon, corners keep their vt).
+    """Parse OBJ text into triangles (fan triangulation of each polygon, corners keep their vt): the one OBJ
+    parser of pbc (``read_obj`` reads a file through it, pbc's garment file and the importers are views of it).
 
-    ``where`` names the source in error messages (the file path).
+    Vertices stay in the file's order, one per ``v`` line, and every face corner keeps its own ``vt``: a
+    vertex on a UV seam has one UV in each chart's faces. ``where`` names the source in error messages (the
+    file path); a bad statement's error names its line.
     """
     verts, vlines, uvs = [], [], []
     faces, fuvs, fgroups, flines = [], [], [], []
     groups: list[str] = ["default"]
     group = 0
+    comments: list[str] = []
     lines = text.splitlines()
     lineno = 0
     pending = ""
@@ -277,6 +223,9 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
             continue
         line, pending = pending + raw, ""
         lineno = raw_no
+        if line.lstrip().startswith("#"):
+            comments.append(line.lstrip()[1:].strip())
+            continue
         parts = line.split("#", 1)[0].split()
         if not parts:
             continue
@@ -303,7 +252,7 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
                 idx = corner.split("/")
                 if len(idx) < 2 or not idx[1]:
                     raise ValueError(
-                        f"{where}: line {lineno}: face corner {corner!r} has no texture coordinate (vt) index; "
+                        f"{where}: line {lineno}: face corner {corner!r} has no texture coordinate (no vt index); "
                         "a garment needs UVs: unwrap it and export with UVs (Blender: 'Include UVs', "
                         "Marvelous Designer / CLO: export with the 2D pattern as UV)")
                 fv.append(_index(idx[0], len(verts), "vertex", lineno, where))
@@ -337,7 +286,22 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
         face_line=np.asarray(flines, np.int64),
         groups=[groups[g] for g in used],
         vertex_line=np.asarray(vlines, np.int64),
+        comments=comments,
     )
+
+
+def read_obj(path: str | os.PathLike, what: str = "OBJ") -> ObjMesh:
+    """An OBJ file parsed (``parse_obj``): any pbc garment mesh, any tool's textured OBJ. A file that cannot be
+    read or is not text is one ValueError naming it and ``what`` it was read as."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the {what} ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: the {what} is not a text OBJ file (byte {exc.start} is not UTF-8): "
+                         "export it as OBJ (text), not a binary format") from None
+    return parse_obj(text, str(path))
 
 
 def obj_mesh_text(mesh, header: str) -> str:

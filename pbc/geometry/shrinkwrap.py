@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from pbc.geometry.body.base import Body, body_sdf
+from pbc.geometry.body.skeleton import MIDPLANE_TOL
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
     chart_names_from_cage,
@@ -32,10 +33,6 @@ from pbc.geometry.garment.checks import (
     sleeve_axes,
 )
 from pbc.geometry.meshops import face_areas, face_charts, solve_dirichlet
-
-# a joint (or a point of a spine bone) this close to x = 0 is on the body's centre line (m); not exactly 0:
-# a measured body is not perfectly symmetric (Anny's neck02 sits 0.2 mm off the mid-plane)
-MIDPLANE_TOL = 1e-3
 
 
 @dataclass

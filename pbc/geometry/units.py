@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-# named UV units (metres per unit), for naming the unit that fits a measured scale
-NAMED_UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+# metres per unit of each length unit a config may name; "inch" is a second spelling of "in", so a measured
+# scale is named by the first name of its value
+UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 
 
 def uv_unit_from_areas(area_3d: float, area_uv: float) -> float:
@@ -16,7 +17,7 @@ def uv_unit_from_areas(area_3d: float, area_uv: float) -> float:
 
 def name_unit(metres: float, tolerance: float = 1.25) -> str:
     """The config value of a scale in metres per UV unit: a named unit within ``tolerance`` x, else the number."""
-    for name, m in NAMED_UNITS.items():
+    for name, m in UNITS.items():
         if max(metres / m, m / metres) <= tolerance:
             return name
     return f"{metres:.4g}"
@@ -44,10 +45,6 @@ def check_uv_unit(stated: float, area_3d: float, area_uv: float, unit_text: str,
         f"{fit:.4g} m per UV unit: set garment.uv_unit={hint}"
         + (f" (or {fits})" if hint != fits else "")
         + f" (more than garment.uv_unit_tolerance = {tolerance:g}x off)")
-
-
-# metres per unit of a stated length unit
-UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 
 
 def metres_per_unit(unit, what: str) -> float:

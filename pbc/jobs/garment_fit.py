@@ -1,12 +1,13 @@
 """`pbc garment fit`: from a garment file (an OBJ, or MakeHuman's `.mhclo`) to a trained whole-garment model and
-a preview in one command (issue 24). The steps, each skipped when its output is complete, so a second call
+a preview in one command. The steps, each skipped when its output is complete, so a second call
 resumes where the first stopped:
 
   1. inspect  the chart table and the settings it suggests (pbc.geometry.inspect) -> inspect/; the suggested
               garment.charts / garment.uv_unit fill what the overrides leave unset, and a garment centred below
               the waist on a body with legs gets the legs' data set and the lower body's wrap
   2. checks   the import and the shrink-wrap on the rest body, where every check before a drape runs
-              (pbc.geometry.garment.checks: the UV unit, the sleeves against the rest arms, far from the body, the wrap's
+              (pbc.geometry.garment.checks: the UV unit, the sleeves against the rest arms, far from the body, the
+              wrap's
               stretch; one error naming the part, the number and the fix), and the automatic cage -> cage.json
   3. data     python -m pbc.generate with the garment overrides and data.num_samples -> data/
   4. whole    python -m pbc.train +experiment=whole with the SAME overrides -> whole/

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from pbc.core.io import write_text
 from pbc.core.paths import CONF_DIR
-from pbc.core.runs import OK, SWEEP_RECORD, ModelKind, _read_yaml, default_sweep_dir, load_runs
+from pbc.core.runs import OK, SWEEP_RECORD, ModelKind, default_sweep_dir, load_runs, read_yaml
 from pbc.jobs.report import build_report
 from pbc.jobs.robustness import build_report as robustness_report
 from pbc.jobs.robustness import prepare_bodies
@@ -53,7 +53,7 @@ def _scale_of(overrides: list[str]) -> str:
 def scale_data(scale: str, conf_dir: Path = CONF_DIR) -> str:
     """The data set a scale selects (its `override /data:` default). The data step asks for that data set
     alone: the samples do not depend on the image sizes or the trainer the scale also sets."""
-    cfg = _read_yaml(conf_dir / "scale" / f"{scale}.yaml") or {}
+    cfg = read_yaml(conf_dir / "scale" / f"{scale}.yaml") or {}
     for entry in cfg.get("defaults") or []:
         if isinstance(entry, dict) and "override /data" in entry:
             return str(entry["override /data"])

@@ -109,7 +109,8 @@ def error_colors(error_cm: np.ndarray, max_cm: float, colormap: str) -> np.ndarr
 
 def load_sequence(path: str | Path, dataset) -> tuple[Tensor, float | None]:
     """A pose sequence for the timeline: an .npy of rotations ((N, J, 3, 3) or (N, J*9), checked by
-    `pbc.inference.poses.read_poses`) or a .bvh clip (`pbc.inference.poses.read_motion`: joint map "auto", every frame) ->
+    `pbc.inference.poses.read_poses`) or a .bvh clip (`pbc.inference.poses.read_motion`: joint map "auto", every
+    frame) ->
     (poses (N, J, 3, 3) float32, the clip's frames a second, None for an .npy)."""
     path = Path(path)
     suffix = path.suffix.lower()

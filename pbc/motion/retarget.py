@@ -5,7 +5,7 @@ that drives that body joint. The model works in the root frame, so the BVH root'
 are dropped: every joint's global rotation is taken relative to the root's.
 
 Rest alignment. The file's rest pose is its OFFSETs' layout (a T-pose, an A-pose, ...), the body's its
-T-pose (conf/body). For each mapped body joint j, A_j is the smallest rotation taking the body's rest bone
+rest pose (conf/body). For each mapped body joint j, A_j is the smallest rotation taking the body's rest bone
 direction onto the file's (towards the joint driving j's first child, else the file joint's first child /
 End Site). The body joint's global rotation at a frame is then M_j = C Q_j C^T A_j, with Q_j the file
 joint's root-relative global rotation and C the file's axes -> the body's (y up, x left, z forward; found

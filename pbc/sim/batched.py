@@ -7,7 +7,8 @@ model so that a GPU gets thousands of vertices per kernel launch instead of one 
 What keeps the worlds independent, and why each piece is needed:
 - Style3D's PCG solve takes its step sizes from inner products over *all* particles, so K worlds in
   one model would share one alpha/beta per CG iteration and follow other trajectories than K single
-  drapes (the 10-11 mm probe disagreement of issue 10). `_WorldPcg` computes the inner products, and
+  drapes (a 10-11 mm disagreement with the single-world drape when measured that way). `_WorldPcg` computes
+  the inner products, and
   alpha/beta, per world (fixed-order chunked sums, so the result does not depend on thread timing).
 - Style3D's cloth self-collision BVH spans all cloths and has no world filter, so its broad phase sees
   each world moved to its own place on a horizontal grid (`_WorldCollision`, `world_offsets`), far enough
@@ -56,11 +57,11 @@ from newton.solvers import SolverStyle3D
 
 from pbc.sim.drape import (
     DrapeResult,
-    _get,
-    _np,
-    _part_meshes,
-    _validate,
+    as_numpy,
+    check_drape_inputs,
+    config_value,
     init_warp,
+    part_meshes,
     pattern_triangles,
     scene_builder,
     stepping,
@@ -355,13 +356,13 @@ def _world_pcg_class():
 
 
 class _PartTopology:
-    """What `_part_meshes` derives from the body's faces and part masks alone, kept so that a new pose
+    """What `part_meshes` derives from the body's faces and part masks alone, kept so that a new pose
     costs a gather and a few means (`vertices`), not a connected-components search per part. The
-    result is bit for bit `_part_meshes`'s (same float64 means over the same sorted index sets)."""
+    result is bit for bit `part_meshes`'s (same float64 means over the same sorted index sets)."""
     def __init__(self, body_vertices, body_faces, part_masks):
         bf = np.asarray(body_faces, dtype=np.int64)
         self.parts = []
-        for (verts, faces), mask in zip(_part_meshes(body_vertices, body_faces, part_masks),
+        for (verts, faces), mask in zip(part_meshes(body_vertices, body_faces, part_masks),
                                         np.asarray(part_masks, dtype=bool), strict=True):
             used = np.unique(bf[mask[bf].all(axis=1)])
             n_loops = len(verts) - len(used)
@@ -420,7 +421,8 @@ class BatchedDrape:
                  template_start, template_body):
         if int(n_worlds) < 1:
             raise ValueError(f"sim.batch_size must be >= 1, got {n_worlds}")
-        _validate(rest_pattern_triangles, faces, template_start, template_body, body_faces, vertex_part, part_masks)
+        check_drape_inputs(rest_pattern_triangles, faces, template_start, template_body, body_faces, vertex_part,
+                           part_masks)
         self.cfg = cfg
         self.n_worlds = int(n_worlds)
         self.faces = np.asarray(faces, dtype=np.int64)
@@ -431,7 +433,7 @@ class BatchedDrape:
         body = np.asarray(template_body, dtype=np.float64)
         # worlds sit one body-and-cloth extent plus a clear metre apart: far beyond any contact radius
         extent = np.ptp(np.concatenate([start, body]), axis=0).max()
-        self.spacing = float(_get(cfg, "batch_world_spacing") or (extent + 1.0))
+        self.spacing = float(config_value(cfg, "batch_world_spacing") or (extent + 1.0))
         self.offsets = world_offsets(self.n_worlds, self.spacing)
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):  # newton's precompute prints a ScopedTimer line
@@ -442,15 +444,15 @@ class BatchedDrape:
 
     # --- model ---------------------------------------------------------------------------------------
     def _build(self, rest_pattern_triangles, start, body):
-        wp_ = init_warp(_get(self.cfg, "kernel_cache_dir"))
+        wp_ = init_warp(config_value(self.cfg, "kernel_cache_dir"))
 
         cfg = self.cfg
         if int(newton.ParticleFlags.ACTIVE) != _PARTICLE_ACTIVE:
             raise RuntimeError("newton's ParticleFlags changed; the batched drape needs newton==1.8.0")
-        device = _get(cfg, "device") or None
+        device = config_value(cfg, "device") or None
         faces, k = self.faces, self.n_worlds
-        friction = float(_get(cfg, "friction"))
-        gravity = wp_.vec3(0.0, -float(_get(cfg, "gravity")), 0.0)
+        friction = float(config_value(cfg, "friction"))
+        gravity = wp_.vec3(0.0, -float(config_value(cfg, "gravity")), 0.0)
 
         # one world's scene, exactly as the single drape builds it, then replicated into K worlds
         self.topology = _PartTopology(body, self.body_faces, self.part_masks)
@@ -464,8 +466,8 @@ class BatchedDrape:
         SolverStyle3D.register_custom_attributes(builder)
         builder.replicate(world, k, separate_worlds=True)
         model = builder.finalize(device=device)
-        model.soft_contact_ke = float(_get(cfg, "contact_ke"))
-        model.soft_contact_kd = float(_get(cfg, "contact_kd"))
+        model.soft_contact_ke = float(config_value(cfg, "contact_ke"))
+        model.soft_contact_kd = float(config_value(cfg, "contact_kd"))
         model.soft_contact_mu = friction
 
         n_per = start.shape[0]
@@ -477,22 +479,22 @@ class BatchedDrape:
         if not np.array_equal(sw, np.repeat(np.arange(k), self.n_parts)):
             raise RuntimeError("newton laid out the replicated shapes unexpectedly; needs newton==1.8.0")
 
-        iterations = int(_get(cfg, "iterations"))
-        linear_iterations = int(_get(cfg, "linear_iterations"))
+        iterations = int(config_value(cfg, "iterations"))
+        linear_iterations = int(config_value(cfg, "linear_iterations"))
         solver = SolverStyle3D(model, config=SolverStyle3D.Config(iterations=iterations,
                                                                   linear_iterations=linear_iterations))
         solver.linear_solver = _world_pcg_class()(n, solver.device, pw, k, max(1, linear_iterations))
         world_arr = wp_.array(pw.astype(np.int32), dtype=wp_.int32, device=model.device)
         offsets_arr = wp_.array(self.offsets.astype(np.float32), dtype=wp_.vec3, device=model.device)
         solver.collision = _world_collision_class()(model, world_arr, offsets_arr)
-        if not _get(cfg, "self_collision", True):
+        if not config_value(cfg, "self_collision", True):
             solver.collision.stiff_vf = solver.collision.stiff_ee = solver.collision.stiff_ef = 0.0
-        elif _get(cfg, "self_collision_radius") is not None:
-            solver.collision.radius = float(_get(cfg, "self_collision_radius"))
+        elif config_value(cfg, "self_collision_radius") is not None:
+            solver.collision.radius = float(config_value(cfg, "self_collision_radius"))
         # at most one body contact per particle (one candidate pair each): launch n threads, not 3K * n
         solver.collision.body_contact_max = n
 
-        pipeline = newton.CollisionPipeline(model, soft_contact_gap=float(_get(cfg, "contact_gap")),
+        pipeline = newton.CollisionPipeline(model, soft_contact_gap=float(config_value(cfg, "contact_gap")),
                                             soft_contact_max=n, rigid_contact_max=0)
         if not hasattr(pipeline, "soft_rigid_contact_pairs") or not hasattr(pipeline, "_soft_contact_pair_count"):
             raise RuntimeError("newton's CollisionPipeline changed; per-part contact filtering needs newton==1.8.0")
@@ -607,7 +609,7 @@ class BatchedDrape:
         h = (n_per - 1) * quantile
         q_index = int(math.floor(h))
         q_frac = float(h - q_index)
-        every = max(1, int(_get(cfg, "batch_check_every", 10)))
+        every = max(1, int(config_value(cfg, "batch_check_every", 10)))
         dev = model.device
         n = model.particle_count
         pose_of = np.array([j if j < b else -1 for j in range(k)])  # the pose each world drapes now
@@ -710,7 +712,7 @@ def make_batched_drape(rest_pattern_triangles, faces, body_faces, vertex_part, p
 def batched_drape_for_garment(garment, body, embedding, cfg, n_worlds, template_start, template_body):
     """`make_batched_drape` for pbc objects (Garment, Body, Embedding: see `drape_garment`)."""
     return make_batched_drape(
-        pattern_triangles(_np(garment.uv), _np(garment.face_uv), float(garment.uv_scale)),
-        _np(garment.faces), _np(body.faces), _np(embedding.part), _np(body.parts), cfg, n_worlds,
-        _np(template_start), _np(template_body),
+        pattern_triangles(as_numpy(garment.uv), as_numpy(garment.face_uv), float(garment.uv_scale)),
+        as_numpy(garment.faces), as_numpy(body.faces), as_numpy(embedding.part), as_numpy(body.parts), cfg, n_worlds,
+        as_numpy(template_start), as_numpy(template_body),
     )

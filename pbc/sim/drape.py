@@ -58,7 +58,7 @@ class DrapeResult:
     residual_max: float = float("nan")
 
 
-def _get(cfg, key, default=None):
+def config_value(cfg, key, default=None):
     """Read a key from a DictConfig / dict / namespace without caring which."""
     if cfg is None:
         return default
@@ -127,11 +127,11 @@ def check_sample(positions, faces, rest_areas, cfg, converged: bool = True) -> t
         return False, "nan"
     if not converged:
         return False, "not_converged"
-    d = _get(cfg, "discard", cfg)
+    d = config_value(cfg, "discard", cfg)
     ratio = triangle_area_ratios(p, faces, rest_areas)
-    if np.any(ratio < 1.0 - float(_get(d, "max_area_compression", 0.75))):
+    if np.any(ratio < 1.0 - float(config_value(d, "max_area_compression", 0.75))):
         return False, "area_compressed"
-    if np.any(ratio > 1.0 + float(_get(d, "max_area_expansion", 1.0))):
+    if np.any(ratio > 1.0 + float(config_value(d, "max_area_expansion", 1.0))):
         return False, "area_stretched"
     return True, ""
 
@@ -177,7 +177,7 @@ def _cap_holes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     return np.concatenate([vertices, centroids]), np.concatenate([faces, lid])
 
 
-def _part_meshes(body_vertices, body_faces, part_masks):
+def part_meshes(body_vertices, body_faces, part_masks):
     """One closed (vertices, faces) mesh per part: the body faces whose three vertices are all in the
     part, with the cut capped (`_cap_holes`)."""
     bf = np.asarray(body_faces, dtype=np.int64)
@@ -193,7 +193,7 @@ def _part_meshes(body_vertices, body_faces, part_masks):
     return out
 
 
-def _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks):
+def check_drape_inputs(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks):
     faces = np.asarray(faces)
     start = np.asarray(start)
     if faces.ndim != 2 or faces.shape[1] != 3:
@@ -224,13 +224,13 @@ def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
     Returns (ModelBuilder, shape ids). The single drape finalizes it; the batched drape replicates it into
     K worlds, so both simulate exactly the same scene.
     """
-    wp = init_warp(_get(cfg, "kernel_cache_dir"))
+    wp = init_warp(config_value(cfg, "kernel_cache_dir"))
     import newton  # noqa: PLC0415 - newton loads in ~2 s; only building a drape needs it
     from newton.solvers import SolverStyle3D, style3d  # noqa: PLC0415 - as above: only a drape needs newton
 
     n_faces = faces.shape[0]
     builder = newton.ModelBuilder(up_axis=newton.Axis.Y)
-    builder.gravity = wp.vec3(0.0, -float(_get(cfg, "gravity")), 0.0)
+    builder.gravity = wp.vec3(0.0, -float(config_value(cfg, "gravity")), 0.0)
     SolverStyle3D.register_custom_attributes(builder)
     style3d.add_cloth_mesh(
         builder,
@@ -244,16 +244,16 @@ def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
         indices=faces.reshape(-1).tolist(),
         panel_verts=_oriented_panels(rest_pattern_triangles, faces, start).tolist(),
         panel_indices=np.arange(3 * n_faces).tolist(),
-        density=float(_get(cfg, "density")),
+        density=float(config_value(cfg, "density")),
         # the particle radius is the cloth-body contact distance: the thickness
-        particle_radius=float(_get(cfg, "thickness")),
-        tri_aniso_ke=wp.vec3(*[float(x) for x in _get(cfg, "stretch_ke")]),
-        edge_aniso_ke=wp.vec3(*[float(x) for x in _get(cfg, "bend_ke")]),
+        particle_radius=float(config_value(cfg, "thickness")),
+        tri_aniso_ke=wp.vec3(*[float(x) for x in config_value(cfg, "stretch_ke")]),
+        edge_aniso_ke=wp.vec3(*[float(x) for x in config_value(cfg, "bend_ke")]),
     )
     if builder.particle_count != start.shape[0] or len(builder.tri_indices) != n_faces:
         raise ValueError("Style3D dropped degenerate pattern triangles; the rest pattern has zero-area faces")
     shape_cfg = newton.ModelBuilder.ShapeConfig(
-        mu=float(_get(cfg, "friction")), margin=0.0, has_shape_collision=False, has_particle_collision=True
+        mu=float(config_value(cfg, "friction")), margin=0.0, has_shape_collision=False, has_particle_collision=True
     )
     shape_ids = [builder.add_shape_mesh(body=-1, mesh=newton.Mesh(verts, tris.reshape(-1), compute_inertia=False,
                                                                    is_solid=True), cfg=shape_cfg)
@@ -266,11 +266,12 @@ def stepping(cfg) -> tuple[float, float, int, float, int, int, float, float]:
     (frame_dt, dt, substeps, tolerance, min_frames, max_frames, keep, residual_quantile), where `keep`
     is the velocity kept per frame: a quasi-static drape only needs the end state, so bleeding kinetic
     energy (cfg.velocity_damping) shortens the settle without changing the equilibrium."""
-    substeps = int(_get(cfg, "substeps"))
-    frame_dt = 1.0 / float(_get(cfg, "fps"))
-    return (frame_dt, frame_dt / substeps, substeps, float(_get(cfg, "tolerance")), int(_get(cfg, "min_frames", 1)),
-            int(_get(cfg, "max_frames")), 1.0 - float(_get(cfg, "velocity_damping", 0.0)),
-            float(_get(cfg, "residual_quantile", 1.0)))
+    substeps = int(config_value(cfg, "substeps"))
+    frame_dt = 1.0 / float(config_value(cfg, "fps"))
+    return (frame_dt, frame_dt / substeps, substeps, float(config_value(cfg, "tolerance")),
+            int(config_value(cfg, "min_frames", 1)),
+            int(config_value(cfg, "max_frames")), 1.0 - float(config_value(cfg, "velocity_damping", 0.0)),
+            float(config_value(cfg, "residual_quantile", 1.0)))
 
 
 def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks, cfg):
@@ -278,32 +279,33 @@ def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_fa
 
     Split out of `drape` so tests and benchmarks can inspect the model (masses, contact pairs).
     """
-    wp = init_warp(_get(cfg, "kernel_cache_dir"))
+    wp = init_warp(config_value(cfg, "kernel_cache_dir"))
     import newton  # noqa: PLC0415 - newton loads in ~2 s; only building a drape needs it
     from newton.solvers import SolverStyle3D  # noqa: PLC0415 - as above: only a drape needs newton
 
-    _validate(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks)
-    device = _get(cfg, "device") or None
+    check_drape_inputs(rest_pattern_triangles, faces, start, body_vertices, body_faces, vertex_part, part_masks)
+    device = config_value(cfg, "device") or None
     faces = np.asarray(faces, dtype=np.int64)
     start = np.asarray(start, dtype=np.float64)
-    friction = float(_get(cfg, "friction"))
+    friction = float(config_value(cfg, "friction"))
     builder, shape_ids = scene_builder(rest_pattern_triangles, faces, start,
-                                       _part_meshes(body_vertices, body_faces, part_masks), cfg)
+                                       part_meshes(body_vertices, body_faces, part_masks), cfg)
 
     model = builder.finalize(device=device)
-    model.soft_contact_ke = float(_get(cfg, "contact_ke"))
-    model.soft_contact_kd = float(_get(cfg, "contact_kd"))
+    model.soft_contact_ke = float(config_value(cfg, "contact_ke"))
+    model.soft_contact_kd = float(config_value(cfg, "contact_kd"))
     # newton mixes sqrt(model mu * shape mu): equal values give exactly cfg.friction
     model.soft_contact_mu = friction
 
     solver = SolverStyle3D(
         model,
         config=SolverStyle3D.Config(
-            iterations=int(_get(cfg, "iterations")), linear_iterations=int(_get(cfg, "linear_iterations"))
+            iterations=int(config_value(cfg, "iterations")),
+            linear_iterations=int(config_value(cfg, "linear_iterations"))
         ),
     )
-    self_thickness = _get(cfg, "self_collision_radius")
-    if not _get(cfg, "self_collision", True):
+    self_thickness = config_value(cfg, "self_collision_radius")
+    if not config_value(cfg, "self_collision", True):
         solver.collision.stiff_vf = solver.collision.stiff_ee = solver.collision.stiff_ef = 0.0
     elif self_thickness is not None:
         solver.collision.radius = float(self_thickness)
@@ -311,7 +313,7 @@ def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_fa
     n = model.particle_count
     pipeline = newton.CollisionPipeline(
         model,
-        soft_contact_gap=float(_get(cfg, "contact_gap")),
+        soft_contact_gap=float(config_value(cfg, "contact_gap")),
         soft_contact_max=n,
         rigid_contact_max=0,
     )
@@ -453,7 +455,7 @@ def closest_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, 
     return dist.numpy().astype(np.float64), cp.numpy().astype(np.float64)
 
 
-def _np(x) -> np.ndarray:
+def as_numpy(x) -> np.ndarray:
     """Tensor or array -> numpy (no torch import needed here)."""
     return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
 
@@ -462,18 +464,19 @@ def drape_garment(garment, start, body_vertices, body, embedding, cfg) -> DrapeR
     """`drape` for pbc objects: garment (Garment: faces, uv, face_uv, uv_scale), start (V, 3), posed
     body_vertices (Vb, 3), body (Body: faces, parts (3, Vb)), embedding (Embedding: part (V,))."""
     return drape(
-        pattern_triangles(_np(garment.uv), _np(garment.face_uv), float(garment.uv_scale)),
-        _np(garment.faces),
-        _np(start),
-        _np(body_vertices),
-        _np(body.faces),
-        _np(embedding.part),
-        _np(body.parts),
+        pattern_triangles(as_numpy(garment.uv), as_numpy(garment.face_uv), float(garment.uv_scale)),
+        as_numpy(garment.faces),
+        as_numpy(start),
+        as_numpy(body_vertices),
+        as_numpy(body.faces),
+        as_numpy(embedding.part),
+        as_numpy(body.parts),
         cfg,
     )
 
 
 def check_garment_result(result: DrapeResult, garment, cfg) -> tuple[bool, str]:
     """`check_sample` for a `drape_garment` result against the garment's pattern areas."""
-    rest = rest_triangle_areas(pattern_triangles(_np(garment.uv), _np(garment.face_uv), float(garment.uv_scale)))
-    return check_sample(result.positions, _np(garment.faces), rest, cfg, result.converged)
+    pattern = pattern_triangles(as_numpy(garment.uv), as_numpy(garment.face_uv), float(garment.uv_scale))
+    rest = rest_triangle_areas(pattern)
+    return check_sample(result.positions, as_numpy(garment.faces), rest, cfg, result.converged)

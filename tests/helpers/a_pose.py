@@ -1,4 +1,4 @@
-"""Garments made as a new user's asset library would hand them over (issue 24), for tests: the procedural
+"""Garments made as a new user's asset library would hand them over, for tests: the procedural
 shirt with its sleeves turned down into an A-pose, written as one [0, 1] UV atlas with no groups and its
 positions in decimetres, and an outfit in one mesh (that shirt, T- or A-posed, and a trouser-like tube
 below the waist). Nothing here is shipped."""

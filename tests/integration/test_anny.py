@@ -119,7 +119,8 @@ def test_shirt_sized_to_anny_wraps_onto_it():
     sleeves = v[np.abs(v[:, 0]) > half_torso + 0.02]
     assert len(sleeves) > 0 and abs(float(sleeves[:, 1].mean()) - arm_y) < 0.03
     assert stats["patch_stretch_max"] < float(cfg.garment.shrinkwrap.max_patch_stretch)
-    # against the arm's skin there (pbc.geometry.garment.checks.sleeve_axes): 7.9 degrees, the straight procedural sleeve
+    # against the arm's skin there (pbc.geometry.garment.checks.sleeve_axes): 7.9 degrees, the straight procedural
+    # sleeve
     # against the slope of Anny's deltoid (against the arm bones it read 1-5; a MakeHuman T-shirt read 18-22 there)
     assert max(stats["sleeve_left_angle_deg"], stats["sleeve_right_angle_deg"]) < 10.0
 

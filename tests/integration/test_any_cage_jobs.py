@@ -88,7 +88,7 @@ def test_a_patch_id_outside_the_garments_cage_is_refused(foreign):
 
 
 def test_the_stacked_job_keeps_one_best_weights_file_and_one_last_file(trained):
-    """Issue 24 item 4: checkpoints a user can afford. The stacked job's checkpoints/ holds the best epoch
+    """Checkpoints a user can afford. The stacked job's checkpoints/ holds the best epoch
     (weights only: tested, exported, predicted from, never resumed) and last.ckpt (with the optimizer's
     state, for ckpt_path=last); every exported patch run holds its patch's weights only."""
     _, _, patches = trained

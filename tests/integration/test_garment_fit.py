@@ -1,4 +1,4 @@
-"""Issue 24.5-6: `pbc garment fit` on garments made as an asset library would (written here, not shipped): an
+"""`pbc garment fit` on garments made as an asset library would (written here, not shipped): an
 A-posed shirt with one [0, 1] atlas and no groups (refused at the sleeve check, on the mannequin and on Anny),
 an outfit of shirt + trousers in one mesh in decimetres (refused as one mesh naming `pbc garment split`; its
 trousers refused on the legless mannequin; its shirt fitted through the README's own commands, which run as

@@ -1,4 +1,4 @@
-"""Issue 26, the scale-out path run for real on one machine (each test: commands in subprocesses on tiny data).
+"""The scale-out path run for real on one machine (each test: commands in subprocesses on tiny data).
 
 - a joblib multirun of two patch trainings on a machine without the dataset: one job makes the data (its
   drape workers are processes started inside a loky worker), the other waits for it, both train;

@@ -4,7 +4,10 @@ importing one further down the data flow (docs/architecture.md)."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
+
+import tomllib
 
 PKG = Path(__file__).resolve().parents[2] / "pbc"
 
@@ -29,9 +32,10 @@ STAGES = [
     ("pbc.motion",),
     ("pbc.inference",),
     ("pbc.jobs", "pbc.jobs.writers"),
-    ("pbc.jobs.train", "pbc.jobs.evaluate", "pbc.jobs.edit", "pbc.jobs.view", "pbc.jobs.predict", "pbc.pretrained.pack"),
+    ("pbc.jobs.train", "pbc.jobs.evaluate", "pbc.jobs.edit", "pbc.jobs.view", "pbc.jobs.predict",
+     "pbc.pretrained.pack"),
     ("pbc.jobs.report",),
-    ("pbc.jobs.sweeps", "pbc.jobs.robustness", "pbc.jobs.garment_fit"),
+    ("pbc.jobs.sweeps", "pbc.jobs.robustness", "pbc.jobs.garment_fit", "pbc.jobs.main"),
     # the entry floor: every command (pbc.cli) and the `python -m pbc.X` aliases that hand over to it
     ("pbc", "pbc.train", "pbc.generate", "pbc.evaluate", "pbc.predict", "pbc.edit", "pbc.sweeps", "pbc.report",
      "pbc.main", "pbc.cli", "pbc.__main__"),
@@ -235,3 +239,36 @@ def test_test_files_have_one_name_across_the_tiers():
     # whole run at collection ("import file mismatch"), as the first CI of a tests/unit + tests/integration pair did
     names = [p.name for p in (PKG.parent / "tests").rglob("test_*.py")]
     assert len(names) == len(set(names)), sorted({n for n in names if names.count(n) > 1})
+
+
+# a citation of an outside tracker ("issue" and a number) says nothing to a reader of the code; say what it does
+TRACKER_CITATION = re.compile(r"\bissues?\s*#?\s*\d+", re.IGNORECASE)
+CITATION_DIRS = ("pbc", "conf", "tests", "bench")
+
+
+def tracker_citations(text: str, filename: str) -> list[str]:
+    return [f"{filename}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)}"
+            for m in TRACKER_CITATION.finditer(text)]
+
+
+def test_no_tracker_citations():
+    root = PKG.parent
+    found = []
+    for d in CITATION_DIRS:
+        for path in sorted((root / d).rglob("*")):
+            if path.suffix in (".py", ".yaml", ".md", ".json") and path.is_file() and "pretrained" not in path.parts:
+                found += tracker_citations(path.read_text(errors="replace"), str(path.relative_to(root)))
+    assert not found, "say what the code does instead of citing a tracker:\n  " + "\n  ".join(found)
+
+
+def test_the_citation_check_catches_one():
+    cite = "Issue"  # the examples are built, so this file holds none itself
+    text = f"ok\n# see {cite} #12 and {cite.lower()}s 3\nthe {cite.lower()} was 4 mm\n"
+    assert tracker_citations(text, "a.py") == [f"a.py:2: {cite} #12", f"a.py:2: {cite.lower()}s 3"]
+
+
+def test_every_package_ships_in_the_wheel():
+    """A package missing from pyproject's list works in a checkout and is absent from the wheel."""
+    listed = set(tomllib.loads((PKG.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    missing = sorted({module_name(p) for p in PKG.rglob("__init__.py")} - listed)
+    assert not missing, f"add to [tool.setuptools] packages in pyproject.toml: {missing}"

@@ -1,4 +1,4 @@
-"""Issue 26, the data side of scale-out: the drape's worker processes inside a launcher's worker, training
+"""The data side of scale-out: the drape's worker processes inside a launcher's worker, training
 that waits for the job making its data, a full disk during the merge, and the operator cache when the
 dataset's disk is full. Synthetic: no drape, no command in a subprocess (the integration twins are in
 tests/integration/test_scaleout.py)."""
@@ -137,7 +137,8 @@ def test_merge_refuses_a_disk_too_small_before_writing_anything(tmp_path, monkey
     from pbc.data.generate import merge
 
     out, args = _fake_run(tmp_path, monkeypatch)
-    monkeypatch.setattr(pbc.core.io.shutil, "disk_usage", lambda path: SimpleNamespace(total=10**9, used=10**9, free=1000))
+    full = SimpleNamespace(total=10**9, used=10**9, free=1000)
+    monkeypatch.setattr(pbc.core.io.shutil, "disk_usage", lambda path: full)
     with pytest.raises(DiskFull, match=rf"no space left on the device holding dataset {out}: .* needed, 1000 B free; "
                                        "free space there .*paths.data_dir.* the drapes in work/ are kept"):
         merge(*args)

@@ -1,4 +1,4 @@
-"""One test per reliability finding of issue 16 (docs/reliability.md maps each fault to its test).
+"""One test per reliability finding (docs/reliability.md maps each fault to its test).
 
 Everything here is synthetic and seconds-long: a tiny LightningModule for the resume tests, a dataset
 directory written from the coarse shirt with identity poses instead of a real drape.

@@ -70,7 +70,7 @@ def test_cpu_trainer_logs_within_an_epoch_of_the_default_data():
 
 
 def test_main_makes_a_fresh_run_dir_per_invocation(tmp_path):
-    from pbc.cli.main_job import fresh_run_dir
+    from pbc.jobs.main import fresh_run_dir
 
     a, b = fresh_run_dir(tmp_path / "main"), fresh_run_dir(tmp_path / "main")
     assert a != b and a.is_dir() and b.is_dir()

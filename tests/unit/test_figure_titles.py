@@ -106,8 +106,8 @@ def test_learning_curves_legend_is_short_and_outside(tmp_path, monkeypatch):
 def test_hierarchy_title_promises_error_bars_only_when_drawn(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
-    from pbc.jobs import report
     from pbc.core.runs import OK
+    from pbc.jobs import report
     from pbc.jobs.report import PATCH_VERTEX, VERTEX, Row
 
     def rows(with_std):

@@ -1,4 +1,4 @@
-"""Issue 24: a garment's checks before any drape (UV unit, sleeves against the rest arms, the shrink-wrap's
+"""A garment's checks before any drape (UV unit, sleeves against the rest arms, the shrink-wrap's
 stretch, far from the body), `pbc garment inspect`'s table and `split`, and generate's discard summary.
 The garments are written here as an asset library would hand them over (tests/helpers/a_pose.py)."""
 

@@ -1,4 +1,5 @@
-"""The lower-body garments (pbc/geometry/garment/lowerbody.py) on a tiny hand-made body with legs (tests/helpers/legged.py):
+"""The lower-body garments (pbc/geometry/garment/lowerbody.py) on a tiny hand-made body with legs
+(tests/helpers/legged.py):
 charts and UVs, seams sewn where a skirt / trousers have them, sizes that follow the body; and the legs' pose
 pruning (pbc/sim/poses.py): legs within limits, crossed legs pruned, a no-op where the legs stay at rest."""
 

@@ -11,9 +11,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from helpers.evaluate_world import fake_dataset  # noqa: E402
 
-from pbc.cli import main_job  # noqa: E402
 from pbc.core.runs import RunRecord, monitor  # noqa: E402
 from pbc.data.baselines import mean_shape_errors  # noqa: E402
+from pbc.jobs import main as main_job  # noqa: E402
 from pbc.pixels.frames import from_offsets, to_offsets  # noqa: E402
 from pbc.pixels.target import make_target  # noqa: E402
 

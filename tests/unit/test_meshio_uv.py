@@ -79,7 +79,7 @@ def test_read_obj_fans_polygons_and_resolves_negative_indices(tmp_path):
 
 
 @pytest.mark.parametrize("text, message", [
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 4: face corner '1' has no vt index"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 4: face corner '1' has no texture coordinate"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 4/1\n", "line 5: vertex index 4 refers to no vertex"),
     ("v 0 0 0\nvt 0 0\n", "no faces"),
 ])

@@ -1,4 +1,4 @@
-"""Issue 26, predictor and edit side: model names, runs made at other image sizes, empty pose files, --max,
+"""Faults at the predictor and edit doors: model names, runs made at other image sizes, empty pose files, --max,
 and non-finite edit values. Synthetic runs (tests/unit/test_predict.py's fake_run on the stand-in dataset):
 no drape, no training."""
 

@@ -16,9 +16,9 @@ import pytest
 import yaml
 from helpers.cli import exit_code
 
-from pbc.jobs import report, sweeps
 from pbc.cli import report as report_cli
 from pbc.core.runs import FAILED, INCOMPLETE, OK, RunRecord, load_runs
+from pbc.jobs import report, sweeps
 
 
 def make_run(

@@ -12,8 +12,8 @@ from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
 import pbc.core.config  # noqa: F401  (registers the pbc.monitor resolver that conf/callbacks reads)
-from pbc.jobs import sweeps
 from pbc.core.runs import sweep_values
+from pbc.jobs import sweeps
 
 ROOT = Path(__file__).resolve().parents[2]
 SEARCH: list[str] = []  # the sweep group is in conf/: no extra search path

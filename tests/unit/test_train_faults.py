@@ -1,4 +1,4 @@
-"""Issue 26, training side: the run-dir lock, a run dir holding another training, the best checkpoint of a
+"""Faults at the training door: the run-dir lock, a run dir holding another training, the best checkpoint of a
 resumed run, and mistyped trainer keys. Synthetic (a scripted two-parameter Lightning module, no data):
 `pbc.jobs.train.train` is stopped where it would open the dataset, so these tests prove the doors, not a run."""
 

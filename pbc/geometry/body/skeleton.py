@@ -1,9 +1,11 @@
-"""The upper-body skeleton: its rest layout, forward kinematics and linear blend skinning (pure torch).
+"""The body's skeleton (any body: the mannequin's upper body, Anny's with legs): its rest layout, forward
+kinematics and linear blend skinning (pure torch).
 
 Conventions: the root (hip) is fixed at the origin of the root frame (y up, x to the body's left,
 z forward, metres). Joint j has a rest head position and a rest frame whose columns are its local axes
 in root coordinates (local y along the bone). A pose is one local rotation per joint, expressed in the
-joint's rest frame, relative to the rest T-pose.
+joint's rest frame, relative to the body's rest pose (the mannequin's T-pose, Anny's A-pose or T-pose:
+conf/body).
 """
 
 from __future__ import annotations
@@ -17,13 +19,16 @@ from torch import Tensor
 
 AXES = ("x", "y", "z")
 ROOT_NAME = "root"
+# a joint (or a point of a spine bone) this close to x = 0 is on the body's centre line (m); not exactly 0:
+# a measured body is not perfectly symmetric (Anny's neck02 sits 0.2 mm off the mid-plane)
+MIDPLANE_TOL = 1e-3
 
 
 @dataclass(frozen=True)
 class Skeleton:
     names: tuple[str, ...]  # (J,) posable joints, model-input order
     parents: tuple[int, ...]  # (J,) parent index into names, -1 = the fixed root (hip)
-    rest_heads: Tensor  # (J, 3) joint positions at rest (T-pose), root frame
+    rest_heads: Tensor  # (J, 3) joint positions in the rest pose, root frame
     limits_deg: Tensor  # (J, 3, 2) per-axis (x, y, z) [min, max] in degrees
     # (J, 3, 3) columns = the joint's local x, y, z axes in root coordinates; None = identity frames.
     # Addition to docs/interfaces.md: it makes the Euler axes mean azimuth/altitude/twist for the arms.

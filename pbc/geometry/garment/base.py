@@ -13,15 +13,16 @@ from torch import Tensor
 
 from pbc.core.io import write_text
 from pbc.geometry.garment.patterns import sample_corners
-from pbc.geometry.meshio import SIDE_NAMES, obj_text
+from pbc.geometry.meshio import SIDE_NAMES, obj_text, read_obj
 from pbc.geometry.meshops import uv_islands
 
 
 @dataclass
 class Garment:
-    """A garment mesh with two UV charts (see docs/interfaces.md)."""
+    """A garment mesh whose UV charts lie on the two sides of its cloth image (front, back; one chart a side for
+    the paper's T-shirt, any number for other garments; see docs/interfaces.md)."""
 
-    vertices: Tensor  # (V, 3) sewn rest shape in 3D (T-pose frame)
+    vertices: Tensor  # (V, 3) sewn rest shape in 3D, on the body's rest pose, root frame
     faces: Tensor  # (F, 3) long
     uv: Tensor  # (T, 2) in [0, 1]^2 of their chart; u -> column, v -> row (v = 0 top)
     face_uv: Tensor  # (F, 3) long, indices into uv per face corner
@@ -69,70 +70,34 @@ def is_pbc_obj(path: Path) -> bool:
 
 
 def load_garment_obj(path) -> Garment:
-    """Read a garment OBJ.
-
-    A file save_garment_obj wrote (its `# uv_scale` header) is read exactly as written (`f v/vt`
-    triangles, `g front` / `g back`); another tool's OBJ is refused with a pointer to
-    pbc.geometry.garment.load_any_obj (the importer). Raises ValueError naming the file (and the line)
-    if UVs are missing, faces reference missing vt, etc.
-    """
+    """Read a garment file pbc wrote (``save_garment_obj``: its ``# uv_scale`` header) exactly as written:
+    the OBJ parsed by ``pbc.geometry.meshio.read_obj``, its ``g front`` / ``g back`` groups the faces' image
+    sides, the header comments its scale and vertex sides. Another tool's OBJ is refused with a pointer to
+    pbc.geometry.garment.load_any_obj (the importer). Raises ValueError naming the file (and the line)."""
     path = Path(path)
     if not is_pbc_obj(path):
         raise ValueError(f"{path} is not a garment file pbc wrote (no '# uv_scale' header): import another "
                          "tool's OBJ with pbc.geometry.garment.load_any_obj, or from a config with "
                          "garment=obj garment.obj=<path>")
-    verts, uvs, faces, fuvs, sides = [], [], [], [], []
-    uv_scale = None
-    vertex_side = None
-    side = 0
-    with open(path) as fh:
-        for lineno, line in enumerate(fh, 1):
-            parts = line.split()
-            if not parts:
-                continue
-            key = parts[0]
-            if key == "#" and len(parts) >= 3 and parts[1] == "uv_scale":
-                uv_scale = float(parts[2])
-            elif key == "#" and len(parts) >= 2 and parts[1] == "vertex_side":
-                vertex_side = np.array([int(s) for s in parts[2:]], dtype=np.int64)
-            elif key == "v":
-                verts.append([float(x) for x in parts[1:4]])
-            elif key == "vt":
-                uvs.append([float(x) for x in parts[1:3]])
-            elif key == "g":
-                name = parts[1] if len(parts) > 1 else ""
-                if name not in SIDE_NAMES:
-                    raise ValueError(f"{path}: line {lineno}: group {name!r} is not one of {SIDE_NAMES}")
-                side = SIDE_NAMES.index(name)
-            elif key == "f":
-                if len(parts) != 4:
-                    raise ValueError(f"{path}: line {lineno}: only triangles are supported")
-                fv, ft = [], []
-                for corner in parts[1:]:
-                    idx = corner.split("/")
-                    if len(idx) < 2 or not idx[1]:
-                        raise ValueError(f"{path}: line {lineno}: face corner {corner!r} has no vt index "
-                                         "(a garment OBJ needs UVs)")
-                    fv.append(int(idx[0]) - 1)
-                    ft.append(int(idx[1]) - 1)
-                faces.append(fv)
-                fuvs.append(ft)
-                sides.append(side)
-    if not uvs:
-        raise ValueError(f"{path}: no texture coordinates (vt); a garment OBJ needs UVs")
-    if not faces:
-        raise ValueError(f"{path}: no faces")
-    faces = np.asarray(faces, np.int64)
-    fuvs = np.asarray(fuvs, np.int64)
-    if faces.min() < 0 or faces.max() >= len(verts):
-        raise ValueError(f"{path}: faces reference missing vertices (v has {len(verts)} entries)")
-    if fuvs.min() < 0 or fuvs.max() >= len(uvs):
-        raise ValueError(f"{path}: faces reference missing texture coordinates (vt has {len(uvs)} entries)")
+    mesh = read_obj(path, "garment OBJ")
+    uv_scale, vertex_side = None, None
+    for comment in mesh.comments:
+        words = comment.split()
+        if words[:1] == ["uv_scale"] and len(words) >= 2:
+            uv_scale = float(words[1])
+        elif words[:1] == ["vertex_side"]:
+            vertex_side = np.array([int(s) for s in words[1:]], dtype=np.int64)
     if uv_scale is None:
         raise ValueError(f"{path}: missing '# uv_scale <metres per uv unit>' header comment")
-    uv = np.asarray(uvs, np.float64)
-    sides = np.asarray(sides, np.int64)
-    nv = len(verts)
+    # faces before any `g` line are on the front (the parser's "default" group)
+    side_of = {"default": 0, **{name: s for s, name in enumerate(SIDE_NAMES)}}
+    unknown = [g for g in mesh.groups if g not in side_of]
+    if unknown:
+        line = int(mesh.face_line[np.flatnonzero(mesh.face_group == mesh.groups.index(unknown[0]))[0]])
+        raise ValueError(f"{path}: line {line}: faces of group {unknown[0]!r}, not one of {SIDE_NAMES}")
+    faces, fuvs, uv = mesh.faces, mesh.face_uv, mesh.uv
+    sides = np.asarray([side_of[g] for g in mesh.groups], np.int64)[mesh.face_group]
+    nv = len(mesh.vertices)
     if vertex_side is None or len(vertex_side) != nv:
         vertex_side = None  # the lowest side each vertex appears on (front for seam vertices)
     # the corner each vertex is sampled at: the rule the importer and the necktie use, so that a vertex
@@ -140,6 +105,7 @@ def load_garment_obj(path) -> Garment:
     # at the uv it was made with
     chart = uv_islands(faces, uv[fuvs] + 2.0 * sides[:, None, None])
     vertex_tex, vertex_side = sample_corners(faces, fuvs, sides, chart, vertex_side)
+    verts = mesh.vertices
     return Garment(
         vertices=torch.tensor(np.asarray(verts), dtype=torch.float32),
         faces=torch.tensor(faces),

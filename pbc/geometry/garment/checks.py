@@ -1,4 +1,4 @@
-"""How a garment sits on the rest body, measured before any drape (issue 24): the UV unit against the 3D
+"""How a garment sits on the rest body, measured before any drape: the UV unit against the 3D
 areas, each part's distance to the body and the body region there, the sleeves' angle against the body's
 rest arms, and the shrink-wrap's stretch per chart.
 
@@ -15,14 +15,13 @@ import re
 
 import numpy as np
 
+from pbc.geometry.body.skeleton import MIDPLANE_TOL
 from pbc.geometry.meshops import mesh_pieces
 
 # the mannequin's part rows (pbc.geometry.body.Body.parts): 0 torso, 1 left arm, 2 right arm
 PART_NAMES = ("torso", "left arm", "right arm")
 
 
-# a joint this close to x = 0 is on the body's centre line (m): a measured body is not exactly symmetric
-MIDPLANE_TOL = 1e-3
 
 
 def chart_names_from_cage(cage, face_chart: np.ndarray, faces: np.ndarray) -> list[str]:

@@ -1,4 +1,4 @@
-"""MakeHuman-format clothes (`.mhclo` next to its `.obj`) fitted to the Anny body (issue 24).
+"""MakeHuman-format clothes (`.mhclo` next to its `.obj`) fitted to the Anny body.
 
 The asset libraries' own format. Each line of the `.mhclo`'s `verts` section binds one vertex of the `.obj`
 (in order) to the MakeHuman base mesh (hm08, 19,158 vertices with its helper geometry):

@@ -23,7 +23,7 @@ from skimage.draw import polygon
 
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.patterns import sample_corners
-from pbc.geometry.meshio import ObjMesh, parse_obj
+from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import signed_uv_area, uv_islands
 from pbc.geometry.units import check_uv_unit, metres_per_unit, uv_unit_from_areas
 
@@ -110,12 +110,7 @@ def import_garment(path, charts: Mapping[str, int] | None = None, uv_unit="auto"
     """
 
     path = Path(path)
-    where = str(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ValueError(f"{where}: cannot read the garment OBJ ({exc})") from None
-    return garment_from_mesh(parse_obj(text, where), where, charts, uv_unit, position_unit, position_offset,
+    return garment_from_mesh(read_obj(path, "garment OBJ"), str(path), charts, uv_unit, position_unit, position_offset,
                              uv_padding, overlap_resolution, uv_unit_tolerance)
 
 

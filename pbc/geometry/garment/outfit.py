@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from pbc.core.io import atomic_path
-from pbc.geometry.meshio import ObjMesh, parse_obj
+from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import mesh_pieces
 from pbc.geometry.units import metres_per_unit
 
@@ -35,7 +35,7 @@ def split_outfit(path, out_dir, position_unit="m", position_offset=(0.0, 0.0, 0.
     (`piece_name` of its centre in the body frame; `top_2` when two sit alike). Returns (name, path,
     polygons) per piece, highest first."""
     path, out_dir = Path(path), Path(out_dir)
-    mesh = parse_obj(path.read_text(), str(path))
+    mesh = read_obj(path, "outfit OBJ")
     piece = mesh_pieces(mesh.faces, len(mesh.vertices))
     p = mesh.vertices * metres_per_unit(position_unit, "garment.position_unit") + np.asarray(position_offset)
     ids = sorted(range(int(piece.max()) + 1), key=lambda k: -p[piece == k, 1].mean())
