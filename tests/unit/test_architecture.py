@@ -25,11 +25,12 @@ STAGES = [
     ("pbc.geometry.shrinkwrap",),
     ("pbc.geometry.inspect",),
     ("pbc.sim",),
+    # motion capture in (clips, retargeting, joint ranges): below data, so a dataset's poses can come from clips
+    ("pbc.motion",),
     ("pbc.pixels",),
     ("pbc.data",),
     ("pbc.models",),
     ("pbc.stitch",),
-    ("pbc.motion",),
     ("pbc.inference",),
     ("pbc.jobs", "pbc.jobs.writers"),
     ("pbc.jobs.train", "pbc.jobs.evaluate", "pbc.jobs.edit", "pbc.jobs.view", "pbc.jobs.predict",
