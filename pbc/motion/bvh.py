@@ -70,6 +70,17 @@ class Bvh:
                 pos[j] = pos[jt.parent] + jt.offset
         return pos
 
+    def root_relative_positions(self, frames=slice(None)) -> np.ndarray:
+        """(F, J, 3) joint positions by the file's own forward kinematics with the root's rotation and
+        translation removed (file units, the root's axes). Position channels of other joints are ignored:
+        files that carry them on every joint (Bandai Namco) repeat the OFFSET there."""
+        rel = self.root_relative_rotations(frames)
+        pos = np.zeros(rel.shape[:2] + (3,))
+        for j, jt in enumerate(self.joints):
+            if jt.parent >= 0:
+                pos[:, j] = pos[:, jt.parent] + rel[:, jt.parent] @ jt.offset
+        return pos
+
     def local_rotations(self, frames=slice(None)) -> np.ndarray:
         """(F, J, 3, 3) float64 local rotations of the chosen frames, each joint's Euler order its own."""
         m = self.motion[frames]
@@ -205,6 +216,12 @@ def parse_bvh(text: str, path: str = "<bvh>") -> Bvh:
                     "one ROOT per file; remove the extra lines (or a stray brace)")
     if motion_at is None:
         raise _fail(path, len(lines), "the file ends before MOTION (truncated)", "export or copy the clip again")
+    seen: dict[str, BvhJoint] = {}
+    for jt in joints:  # a name is how a joint map and the match find a joint: two alike cannot be told apart
+        if jt.name in seen:
+            raise _fail(path, jt.line, f"joint name {jt.name!r} is used twice (also line {seen[jt.name].line})",
+                        "rename one of them (a joint map finds joints by name)")
+        seen[jt.name] = jt
     # MOTION, Frames: N, Frame Time: t, then one line of `channels` numbers per frame
     header: dict[str, tuple[str, int]] = {}
     k = motion_at + 1
@@ -260,6 +277,20 @@ def parse_bvh(text: str, path: str = "<bvh>") -> Bvh:
     if not rows:
         raise _fail(path, header["frames"][1], "the clip has no frames", "give a clip with at least one frame")
     return Bvh(path, tuple(joints), frame_time, np.stack(rows), (motion_at + 1, first_row))
+
+
+def check_skeleton(bvh: Bvh) -> None:
+    """A skeleton pbc can retarget: more than one joint, and a rest skeleton of some length. Raises BvhError
+    naming the file, the joints and the fix."""
+    root = bvh.joints[0]
+    if len(bvh.joints) < 2:
+        raise _fail(bvh.path, root.line, f"the clip has one joint ({root.name}): it moves a point, not a body",
+                    "give a clip of a whole skeleton (a root with a spine, arms and legs)")
+    if not np.abs(bvh.rest_positions()).max() > 0 and all(
+            j.end is None or not np.abs(j.end).any() for j in bvh.joints):
+        raise _fail(bvh.path, bvh.joints[1].line, f"every OFFSET of the {len(bvh.joints)} joints "
+                    f"({', '.join(bvh.names[:6])}{' ...' if len(bvh.joints) > 6 else ''}) is zero: the rest skeleton "
+                    "has no length, so no bone has a direction", "export the clip with its skeleton's offsets")
 
 
 def _is_number(s: str) -> bool:
