@@ -9,18 +9,35 @@ launcher marks that job failed and runs the others.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
-from omegaconf import DictConfig
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
 
 from pbc.cli.errors import entry_point, run_hydra
+from pbc.core.io import write_text
 from pbc.jobs.train import record_failure, train
 
 log = logging.getLogger(__name__)
 
 
+# Hydra writes .hydra/ into the run dir before the job runs, so a job refused there (the dir in use, holding a
+# finished training, another dataset) would overwrite that run's config; pbc writes it once the door is passed
+HYDRA_SUBDIR = ".hydra"
+
+
+def write_hydra_files(cfg: DictConfig, out: Path) -> None:
+    """`<out>/.hydra/{config,hydra,overrides}.yaml` as Hydra writes them (unresolved), each atomically."""
+    hydra_cfg = HydraConfig.get()
+    files = {"config.yaml": cfg, "hydra.yaml": OmegaConf.create({"hydra": hydra_cfg}),
+             "overrides.yaml": hydra_cfg.overrides.task}
+    for name, node in files.items():
+        write_text(Path(out) / HYDRA_SUBDIR / name, OmegaConf.to_yaml(node))
+
+
 def train_job(cfg: DictConfig) -> float:
     try:
-        metrics = train(cfg)
+        metrics = train(cfg, past_the_door=lambda out: write_hydra_files(cfg, out))
     except Exception as e:
         record_failure(cfg, e)
         raise
@@ -28,7 +45,7 @@ def train_job(cfg: DictConfig) -> float:
 
 
 def run(args: list[str]) -> None:
-    run_hydra(train_job, args)
+    run_hydra(train_job, [*args, "hydra.output_subdir=null"])
 
 
 main = entry_point("train", run)

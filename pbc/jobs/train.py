@@ -4,7 +4,8 @@ One job: build the DataModule (``conf/datamodule``), the :class:`~pbc.models.mod
 (``conf/model``), callbacks, loggers and the Lightning Trainer from the config (``_target_`` nodes, as
 lightning-hydra-template does), run fit + test, and leave everything in the Hydra run dir:
 
-    <run dir>/.hydra/               the composed config
+    <run dir>/.hydra/               the composed config (written by the entry point once the job passed
+                                    every check at the door: pbc.cli.train)
     <run dir>/checkpoints/          epoch_NNN.ckpt (best by val/vertex_error_cm; a patch model's metrics
                                     say their scope: val/patch_vertex_error_cm) and last.ckpt
     <run dir>/tensorboard/          events: scalars, image panels, mesh, hparams tab with final metrics
@@ -39,6 +40,7 @@ import logging
 import os
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 
 import lightning as L
@@ -226,14 +228,7 @@ def check_run_dir_free(out: Path, ckpt_spec: str | None) -> None:
             return  # continuing this dir's run (resolve_ckpt_path checks it is the same training)
         if ckpt_spec != "last" and Path(ckpt_spec).resolve() in (out.resolve(), own_last.resolve()):
             return
-    found = []
-    if (out / "metrics.json").is_file():
-        with contextlib.suppress(ValueError, FileNotFoundError):  # unreadable: not a finished record
-            if read_json(out / "metrics.json", "run metrics").get("status") == "ok":
-                found.append("metrics.json of a finished training")
-    ckpts = sorted(p.name for p in (out / "checkpoints").glob("*.ckpt"))
-    if ckpts:
-        found.append(f"checkpoints {', '.join(ckpts[:4])}{' ...' if len(ckpts) > 4 else ''}")
+    found = training_results(out)
     if found:
         resume = "continue that training with ckpt_path=last, " if own_last.is_file() else ""
         raise RunDirTaken(
@@ -243,15 +238,43 @@ def check_run_dir_free(out: Path, ckpt_spec: str | None) -> None:
         )
 
 
+def training_results(out: Path) -> list[str]:
+    """What of another training run dir `out` holds: a finished metrics.json, checkpoints (empty: none)."""
+    out, found = Path(out), []
+    if (out / "metrics.json").is_file():
+        with contextlib.suppress(ValueError, FileNotFoundError):  # unreadable: not a finished record
+            if read_json(out / "metrics.json", "run metrics").get("status") == "ok":
+                found.append("metrics.json of a finished training")
+    ckpts = sorted(p.name for p in (out / "checkpoints").glob("*.ckpt"))
+    if ckpts:
+        found.append(f"checkpoints {', '.join(ckpts[:4])}{' ...' if len(ckpts) > 4 else ''}")
+    return found
+
+
+# run dirs whose job passed every check at the door in this process: only those may get a failed record
+# over another training's results (a resumed run that failed while training)
+_PAST_THE_DOOR: set[Path] = set()
+
+
 def record_failure(cfg: DictConfig, err: BaseException) -> Path | None:
     """Write the failed run's metrics.json (error line, traceback, config): the CLI's handler calls it.
-    Nothing is written when the run dir belongs to another training (RunDirTaken: the other job's
-    metrics.json stays as it is) or cannot be written (the one clear error, not a second one chained)."""
+
+    Nothing is written when the run dir belongs to another training (RunDirTaken), when this job was refused
+    at the door (a bad config, another dataset, another training's checkpoint) in a dir holding another
+    training's results, while another job holds the dir, or when it cannot be written (the one clear error,
+    not a second one chained): a refusal never changes a file of an existing run."""
     out = output_dir(cfg)
     if isinstance(err, RunDirTaken) or not is_rank_zero() or not is_writable_dir(out):
         return None
-    return write_metrics(out, RunRecord.failure(err, OmegaConf.to_container(cfg, resolve=False),
-                                                "".join(traceback.format_exception(err))))
+    record = RunRecord.failure(err, OmegaConf.to_container(cfg, resolve=False),
+                               "".join(traceback.format_exception(err)))
+    if out.resolve() in _PAST_THE_DOOR:
+        return write_metrics(out, record)
+    try:
+        with run_dir_lock(out):
+            return None if training_results(out) else write_metrics(out, record)
+    except RunDirInUse:
+        return None
 
 
 class KeepBestOfResumedRun(L.Callback):
@@ -301,11 +324,14 @@ def trainer_callbacks(cfg: DictConfig, ckpt: str | None) -> list[L.Callback]:
     return callbacks + ([KeepBestOfResumedRun(ckpt)] if ckpt else [])
 
 
-def train(cfg: DictConfig) -> dict:
+def train(cfg: DictConfig, past_the_door: Callable[[Path], None] | None = None) -> dict:
     """Fit, test on the best checkpoint, write metrics.json; returns the metrics dict.
 
     The run dir is locked for the whole training (a second job there is refused at once: RunDirInUse) and
-    must not hold another training's results unless this job resumes it (RunDirTaken)."""
+    must not hold another training's results unless this job resumes it (RunDirTaken). `past_the_door(out)`
+    is called once every check at the door has passed (config, run dir, dataset, resumed checkpoint), before
+    the first file of the training is written: the entry point writes Hydra's `.hydra/` there, so a refused
+    job leaves another run's config as it was."""
     t0, out = time.time(), output_dir(cfg)
     check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3
     require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
@@ -313,10 +339,10 @@ def train(cfg: DictConfig) -> dict:
         return fit_and_test(cfg, out, t0)
     with run_dir_lock(out):
         check_run_dir_free(out, cfg.get("ckpt_path"))
-        return fit_and_test(cfg, out, t0)
+        return fit_and_test(cfg, out, t0, past_the_door)
 
 
-def fit_and_test(cfg: DictConfig, out: Path, t0: float) -> dict:
+def fit_and_test(cfg: DictConfig, out: Path, t0: float, past_the_door: Callable[[Path], None] | None = None) -> dict:
     """The training proper, in run dir `out` (held by `train`): fit, test the best checkpoint, metrics.json."""
     L.seed_everything(int(cfg.seed), workers=True)
     dm = datamodule(cfg)
@@ -327,6 +353,10 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float) -> dict:
                                       summary=summary, training_identity=training).attach(dm.target)
     silence_training_noise()  # before the Trainer: its constructor logs a tip
     ckpt = resolve_ckpt_path(cfg.get("ckpt_path"), out, identity, training)
+    if is_rank_zero():
+        _PAST_THE_DOOR.add(out.resolve())
+        if past_the_door is not None:
+            past_the_door(out)
     if ckpt:
         log.info("resuming from %s", ckpt)
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]

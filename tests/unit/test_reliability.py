@@ -1,0 +1,108 @@
+"""Refusals that leave other runs alone, atomic writes on a full disk, bounds on work, finite geometry, the
+viewer's host and the messages of docs/reliability.md (the rows naming this file). Synthetic: no drape, no
+training; `pbc train` goes through its real entry point (Hydra included) and is stopped at the data."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import pytest
+from helpers.cli import exit_code
+
+import pbc.jobs.train as pbc_train
+from pbc.cli.train import main as train_main
+from pbc.core.io import dir_lock
+from pbc.core.runs import load_run
+
+
+def tree_hash(root: Path) -> dict[str, str]:
+    """{relative path: sha256} of every file under `root` (the lock file of a running job aside)."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != pbc_train.RUN_LOCK}
+
+
+def finished_run(out: Path) -> Path:
+    """A run dir as a finished `pbc train` leaves it: .hydra/, the log, checkpoints, metrics.json."""
+    (out / ".hydra").mkdir(parents=True)
+    (out / ".hydra" / "config.yaml").write_text("loss:\n  norm: l1\n")
+    (out / ".hydra" / "hydra.yaml").write_text("hydra:\n  job:\n    name: pbc-train\n")
+    (out / ".hydra" / "overrides.yaml").write_text("- loss=l1\n")
+    (out / "train.log").write_text("[INFO] epoch 3\n")
+    (out / "checkpoints").mkdir()
+    (out / "checkpoints" / "epoch_003.ckpt").write_bytes(b"weights")
+    (out / "checkpoints" / "last.ckpt").write_bytes(b"weights and optimizer")
+    (out / "metrics.json").write_text(json.dumps({"status": "ok", "test": {"vertex_error_cm": 2.5}}))
+    return out
+
+
+class ReachedTheData(Exception):
+    """Raised where train() would open the dataset."""
+
+
+@pytest.fixture
+def no_data(monkeypatch):
+    def datamodule(cfg):
+        raise ReachedTheData
+
+    monkeypatch.setattr(pbc_train, "datamodule", datamodule)
+
+
+def test_a_refused_training_changes_no_file_of_another_run(tmp_path, monkeypatch, capsys, no_data):
+    monkeypatch.chdir(tmp_path)
+    run = finished_run(tmp_path / "runs" / "ref_whole")
+    before = tree_hash(run)
+    refused = {
+        "a new training in a finished run dir": ["loss=l2"],
+        "a bad config": ["loss=l2", "model.patch_id=3.0"],
+    }
+    for why, overrides in refused.items():
+        assert exit_code(train_main, [*overrides, f"hydra.run.dir={run}"]) == 2, why
+        assert "error:" in capsys.readouterr().err, why
+        assert tree_hash(run) == before, why
+
+    # resuming the run but refused at the data (made with other settings): its record and config stay
+    def other_data(cfg):
+        raise ValueError("dataset made with other settings: data.num_samples 9 vs 6")
+
+    monkeypatch.setattr(pbc_train, "datamodule", lambda cfg: object())
+    monkeypatch.setattr(pbc_train, "check_opened_data", lambda cfg, dm: other_data(cfg))
+    assert exit_code(train_main, ["loss=l2", "ckpt_path=last", f"hydra.run.dir={run}"]) == 2
+    assert "other settings" in capsys.readouterr().err
+    after = tree_hash(run)
+    # a job resuming this run logs into the run's log (appended: the old lines stay); nothing else changes
+    assert (run / "train.log").read_text().startswith("[INFO] epoch 3\n")
+    assert {k: v for k, v in after.items() if k != "train.log"} == {k: v for k, v in before.items() if k != "train.log"}
+
+
+def test_a_training_refused_while_another_runs_in_the_dir_changes_none_of_its_files(tmp_path, monkeypatch, capsys,
+                                                                                     no_data):
+    monkeypatch.chdir(tmp_path)
+    running = tmp_path / "runs" / "running"
+    (running / ".hydra").mkdir(parents=True)
+    (running / ".hydra" / "config.yaml").write_text("loss:\n  norm: l1\n")
+    (running / ".hydra" / "overrides.yaml").write_text("- loss=l1\n")
+    (running / "train.log").write_text("[INFO] epoch 0\n")
+    before = tree_hash(running)
+    with dir_lock(running / pbc_train.RUN_LOCK, "the first job"):  # the first training holds its dir
+        for overrides in (["loss=l2"], ["loss=l2", "model.patch_id=3.0"], ["loss=l2", "ckpt_path=last"]):
+            assert exit_code(train_main, [*overrides, f"hydra.run.dir={running}"]) == 2
+            assert "error:" in capsys.readouterr().err
+            assert tree_hash(running) == before, overrides  # no .hydra/ of the refused job, no failed record
+
+
+def test_a_training_past_the_door_writes_its_hydra_config(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+
+    def fit_and_test(cfg, out, t0, past_the_door=None):
+        past_the_door(out)
+        return {"val_best": {"vertex_error_cm": 1.0}, "optimized_metric": "val/vertex_error_cm"}
+
+    monkeypatch.setattr(pbc_train, "fit_and_test", fit_and_test)
+    run = tmp_path / "runs" / "new"
+    assert exit_code(train_main, ["loss=l2", f"hydra.run.dir={run}"]) == 0
+    assert (run / ".hydra" / "overrides.yaml").read_text().splitlines()[0] == "- loss=l2"
+    assert "norm: l2" in (run / ".hydra" / "config.yaml").read_text()
+    read_back = load_run(run, events=False)  # what pbc.runs and the report read of a run
+    assert read_back.job == "train" and read_back.overrides.get("loss") == "l2"
