@@ -36,6 +36,7 @@ settings (``check_matches_config``). ``metrics.json`` records the data by resolv
 from __future__ import annotations
 
 import contextlib
+import io
 import logging
 import os
 import time
@@ -47,16 +48,20 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
+from lightning.pytorch.plugins import TorchCheckpointIO
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.core.config import register_resolvers
 from pbc.core.io import (
     LockHeld,
+    atomic_path,
     dir_lock,
     is_writable_dir,
     load_checkpoint,
     lock_holder,
+    naming_full_disk,
     read_json,
+    require_free_space,
     require_writable_dir,
 )
 from pbc.core.runs import RunRecord, monitor
@@ -277,6 +282,28 @@ def record_failure(cfg: DictConfig, err: BaseException) -> Path | None:
         return None
 
 
+RUN_DIR_FULL_FIX = ("free space there and run the same command with ckpt_path=last (the last complete checkpoint "
+                    "is kept), or give the run a disk with room (hydra.run.dir=...)")
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writes, each to a temporary file beside the checkpoint and then renamed.
+
+    Lightning's own save goes through an fsspec transaction that writes in the system's temp dir and then
+    copies onto the checkpoint: a full disk truncated epoch_NNN.ckpt and left last.ckpt empty, the file
+    ``ckpt_path=last`` resumes from. Here a full disk leaves the previous complete file (or none) and raises
+    DiskFull naming the file, the bytes it needed and the fix."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options; got {storage_options!r}")
+        buffer = io.BytesIO()
+        torch.save(checkpoint, buffer)
+        with naming_full_disk(path, "checkpoint", RUN_DIR_FULL_FIX, needed=buffer.tell()), atomic_path(path) as tmp:
+            require_free_space(Path(path).parent, buffer.tell(), "checkpoint", RUN_DIR_FULL_FIX)
+            tmp.write_bytes(buffer.getbuffer())
+
+
 class KeepBestOfResumedRun(L.Callback):
     """A run resumed from another run dir's checkpoint keeps that run's best checkpoint in the running.
 
@@ -360,8 +387,10 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float, past_the_door: Callable[
     if ckpt:
         log.info("resuming from %s", ckpt)
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]
-    trainer = instantiate(cfg.trainer, callbacks=trainer_callbacks(cfg, ckpt), logger=loggers or False)
-    trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
+    trainer = instantiate(cfg.trainer, callbacks=trainer_callbacks(cfg, ckpt), logger=loggers or False,
+                          plugins=[AtomicCheckpointIO()])
+    with naming_full_disk(out, "run dir", RUN_DIR_FULL_FIX):  # TensorBoard, meshes: the checkpoints name their own
+        trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
 
     ck = trainer.checkpoint_callback
     best_path = ck.best_model_path if ck is not None else ""
@@ -383,8 +412,9 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float, past_the_door: Callable[
     if hasattr(module, "export_runs") and best_path:  # all patches in one job -> P single-patch run dirs
         record.exported_runs = module.export_runs(best_path, out, record, dm.data)
     metrics = record.to_dict()
-    log_final(trainer, summary, metrics)
-    write_metrics(out, record)
+    with naming_full_disk(out, "run dir", RUN_DIR_FULL_FIX):
+        log_final(trainer, summary, metrics)
+        write_metrics(out, record)
     return metrics
 
 

@@ -4,16 +4,21 @@ training; `pbc train` goes through its real entry point (Hydra included) and is 
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 from pathlib import Path
 
+import lightning as L
 import pytest
+import torch
 from helpers.cli import exit_code
+from hydra.utils import instantiate
 
 import pbc.jobs.train as pbc_train
 from pbc.cli.train import main as train_main
-from pbc.core.io import dir_lock
+from pbc.core.config import load_config
+from pbc.core.io import DiskFull, dir_lock
 from pbc.core.runs import load_run
 
 
@@ -106,3 +111,62 @@ def test_a_training_past_the_door_writes_its_hydra_config(tmp_path, monkeypatch)
     assert "norm: l2" in (run / ".hydra" / "config.yaml").read_text()
     read_back = load_run(run, events=False)  # what pbc.runs and the report read of a run
     assert read_back.job == "train" and read_back.overrides.get("loss") == "l2"
+
+
+# ============================================================================ full disks
+class Linear(L.LightningModule):
+    """Two parameters fitted on 8 points: a run that saves checkpoints every epoch in a second."""
+
+    def __init__(self):
+        super().__init__()
+        self.lin = torch.nn.Linear(2, 1)
+
+    def training_step(self, batch, _):
+        x, y = batch
+        return torch.nn.functional.mse_loss(self.lin(x), y)
+
+    def validation_step(self, batch, _):
+        self.log("val/vertex_error_cm", float(10 - self.current_epoch))
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.01)
+
+    def train_dataloader(self):
+        x = torch.randn(8, 2, generator=torch.Generator().manual_seed(0))
+        return torch.utils.data.DataLoader(torch.utils.data.TensorDataset(x, x.sum(1, keepdim=True)), batch_size=4)
+
+    def val_dataloader(self):
+        return self.train_dataloader()
+
+
+def _trainer(ckpt_dir: Path, epochs: int) -> L.Trainer:
+    nodes = load_config([]).callbacks  # the shipped preset: the best epoch_NNN.ckpt and last.ckpt
+    callbacks = [instantiate(nodes[n], dirpath=str(ckpt_dir)) for n in ("model_checkpoint", "last_checkpoint")]
+    return L.Trainer(max_epochs=epochs, callbacks=callbacks, logger=False, enable_progress_bar=False,
+                     enable_model_summary=False, accelerator="cpu", num_sanity_val_steps=0,
+                     plugins=[pbc_train.AtomicCheckpointIO()])
+
+
+def test_a_full_disk_during_training_keeps_the_last_complete_checkpoint_and_names_the_file(tmp_path, monkeypatch):
+    ckpts = tmp_path / "run" / "checkpoints"
+    _trainer(ckpts, 2).fit(Linear())
+    assert torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 1
+
+    write_bytes = Path.write_bytes
+
+    def full_disk(self, data):  # the disk fills half-way through the next checkpoint
+        write_bytes(self, bytes(memoryview(data)[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
+    with pytest.raises(DiskFull, match=r"checkpoint .*checkpoints/\S+\.ckpt: \d+\.\d [KM]iB needed(.|\n)*"
+                                       r"ckpt_path=last") as err:
+        _trainer(ckpts, 4).fit(Linear(), ckpt_path=ckpts / "last.ckpt")
+    assert "Errno" not in str(err.value)
+    # the previous complete files stay, no temporary file is left beside them
+    assert sorted(p.name for p in ckpts.iterdir()) == ["epoch_001.ckpt", "last.ckpt"]
+    assert torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 1
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)  # space freed: the run resumes from it
+    trainer = _trainer(ckpts, 4)
+    trainer.fit(Linear(), ckpt_path=ckpts / "last.ckpt")
+    assert trainer.current_epoch == 4 and torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 3
