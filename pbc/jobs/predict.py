@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pbc.core.io import require_writable_dir, save_npy, write_json
+from pbc.core.io import naming_full_disk, require_free_space, require_writable_dir, save_npy, write_json
 from pbc.core.validate import as_poses
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
 from pbc.inference.poses import posed_bodies, run_pose_range
@@ -19,6 +19,16 @@ from pbc.inference.predictor import ClothPredictor, predict_poses
 from pbc.jobs.writers import FrameObjWriter, VideoWriter, camera, contact_sheet, render_frames, write_glb
 from pbc.motion.ranges import clamp_to_range, range_report
 from pbc.motion.retarget import Motion, motion_settings
+
+OUT_FULL_FIX = ("free space there or give another output folder (--out DIR); every file already written is "
+                "complete (each is written whole, then renamed)")
+WHAT = "prediction output directory"
+
+
+def require_room_for_frames(out: Path, first_mesh: Path, count: int, arrays: int) -> None:
+    """Refuse before writing the rest when `count` more meshes the size of `first_mesh` (the first one, just
+    written) and `arrays` bytes of .npy will not fit: DiskFull naming `out`, the bytes and OUT_FULL_FIX."""
+    require_free_space(out, first_mesh.stat().st_size * count + arrays, WHAT, OUT_FULL_FIX)
 
 
 def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str], out: Path, fmt: str = "obj",
@@ -37,34 +47,39 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
     verts = predict_poses(predictor, poses, batch_size, model, person=person)
     ds = predictor.dataset
     bodies = posed_bodies(ds, poses, person) if body or sheet else None
-    for k, name in enumerate(names):
-        write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
-                           header=[f"{name}: predicted by pbc.predict ({model}"
-                                   + (f", {predictor.method} seams)" if model == "patches" else ")")])
-        if body:
-            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
-    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
-    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
-    result = dict(info or {}, model=model, method=predictor.method if model == "patches" else None,
-                  num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
-                  files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
-                  names=list(names))
-    if person is not None:
-        result["person"] = np.broadcast_to(np.asarray(person, np.int64), (len(names),)).tolist()
-    titles = list(names)
-    if truth is not None:
-        err = (verts - truth).norm(dim=-1).mean(1) * 100.0
-        result["vertex_error_cm"] = float(err.mean())
-        result["per_pose_vertex_error_cm"] = [round(float(e), 4) for e in err]
-        titles = [f"{t}: {float(e):.2f} cm" for t, e in zip(titles, err, strict=True)]
-    if sheet:
-        m = min(int(sheet), len(names))
-        contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[:m].numpy(), titles[:m],
-                      bodies[:m].numpy(), ds.body.faces.numpy())
-        result["files"]["contact_sheet"] = "contact_sheet.png"
-    result["seconds"] = round(time.time() - t0, 2)
-    write_json(out / "predict.json", result)
-    return result
+    # a full disk: one DiskFull naming the folder; the room for every mesh is checked once the first is written
+    with naming_full_disk(out, WHAT, OUT_FULL_FIX):
+        for k, name in enumerate(names):
+            write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
+                               header=[f"{name}: predicted by pbc.predict ({model}"
+                                       + (f", {predictor.method} seams)" if model == "patches" else ")")])
+            if body:
+                write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+            if k == 0:
+                require_room_for_frames(out, out / "meshes" / f"{name}.{fmt}", (len(names) - 1) * (1 + body),
+                                        verts.numel() * 4 + poses.numel() * 4)
+        save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+        save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+        result = dict(info or {}, model=model, method=predictor.method if model == "patches" else None,
+                      num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
+                      files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
+                      names=list(names))
+        if person is not None:
+            result["person"] = np.broadcast_to(np.asarray(person, np.int64), (len(names),)).tolist()
+        titles = list(names)
+        if truth is not None:
+            err = (verts - truth).norm(dim=-1).mean(1) * 100.0
+            result["vertex_error_cm"] = float(err.mean())
+            result["per_pose_vertex_error_cm"] = [round(float(e), 4) for e in err]
+            titles = [f"{t}: {float(e):.2f} cm" for t, e in zip(titles, err, strict=True)]
+        if sheet:
+            m = min(int(sheet), len(names))
+            contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[:m].numpy(), titles[:m],
+                          bodies[:m].numpy(), ds.body.faces.numpy())
+            result["files"]["contact_sheet"] = "contact_sheet.png"
+        result["seconds"] = round(time.time() - t0, 2)
+        write_json(out / "predict.json", result)
+        return result
 
 
 def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
@@ -100,56 +115,59 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     bodies = posed_bodies(ds, poses, person)
     stages["pose_body"] = round(time.time() - t, 3)
     t = time.time()
-    files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
-    head = f"predicted by pbc.predict from {motion.table.name} motion ({model} model)"
-    if fmt == "obj":
-        writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
-                                header=[f"{frame_names[0]}: {head}"])
-        for k in range(1, len(poses)):
-            writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k], header=[f"{frame_names[k]}: {head}"])
-    else:
-        for k, name in enumerate(frame_names):
-            write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k], header=[f"{name}: {head}"])
-    if body:
-        for k, name in enumerate(frame_names):
-            write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
-    stages["meshes"] = round(time.time() - t, 3)
-    if video:
-        t = time.time()
-        v = settings.video
-        cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
-        every = max(1, round(motion.fps / float(v.max_fps)))
-        shown = torch.arange(0, len(poses), every)
-        vw = VideoWriter(out / f"motion.{video}", motion.fps / every, int(v.crf))
-        try:
-            for i in shown.split(8):
-                # the garment's back faces culled as the body's: the body fills its openings, so its inside
-                # hardly shows, and culling halves the faces to draw
-                vw.append(render_frames([(bodies[i], ds.body.faces, list(v.body_colour), 0.0, True),
-                                         (verts[i], ds.garment.faces, list(v.garment_colour),
-                                          float(v.garment_lift), True)], cam, list(v.light), list(v.background)))
-        except BaseException as e:
-            vw.close(e)
-            raise
-        vw.close()
-        files["video"] = f"motion.{video}"
-        files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4)}
-        stages["video"] = round(time.time() - t, 3)
-    if glb:
-        t = time.time()
-        write_glb(out / "garment.glb", ds.garment, verts.numpy(), motion.times)
-        files["glb"] = "garment.glb"
-        stages["glb"] = round(time.time() - t, 3)
-    save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
-    save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
-    result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
-                  method=predictor.method if model == "patches" else None, num_poses=len(poses),
-                  num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
-                  motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
-                  pose_range=report, pose_range_source=range_source)
-    if person is not None:
-        result["person"] = int(person)
-    result["seconds_by_stage"] = stages
-    result["seconds"] = round(time.time() - t0, 2)
-    write_json(out / "predict.json", result)
-    return result
+    with naming_full_disk(out, WHAT, OUT_FULL_FIX):
+        files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
+        head = f"predicted by pbc.predict from {motion.table.name} motion ({model} model)"
+        if fmt == "obj":
+            writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
+                                    header=[f"{frame_names[0]}: {head}"])
+            require_room_for_frames(out, out / "meshes" / f"{frame_names[0]}.obj", (len(poses) - 1) * (1 + body),
+                                    verts.numel() * 4 + poses.numel() * 4)
+            for k in range(1, len(poses)):
+                writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k], header=[f"{frame_names[k]}: {head}"])
+        else:
+            for k, name in enumerate(frame_names):
+                write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k], header=[f"{name}: {head}"])
+        if body:
+            for k, name in enumerate(frame_names):
+                write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+        stages["meshes"] = round(time.time() - t, 3)
+        if video:
+            t = time.time()
+            v = settings.video
+            cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
+            every = max(1, round(motion.fps / float(v.max_fps)))
+            shown = torch.arange(0, len(poses), every)
+            vw = VideoWriter(out / f"motion.{video}", motion.fps / every, int(v.crf))
+            try:
+                for i in shown.split(8):
+                    # the garment's back faces culled as the body's: the body fills its openings, so its inside
+                    # hardly shows, and culling halves the faces to draw
+                    vw.append(render_frames([(bodies[i], ds.body.faces, list(v.body_colour), 0.0, True),
+                                             (verts[i], ds.garment.faces, list(v.garment_colour),
+                                              float(v.garment_lift), True)], cam, list(v.light), list(v.background)))
+            except BaseException as e:
+                vw.close(e)
+                raise
+            vw.close()
+            files["video"] = f"motion.{video}"
+            files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4)}
+            stages["video"] = round(time.time() - t, 3)
+        if glb:
+            t = time.time()
+            write_glb(out / "garment.glb", ds.garment, verts.numpy(), motion.times)
+            files["glb"] = "garment.glb"
+            stages["glb"] = round(time.time() - t, 3)
+        save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
+        save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
+        result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
+                      method=predictor.method if model == "patches" else None, num_poses=len(poses),
+                      num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
+                      motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
+                      pose_range=report, pose_range_source=range_source)
+        if person is not None:
+            result["person"] = int(person)
+        result["seconds_by_stage"] = stages
+        result["seconds"] = round(time.time() - t0, 2)
+        write_json(out / "predict.json", result)
+        return result

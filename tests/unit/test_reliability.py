@@ -8,13 +8,16 @@ import errno
 import hashlib
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import lightning as L
+import numpy as np
 import pytest
 import torch
 from helpers.cli import exit_code
 from hydra.utils import instantiate
 
+import pbc.core.io as pbc_io
 import pbc.jobs.train as pbc_train
 from pbc.cli.train import main as train_main
 from pbc.core.config import load_config
@@ -170,3 +173,36 @@ def test_a_full_disk_during_training_keeps_the_last_complete_checkpoint_and_name
     trainer = _trainer(ckpts, 4)
     trainer.fit(Linear(), ckpt_path=ckpts / "last.ckpt")
     assert trainer.current_epoch == 4 and torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 3
+
+
+def test_predict_on_a_disk_too_small_names_the_folder_and_the_bytes_and_leaves_whole_files(tmp_path, monkeypatch):
+    from test_view import tiny_predictor
+
+    from pbc.jobs.predict import predict_to_dir
+
+    predictor = tiny_predictor(tmp_path / "fake")
+    poses = torch.from_numpy(np.asarray(predictor.dataset.poses[:6])).float()
+    out = tmp_path / "pred"
+    free = {"bytes": 10**12}
+    monkeypatch.setattr(pbc_io.shutil, "disk_usage", lambda p: SimpleNamespace(free=free["bytes"]))
+    first = predict_to_dir(predictor, poses, [f"p{k}" for k in range(6)], out, sheet=0)
+    mesh = (out / "meshes" / "p0.obj").stat().st_size
+    free["bytes"] = 2 * mesh  # room for the first mesh, not for six
+    with pytest.raises(DiskFull, match=rf"prediction output directory {out / 'again'}: \d+\.\d KiB needed, "
+                                       r"\d+\.\d KiB free; free space there or give another output folder"):
+        predict_to_dir(predictor, poses, [f"p{k}" for k in range(6)], out / "again", sheet=0)
+    assert sorted(p.name for p in (out / "again" / "meshes").iterdir()) == ["p0.obj"]  # checked after the first
+    assert first["num_poses"] == 6
+
+    # the disk fills during a write (the size was not known): the same one error, no half file
+    free["bytes"] = 10**12
+    real = np.save
+
+    def full(file, arr, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "save", full)
+    with pytest.raises(DiskFull, match=rf"prediction output directory {out / 'third'}; free space"):
+        predict_to_dir(predictor, poses, [f"p{k}" for k in range(6)], out / "third", sheet=0)
+    monkeypatch.setattr(np, "save", real)
+    assert not list((out / "third").glob("*.npy")) and not list((out / "third").glob(".*"))
