@@ -58,10 +58,12 @@ def split_name(name: str, cfg=None) -> tuple[str | None, str, str]:
     ('l', 'forearm', ''); 'UpperArm_L' -> ('l', 'upperarm', ''); 'Bip01 R Calf' -> ('r', 'calf', '');
     'spine.004' -> (None, 'spine', '004')."""
     cfg = cfg or dialect_settings()
-    words = _WORDS.findall(name.rsplit(":", 1)[-1])
-    low = [w.lower() for w in words]
-    while low and low[0] in cfg.prefixes:
-        low = low[1:]
+    bare = name.rsplit(":", 1)[-1]
+    for prefix in sorted(cfg.prefixes, key=len, reverse=True):
+        if bare.lower().startswith(prefix) and len(bare) > len(prefix) and not bare[len(prefix)].isalnum():
+            bare = bare[len(prefix):]
+            break
+    low = [w.lower() for w in _WORDS.findall(bare)]
     side = None
     for s, spellings in cfg.sides.items():
         for pos in (0, -1):
@@ -99,13 +101,14 @@ def _subtree(kids, j) -> list[int]:
     return out
 
 
-def _spread(n_file: int, n_body: int) -> list[tuple[int, int]]:
+def _spread(n_file: int, n_body: int, single: int) -> list[tuple[int, int]]:
     """(file index, body index) pairs spreading n_file joints over n_body, lowest on lowest, highest on
-    highest (one file joint: the highest body joint, where the arms or the head hang)."""
+    highest; one file joint goes on body joint `single` (the spine's: the highest, where the arms hang; the
+    neck's: the lowest, where the neck leaves the chest)."""
     if n_file == 0 or n_body == 0:
         return []
     if n_file == 1:
-        return [(0, n_body - 1)]
+        return [(0, single % n_body)]
     if n_file >= n_body:
         return [(int(round(b * (n_file - 1) / max(n_body - 1, 1))), b) for b in range(n_body)]
     return [(f, int(round(f * (n_body - 1) / (n_file - 1)))) for f in range(n_file)]
@@ -217,9 +220,9 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
         cut = necks[0] if necks else len(centre) - 1
         spine, neck = centre[1:cut], centre[cut:-1]
         top_reason = "no arms: the spine ends below the first joint named neck"
-    for what, file_chain in (("spine", spine), ("neck", neck)):
+    for what, file_chain, single in (("spine", spine, -1), ("neck", neck, 0)):
         body_chain = list(body[what])
-        for f, b in _spread(len(file_chain), len(body_chain)):
+        for f, b in _spread(len(file_chain), len(body_chain), single):
             j = file_chain[f]
             joints[body_chain[b]] = names[j]
             why[body_chain[b]] = (f"{what} joint {f + 1} of {len(file_chain)} from the root to the head "
