@@ -19,6 +19,7 @@ import argparse
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
+from pbc.core.io import naming_full_disk
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.anny import anny_cache_dir, cache_files, trim_anny_cache
 from pbc.geometry.body.measure import inside_test_gap, measurements
@@ -80,7 +81,8 @@ def run(argv: list[str]) -> int:
         print(show(cfg, body))
         return 0
     header = [f"pbc body export: {cfg.get('kind', 'mannequin')} rest pose; metres, y up, z forward, root at origin"]
-    path = write_mesh(args.out, body.vertices, body.faces, header=header)
+    with naming_full_disk(args.out, "body mesh", "free space there or give --out a file on another disk"):
+        path = write_mesh(args.out, body.vertices, body.faces, header=header)
     print(f"wrote {path}: {body.vertices.shape[0]:,} vertices, {body.faces.shape[0]:,} faces")
     return 0
 

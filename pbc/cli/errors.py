@@ -21,10 +21,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
-from pbc.core.config import load_config
-from pbc.core.io import DiskFull, LockHeld
+from pbc.core.config import override_hint
+from pbc.core.io import DiskFull, LockHeld, free_bytes, out_of_space
 from pbc.core.paths import CONF_DIR
-from pbc.core.validate import suggest_config_key
 
 USER_ERRORS = (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, LockHeld,
                DiskFull, HydraException, OmegaConfBaseException)
@@ -47,12 +46,33 @@ def one_line(exc: BaseException) -> str:
                       lambda m: f"; options of {m.group(1)}: " + ", ".join(m.group(2).split()), text)
     if isinstance(exc, MissingMandatoryValue) and getattr(exc, "full_key", None):
         return f"the config value {exc.full_key} is not set (???): give it on the command line, {exc.full_key}=..."
+    if not isinstance(exc, DiskFull) and out_of_space(exc):
+        return full_disk_line(exc)
     cause = exc.__cause__
     if isinstance(exc, HydraException) and isinstance(cause, (OmegaConfBaseException, TypeError)):
         text = f"{text}: {str(cause).strip().splitlines()[0]}"  # Hydra's wrapper hides the key at fault
     if isinstance(exc, OSError) and exc.errno in USER_ERRNOS and exc.filename and str(exc.filename) not in text:
         text = f"{text} ({exc.filename})"
     return text
+
+
+def full_disk_line(exc: BaseException) -> str:
+    """A full disk that no writer named (the OSError is often two links down the chain): the file, the space
+    left there and the fix, instead of a bare `[Errno 28] No space left on device`."""
+    path, seen = None, set()
+    while exc is not None and id(exc) not in seen and path is None:
+        seen.add(id(exc))
+        path = getattr(exc, "filename", None) if isinstance(exc, OSError) else None
+        exc = exc.__cause__ or exc.__context__
+    if path is None:
+        return ("no space left on the device (a write failed with ENOSPC); free space on the disk of the output "
+                "(--out, hydra.run.dir) or write it elsewhere")
+    try:
+        free = f" ({free_bytes(path) / 2**20:.1f} MiB free there)"
+    except OSError:
+        free = ""
+    return (f"no space left on the device holding {path}{free}; free space there or write the output elsewhere "
+            "(--out, hydra.run.dir); files pbc writes are whole or absent (written, then renamed)")
 
 
 def entry_point(name: str, run: Callable[[list[str]], int | None]) -> Callable[[Sequence[str] | None], None]:
@@ -129,15 +149,6 @@ def run_hydra(task: Callable[[DictConfig], object], args: list[str], config_name
 
 
 def config_key_hint(message: str, args: list[str], config_name: str) -> str | None:
-    """For a mistyped override (`trainer.max_epoch=3`): the key meant, from the config the other
-    overrides compose (pbc.core.validate.suggest_config_key); None when that is not the error."""
-    key = message.split("'")[1] if message.startswith("Could not override '") else None
-    if key is None:
-        return suggest_config_key(message)
-    others = [a for a in args if "=" in a and not a.lstrip("+~").startswith(key + "=")
-              and not a.startswith(("hydra.", "hydra/", "-"))]
-    try:
-        cfg = load_config(others, config_name=config_name)
-    except Exception:  # another override is wrong too: judge this one without a config
-        cfg = None
-    return suggest_config_key(message, cfg)
+    """For a mistyped override (`trainer.max_epoch=3`): the key meant (pbc.core.config.override_hint, as
+    load_config says it); None when that is not the error."""
+    return override_hint(message, args, config_name)

@@ -5,10 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.core.paths import CONF_DIR, resolve_path
 from pbc.core.runs import monitor
+from pbc.core.validate import suggest_config_key
 
 
 def register_resolvers() -> None:
@@ -24,10 +26,34 @@ register_resolvers()
 def load_config(overrides: list[str] | None = None, config_name: str = "config") -> DictConfig:
     """The root config with command-line style `overrides`, e.g. ["data=tshirt_tiny", "data.seed=3"].
 
+    A mistyped key (`body.phenotype.hight=0.5`) is a ValueError naming the key meant ("did you mean
+    body.phenotype.height?", `override_hint`), not Hydra's advice to add it with "+".
     `${hydra:...}` interpolations (the run dir) only resolve inside an entry point; read those keys there.
     """
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        return compose(config_name, overrides=list(overrides or []))
+    overrides = list(overrides or [])
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+            return compose(config_name, overrides=overrides)
+    except ConfigCompositionException as exc:
+        hint = override_hint(str(exc), overrides, config_name)
+        if hint is None:
+            raise
+        raise ValueError(hint) from exc
+
+
+def override_hint(message: str, overrides: list[str], config_name: str = "config") -> str | None:
+    """For Hydra's error on a mistyped override (`trainer.max_epoch=3`): the key meant, from the config the
+    other overrides compose (pbc.core.validate.suggest_config_key); None when that is not the error."""
+    key = message.split("'")[1] if message.startswith("Could not override '") else None
+    if key is None:
+        return suggest_config_key(message)
+    others = [a for a in overrides if "=" in a and not a.lstrip("+~").startswith(key + "=")
+              and not a.startswith(("hydra.", "hydra/", "-"))]
+    try:
+        cfg = load_config(others, config_name=config_name)
+    except Exception:  # another override is wrong too: judge this one without a config
+        cfg = None
+    return suggest_config_key(message, cfg)
 
 
 def load_garment_config(garment_yaml, image_yaml=None):

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 from pbc.core.config import load_config
-from pbc.core.io import read_json, write_json, write_text
+from pbc.core.io import read_json, require_writable_dir, write_json, write_text
 from pbc.core.runs import OK, RunRecord
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
@@ -158,7 +158,8 @@ class Fit:
             for step in ("inspect", "checks"):
                 self.say(step, f"skipped (done: {self.out / RECORD})")
             return
-        self.out.mkdir(parents=True, exist_ok=True)
+        require_writable_dir(self.out, "garment fit folder", "give the fit a writable folder with --out DIR "
+                             "(the default is runs/fit/<name> under PBC_ROOT, else the current folder)")
         base = garment_overrides(self.garment, self.user)
         self.say("inspect", f"{self.garment.name} with {' '.join(base + self.user)}")
         cfg = load_config(base + self.user)

@@ -206,3 +206,55 @@ def test_predict_on_a_disk_too_small_names_the_folder_and_the_bytes_and_leaves_w
         predict_to_dir(predictor, poses, [f"p{k}" for k in range(6)], out / "third", sheet=0)
     monkeypatch.setattr(np, "save", real)
     assert not list((out / "third").glob("*.npy")) and not list((out / "third").glob(".*"))
+
+
+def test_a_full_disk_no_writer_named_is_one_line_with_the_file_the_space_and_the_fix(tmp_path):
+    from pbc.cli.errors import one_line
+
+    try:
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out.png"))
+        except OSError as inner:
+            raise RuntimeError("savefig failed") from inner  # a library's wrapper, the errno two links down
+    except RuntimeError as err:
+        line = one_line(err)
+    assert line.startswith(f"no space left on the device holding {tmp_path / 'out.png'} (") and "MiB free" in line
+    assert "write the output elsewhere (--out" in line and "Errno" not in line
+
+
+def test_body_export_on_a_full_disk_names_the_file(tmp_path, monkeypatch, capsys):
+    from pbc.cli.body import main as body_main
+
+    def full(self, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    assert exit_code(body_main, ["export", "--out", str(tmp_path / "body.obj")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"pbc body: error: no space left on the device holding body mesh {tmp_path / 'body.obj'}")
+    assert "give --out a file on another disk" in err and not (tmp_path / "body.obj").exists()
+
+
+def test_a_mistyped_key_of_any_command_names_the_key_meant(capsys):
+    from pbc.cli.body import main as body_main
+
+    assert exit_code(body_main, ["show", "body=anny", "body.phenotype.hight=0.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("pbc body: error: unknown key body.phenotype.hight; did you mean body.phenotype.height? "
+                   "(body.phenotype.height=0.5)")
+    with pytest.raises(ValueError, match=r"unknown key sim.substep; did you mean sim.substeps\?"):
+        load_config(["sim.substep=3"])
+
+
+def test_garment_fit_into_a_read_only_folder_names_it_and_the_flag(tmp_path, monkeypatch):
+    from pbc.jobs.garment_fit import Fit
+
+    garment = tmp_path / "shirt.obj"
+    garment.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    monkeypatch.setattr(pbc_io.os, "access", lambda p, mode: Path(p) != locked)  # root writes anywhere
+    with pytest.raises(PermissionError, match=rf"garment fit folder {locked / 'fit'} is not writable; give the fit "
+                                              r"a writable folder with --out DIR"):
+        Fit(garment, [], locked / "fit").inspect_and_check()
+    assert not (locked / "fit").exists()
