@@ -4,7 +4,7 @@ cut into its pieces, and a garment file to a trained model in one command.
     pbc garment inspect my.obj|my.mhclo [garment.position_unit=dm garment.uv_unit=cm body=...] [--out DIR]
         one table of charts (id, name, centroid, facing, 3D and UV area, the uv_unit that fits, distance to
         the body, shrink-wrap stretch), the sleeves against the body's rest arms, the settings to paste;
-        --out writes uv_layout.png and on_body.png (and MakeHuman clothes fitted to the body: fitted.obj)
+        --out writes uv_layout.png, on_body.png and fitted.obj (the garment as placed on the rest body)
     pbc garment split outfit.obj --out DIR [--position-unit dm]
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
     pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E]
@@ -35,7 +35,7 @@ def run(argv: list[str]) -> int:
     ins = sub.add_parser("inspect", help="the charts, fit and settings of a garment OBJ or MakeHuman .mhclo")
     ins.add_argument("obj", help="the garment: an .obj, or a MakeHuman .mhclo (its .obj beside it; on body=anny)")
     ins.add_argument("overrides", nargs="*", help="Hydra overrides: garment.position_unit=dm, body=..., ...")
-    ins.add_argument("--out", help="folder for uv_layout.png and on_body.png")
+    ins.add_argument("--out", help="folder for uv_layout.png, on_body.png and fitted.obj")
     ins.add_argument("--no-wrap", action="store_true", help="skip the shrink-wrap (its stretch per chart)")
     spl = sub.add_parser("split", help="one OBJ per connected piece of an outfit, named by where it sits")
     spl.add_argument("obj", help="the outfit OBJ")
@@ -75,7 +75,7 @@ def run(argv: list[str]) -> int:
                               wrap=not args.no_wrap)
         print(format_report(report, dict(cfg.garment.shrinkwrap)))
     if args.out:
-        fitted = [Path(report.path)] if Path(report.path) != path else []  # what inspect_file wrote
+        fitted = [Path(args.out) / "fitted.obj"]  # inspect_file writes it for every kind
         for target in (save_uv_picture(report, Path(args.out) / "uv_layout.png"),
                        save_body_picture(report, Path(args.out) / "on_body.png"), *fitted):
             print(f"wrote {target}")

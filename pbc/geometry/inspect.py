@@ -12,7 +12,7 @@ The measurements are pbc.geometry.garment.checks's, the ones the import and the 
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import matplotlib
@@ -32,8 +32,9 @@ from pbc.geometry.garment.checks import (
     rest_arm_directions,
     sleeve_axes,
 )
-from pbc.geometry.garment.obj_import import chart_names, check_mesh, import_garment
-from pbc.geometry.meshio import read_obj
+from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_from_mesh
+from pbc.geometry.garment.placement import Placement, placed_mesh
+from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, uv_islands
 from pbc.geometry.shrinkwrap import wrap_positions
 from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
@@ -74,6 +75,8 @@ class Report:
     face_chart: np.ndarray | None = None
     uv_corners: np.ndarray | None = None
     body_vertices: np.ndarray | None = None
+    placement: Placement | None = None  # how a tool's OBJ was put on the body (None: as given)
+    mesh: ObjMesh | None = None  # the garment as measured: metres, on the rest body (what fitted.obj holds)
 
 
 def _facing(normal_sum: np.ndarray, area: float) -> str:
@@ -88,10 +91,14 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     node (position_unit / position_offset / uv_unit / charts / shrinkwrap); wrap: also run the shrink-wrap
     (seconds) for its stretch per chart. Nothing is refused here: the numbers are what the checks read."""
     path = Path(path)
-    mesh = read_obj(path, "garment OBJ")
+    if gcfg.get("kind") == "obj":  # a tool's OBJ as the fit places it (MakeHuman clothes come fitted)
+        mesh, placement = placed_mesh(path, gcfg, body)
+    else:
+        mesh, placement = read_obj(path, "garment OBJ"), None
     check_mesh(mesh, str(path))
-    p = mesh.vertices * metres_per_unit(gcfg.get("position_unit", "m"), "garment.position_unit")
-    p = p + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0), np.float64)
+    p = mesh.vertices * (1.0 if placement is not None else
+                         metres_per_unit(gcfg.get("position_unit") or "m", "garment.position_unit"))
+    p = p + (0.0 if placement is not None else np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0)))
     f = mesh.faces
     corners = mesh.uv[mesh.face_uv]
     island = uv_islands(f, corners)
@@ -143,7 +150,10 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     report = Report(path=path, rows=rows, sleeves=sleeves, arm_droop_deg=arm_droop, uv_range=uv_range,
                     stated_unit=stated, suggest_charts=charts, suggest_unit=unit, suggest_pose=pose,
                     positions=p, faces=f, face_chart=island, uv_corners=corners,
-                    body_vertices=body.vertices.double().cpu().numpy())
+                    body_vertices=body.vertices.double().cpu().numpy(), placement=placement,
+                    mesh=replace(mesh, vertices=p))
+    if placement is not None:
+        report.notes += placement.lines()
     if wrap:
         _wrap_stretch(report, path, gcfg, body, charts, unit, mesh, island)
     return report
@@ -162,10 +172,8 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
     g = (OmegaConf.create(OmegaConf.to_container(gcfg, resolve=True)) if OmegaConf.is_config(gcfg)
          else copy.deepcopy(gcfg))
     try:
-        garment, _, face_chart = import_garment(
-            path, charts=charts, uv_unit=_number(unit), position_unit=_number(str(g.get("position_unit", "m"))),
-            position_offset=tuple(g.get("position_offset") or (0.0, 0.0, 0.0)),
-            uv_padding=float(g.get("uv_padding", 0.1)))
+        garment, _, face_chart = garment_from_mesh(report.mesh, str(path), charts=charts, uv_unit=_number(unit),
+                                                   uv_padding=float(g.get("uv_padding", 0.1)))
         cage = auto_cage(garment, int(g.patch_resolution), int(g.crop_size), int(g.margin),
                          chart_names=[r.name for r in report.rows], face_chart=face_chart,
                          **dict(g.get("autocage") or {}))

@@ -29,6 +29,7 @@ vertex and the charts are cut at the seams).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -201,13 +202,28 @@ def _index(token: str, count: int, kind: str, lineno: int, where: str) -> int:
     return k - 1 if k > 0 else count + k
 
 
-def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
+def finite_numbers(tokens: list[str], what: str, lineno: int, where: str) -> list[float]:
+    """The numbers of one OBJ statement; a token that is no number, NaN or infinite is one ValueError naming
+    the file and the line (a NaN vertex otherwise passes as a garment with NaN areas and charts)."""
+    try:
+        values = [float(x) for x in tokens]
+    except ValueError:
+        raise ValueError(f"{where}: line {lineno}: a {what} needs numbers, got {' '.join(tokens)!r}") from None
+    if not all(math.isfinite(x) for x in values):
+        raise ValueError(f"{where}: line {lineno}: the {what} {' '.join(tokens)} is not finite (NaN or inf); "
+                         "fix or remove that line in the tool that exported the file and export it again")
+    return values
+
+
+def parse_obj(text: str, where: str = "<obj>", require_uv: bool = True) -> ObjMesh:
     """Parse OBJ text into triangles (fan triangulation of each polygon, corners keep their vt): the one OBJ
     parser of pbc (``read_obj`` reads a file through it, pbc's garment file and the importers are views of it).
 
     Vertices stay in the file's order, one per ``v`` line, and every face corner keeps its own ``vt``: a
     vertex on a UV seam has one UV in each chart's faces. ``where`` names the source in error messages (the
-    file path); a bad statement's error names its line.
+    file path); a bad statement's error names its line. ``require_uv=False`` reads a mesh with no texture
+    coordinates at all (``uv`` (0, 2), ``face_uv`` all -1: the importer makes its charts); a mesh with UVs on
+    some corners only is refused either way.
     """
     verts, vlines, uvs = [], [], []
     faces, fuvs, fgroups, flines = [], [], [], []
@@ -233,12 +249,14 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
         if key == "v":
             if len(parts) < 4:
                 raise ValueError(f"{where}: line {lineno}: a vertex needs x y z, got {line.strip()!r}")
-            verts.append([float(x) for x in parts[1:4]])
+            verts.append(finite_numbers(parts[1:4], "vertex", lineno, where))
             vlines.append(lineno)
         elif key == "vt":
             if len(parts) < 3:
                 raise ValueError(f"{where}: line {lineno}: a texture coordinate needs u v, got {line.strip()!r}")
-            uvs.append([float(x) for x in parts[1:3]])
+            uvs.append(finite_numbers(parts[1:3], "texture coordinate", lineno, where))
+        elif key == "vn":  # not kept (pbc computes its normals), but a NaN there is a broken export all the same
+            finite_numbers(parts[1:4], "normal", lineno, where)
         elif key == "g":
             name = parts[1] if len(parts) > 1 else "default"
             if name not in groups:
@@ -250,6 +268,10 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
             fv, ft = [], []
             for corner in parts[1:]:
                 idx = corner.split("/")
+                if (len(idx) < 2 or not idx[1]) and not require_uv and not uvs:
+                    fv.append(_index(idx[0], len(verts), "vertex", lineno, where))
+                    ft.append(-1)
+                    continue
                 if len(idx) < 2 or not idx[1]:
                     raise ValueError(
                         f"{where}: line {lineno}: face corner {corner!r} has no texture coordinate (no vt index); "
@@ -272,14 +294,17 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
         raise ValueError(f"{where}: no vertices (v lines)")
     if not faces:
         raise ValueError(f"{where}: no faces (f lines)")
-    if not uvs:
+    if uvs and any(-1 in t for t in fuvs):
+        raise ValueError(f"{where}: some faces have texture coordinates and some have none; export every face "
+                         "with UVs, or none (pbc then makes the charts)")
+    if not uvs and require_uv:
         raise ValueError(f"{where}: no texture coordinates (vt lines); a garment needs UVs: unwrap it "
                          "(one island per pattern piece) and export with UVs")
     used = sorted(set(fgroups))
     remap = {g: k for k, g in enumerate(used)}
     return ObjMesh(
         vertices=np.asarray(verts, np.float64),
-        uv=np.asarray(uvs, np.float64),
+        uv=np.asarray(uvs, np.float64).reshape(-1, 2),
         faces=np.asarray(faces, np.int64),
         face_uv=np.asarray(fuvs, np.int64),
         face_group=np.asarray([remap[g] for g in fgroups], np.int64),
@@ -290,7 +315,7 @@ def parse_obj(text: str, where: str = "<obj>") -> ObjMesh:
     )
 
 
-def read_obj(path: str | os.PathLike, what: str = "OBJ") -> ObjMesh:
+def read_obj(path: str | os.PathLike, what: str = "OBJ", require_uv: bool = True) -> ObjMesh:
     """An OBJ file parsed (``parse_obj``): any pbc garment mesh, any tool's textured OBJ. A file that cannot be
     read or is not text is one ValueError naming it and ``what`` it was read as."""
     path = Path(path)
@@ -301,7 +326,7 @@ def read_obj(path: str | os.PathLike, what: str = "OBJ") -> ObjMesh:
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: the {what} is not a text OBJ file (byte {exc.start} is not UTF-8): "
                          "export it as OBJ (text), not a binary format") from None
-    return parse_obj(text, str(path))
+    return parse_obj(text, str(path), require_uv)
 
 
 def obj_mesh_text(mesh, header: str) -> str:

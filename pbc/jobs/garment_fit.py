@@ -89,10 +89,14 @@ def garment_overrides(path: Path, overrides: list[str]) -> list[str]:
 
 
 def inspect_file(garment: Path, cfg, body, folder: Path, wrap: bool = True):
-    """`inspect_garment` of a garment file loaded by `garment_overrides` (cfg): an OBJ as it is; MakeHuman clothes
-    as fitted to `body`, the fit written first as `folder/fitted.obj` (what the checks and the drapes see)."""
+    """`inspect_garment` of a garment file loaded by `garment_overrides` (cfg), with `folder/fitted.obj`, the garment
+    as placed on the rest body (what the checks and the drapes see): an OBJ placed by pbc.geometry.garment.placement
+    (written after the report); MakeHuman clothes as fitted to `body` (written first, then inspected)."""
     if cfg.garment.get("kind") != "mhclo":
-        return inspect_garment(garment, cfg.garment, body, wrap=wrap)
+        report = inspect_garment(garment, cfg.garment, body, wrap=wrap)
+        write_text(Path(folder) / "fitted.obj", obj_mesh_text(report.mesh, f"{Path(garment).name} placed on the "
+                                                              "rest body by pbc garment (metres)"))
+        return report
     mesh, _ = mhclo_mesh(cfg.garment, body)
     fitted = Path(folder) / "fitted.obj"
     write_text(fitted, obj_mesh_text(mesh, f"{Path(garment).name} fitted to the body by pbc garment"))

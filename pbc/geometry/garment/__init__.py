@@ -23,7 +23,8 @@ from pbc.geometry.garment.base import Garment, garment_kind, is_pbc_obj, load_ga
 from pbc.geometry.garment.lowerbody import make_lower_body
 from pbc.geometry.garment.mhclo import mhclo_garment
 from pbc.geometry.garment.necktie import make_necktie
-from pbc.geometry.garment.obj_import import import_garment
+from pbc.geometry.garment.obj_import import garment_from_mesh, import_garment
+from pbc.geometry.garment.placement import placed_mesh
 from pbc.geometry.garment.sizing import is_sized_to_body, sized_config
 from pbc.geometry.garment.tshirt import make_tshirt
 
@@ -39,7 +40,7 @@ def obj_options(gcfg) -> dict:
     """The import options of a user's garment OBJ from its config node (conf/garment/obj.yaml)."""
     out = {}
     for key in ("uv_unit", "position_unit", "uv_padding", "uv_unit_tolerance"):
-        if gcfg.get(key) is not None:
+        if gcfg.get(key) is not None and not (key == "position_unit" and gcfg[key] == "auto"):
             out[key] = gcfg[key]
     if gcfg.get("position_offset") is not None:
         out["position_offset"] = tuple(float(x) for x in gcfg.position_offset)
@@ -54,7 +55,8 @@ LEG_KINDS = ("skirt", "trousers")
 
 def garment_needs_body(gcfg) -> bool:
     """Whether `garment_from_config` needs the body for this garment config (its sizes come from the body)."""
-    return is_sized_to_body(gcfg) or garment_kind(gcfg) in ("mhclo", *LEG_KINDS)
+    placed = garment_kind(gcfg) == "obj" and bool((gcfg.get("placement") or {}).get("enabled", False))
+    return placed or is_sized_to_body(gcfg) or garment_kind(gcfg) in ("mhclo", *LEG_KINDS)
 
 
 def _with_cage(garment: Garment, gcfg, names=None, charts=None) -> tuple[Garment, Cage]:
@@ -75,10 +77,13 @@ def _with_cage(garment: Garment, gcfg, names=None, charts=None) -> tuple[Garment
 
 
 def _from_obj(gcfg, body: Body | None) -> tuple[Garment, Cage]:
-    """A user's OBJ: pbc's own files read exactly, others imported with obj_options."""
+    """A user's OBJ: pbc's own files read exactly, others placed on the body (pbc.geometry.garment.placement)
+    and imported with obj_options."""
     if is_pbc_obj(path := resolve_path(gcfg.obj)):
         return _with_cage(load_garment_obj(path), gcfg)
-    garment, names, charts = import_garment(path, **obj_options(gcfg))
+    mesh, _ = placed_mesh(path, gcfg, body)
+    options = {k: v for k, v in obj_options(gcfg).items() if k not in ("position_unit", "position_offset")}
+    garment, names, charts = garment_from_mesh(mesh, str(path), **options)
     return _with_cage(garment, gcfg, names, charts)
 
 

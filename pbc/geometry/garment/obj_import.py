@@ -15,6 +15,7 @@ loose vertex, a non-manifold edge, folded or overlapping UV islands, an unmapped
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,38 @@ def check_mesh(mesh: ObjMesh, where: str = "<obj>") -> None:
                          f"has {count[bad[0]]} faces ({len(bad)} non-manifold edges); a garment is a surface "
                          "where each edge has one or two faces: split the extra panels apart "
                          "(Blender: Select > All by Trait > Non Manifold, then Edge Split)")
+
+
+def drop_loose(mesh: ObjMesh) -> tuple[ObjMesh, int]:
+    """The mesh without its loose vertices (used by no face: construction points, a pattern tool's pins), and
+    how many were dropped. Faces keep their order; vertex ids are renumbered."""
+    used = np.zeros(len(mesh.vertices), bool)
+    used[mesh.faces.ravel()] = True
+    if used.all():
+        return mesh, 0
+    new_id = np.cumsum(used) - 1
+    return replace(mesh, vertices=mesh.vertices[used], faces=new_id[mesh.faces],
+                   vertex_line=mesh.vertex_line[used]), int((~used).sum())
+
+
+def projected_charts(mesh: ObjMesh) -> ObjMesh:
+    """UVs for a mesh without any (vertices in metres on the body: y up, z forward): the front and back
+    projections, as pbc's own shirt is laid out. A face whose outward normal points forward goes to the
+    ``front`` chart at (x, y), the others to ``back`` at (-x, y); a vertex on the border between them keeps one
+    UV in each. The projection never folds (a face's side is the sign of its projected area)."""
+    p, f = mesh.vertices, mesh.faces
+    t = p[f]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    away = t.mean(1)
+    away[:, 1] = 0.0
+    if (n * away).sum() < 0.0:  # wound inward: the outward normal is the other one
+        n = -n
+    side = (n[:, 2] <= 0.0).astype(np.int64)  # 0 front, 1 back
+    key = f * 2 + side[:, None]  # one UV per (vertex, side)
+    ids, face_uv = np.unique(key.ravel(), return_inverse=True)
+    vid, vside = ids // 2, ids % 2
+    uv = np.stack([np.where(vside == 1, -p[vid, 0], p[vid, 0]), p[vid, 1]], 1)
+    return replace(mesh, uv=uv, face_uv=face_uv.reshape(-1, 3), face_group=side, groups=["front", "back"])
 
 
 def chart_names(island: np.ndarray, face_group: np.ndarray, groups: list[str]) -> list[str]:

@@ -1,0 +1,311 @@
+"""A garment modelled on another body, in another frame, unit or rest pose, placed on the chosen rest body.
+
+Tools export garments where their own body stood: SMPL's frame (feet at y = -1.1), a mannequin's (feet at
+y = 0), centimetres at 3x life size, decimetres, an A-pose. `place_garment` puts the vertices (V, 3), in the
+file's numbers, where a person would put them on the rest body of ``body``, in five steps:
+
+1. **unit** from size: the hem's girth (the lowest opening of a top, the waist of a bottom) against the
+   body's girth there, snapped to a named unit (m, dm, cm, mm, in) when one lies within
+   ``placement.unit_snap`` x, else kept as an odd scale;
+2. **registration** from landmarks: the collar (a top's highest opening) onto the body's neck joint plus
+   ``placement.collar_offset``, the waistband of a bottom onto the body's waist; an odd scale is then grown
+   (within ``placement.scale_range``) until the torso's cloth is outside the body;
+3. **rest-pose transfer**: sleeves modelled at another arm angle (a T-pose top on an A-posed body, or the
+   other way round) turn the body's arms to the sleeves, the garment takes the skinning weights of the posed
+   body where it lies (sleeves follow the arms), and is skinned back to the body's rest pose;
+4. **pushed out** of the rest body by ``placement.push_out_margin``;
+5. **checked**: a garment that still does not sit (its collar below the shoulders, its cloth far from the
+   body, a bottom's waist off the waist) is refused in one line: never a silent fit.
+
+A garment that already sits on the body as given (in metres, no shift) is kept as it is, bit for bit.
+``garment.position_unit`` (not ``auto``) fixes the unit; ``garment.position_offset`` fixes the frame
+(no registration, no transfer). Every number comes from ``garment.placement`` (conf/garment/obj.yaml).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from pbc.geometry.body.base import Body, body_sdf
+from pbc.geometry.body.measure import girth, measurements, torso_mesh
+from pbc.geometry.body.skeleton import forward_kinematics
+from pbc.geometry.garment.checks import sleeve_axes
+from pbc.geometry.garment.obj_import import drop_loose, projected_charts
+from pbc.geometry.meshio import ObjMesh, read_obj
+from pbc.geometry.meshops import boundary_loops, push_out
+from pbc.geometry.units import UNITS, metres_per_unit
+
+log = logging.getLogger(__name__)
+
+ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
+
+
+@dataclass
+class Placement:
+    """What `place_garment` did, for the log and `pbc garment inspect`."""
+
+    unit: float  # metres per file unit
+    unit_name: str  # the named unit, or "odd scale"
+    kind: str  # top / bottom
+    translation: np.ndarray  # (3,) m, added after the unit
+    kept: bool  # the garment already sat on the body: nothing moved
+    arm_turn_deg: dict = field(default_factory=dict)  # side -> degrees the body's arm was turned onto the sleeve
+    distance_before: float = float("nan")  # m, median |distance| to the rest body, as the file's numbers in metres
+    distance_after: float = float("nan")  # m, the same after placement
+    pushed_out: int = 0  # vertices moved out of the body
+
+    def lines(self) -> list[str]:
+        turn = ", ".join(f"{s} arm turned {d:.0f} deg" for s, d in self.arm_turn_deg.items()) or "none"
+        how = "kept as given (it already sits on the body)" if self.kept else (
+            f"unit {self.unit_name} ({self.unit:.4g} m per file unit), then shifted by "
+            f"{np.round(self.translation, 3).tolist()} m")
+        return [f"placement ({self.kind}): {how}; rest-pose transfer: {turn}; "
+                f"{self.pushed_out} vertices pushed out of the body",
+                f"median distance to the rest body: {self.distance_before:.3f} m as given (in metres), "
+                f"{self.distance_after:.3f} m placed"]
+
+
+def _sdf(body: Body, points: np.ndarray, rotations: torch.Tensor | None = None) -> np.ndarray:
+    """(P,) signed distance (m) of points to the body's primitives, at rest or posed by rotations (1, J, 3, 3)."""
+    if rotations is None:
+        rotations = torch.eye(3).expand(1, body.skeleton.num_joints, 3, 3)
+    with torch.no_grad():
+        return body_sdf(body, rotations, torch.as_tensor(points, dtype=torch.float32)[None])[0].double().numpy()
+
+
+def openings(points: np.ndarray, faces: np.ndarray) -> list[dict]:
+    """The garment's openings (boundary loops), highest first: {ids, centre (3,), perimeter}."""
+    out = []
+    for loop in boundary_loops(np.asarray(faces)):
+        q = points[loop]
+        out.append({"ids": loop, "centre": q.mean(0),
+                    "perimeter": float(np.linalg.norm(q - np.roll(q, 1, 0), axis=1).sum())})
+    return sorted(out, key=lambda o: -o["centre"][1])
+
+
+def garment_kind_of(points: np.ndarray, faces: np.ndarray, where: str) -> str:
+    """``top`` (the highest opening, the collar, is narrower than the lowest, the hem) or ``bottom`` (the
+    highest opening, the waistband, is the widest: trousers, a skirt). A closed surface is no garment."""
+    ops = openings(points, faces)
+    if len(ops) < 2:
+        raise ValueError(f"{where}: {'a closed surface' if not ops else 'a surface with one opening'} is not a "
+                         "garment a body can wear (a garment has openings: a collar and a hem, a waist and legs); "
+                         "give the garment's own mesh, not a body or a closed shape")
+    widest = max(ops, key=lambda o: o["perimeter"])
+    return "bottom" if widest is ops[0] else "top"
+
+
+def _landmarks(body: Body) -> dict:
+    sk = body.skeleton
+    m = measurements(body)
+    arms = sk.rest_heads[[sk.index("l_arm"), sk.index("r_arm")]].double().numpy()
+    return {"neck": sk.rest_heads[sk.index("neck")].double().numpy(), "shoulder_y": float(arms[:, 1].mean()),
+            "arm_x": float(np.abs(arms[:, 0]).mean()), "waist_y": m["waist_at"], "torso": torso_mesh(body),
+            "low": float(body.vertices[:, 1].min())}
+
+
+def _girth_at(lm: dict, y: float) -> float:
+    """The body's torso girth at height y, or the nearest non-empty one below the torso's end."""
+    bounds = lm["torso"].bounds
+    return girth(lm["torso"], float(np.clip(y, bounds[0][1] + 0.02, bounds[1][1] - 0.02)))
+
+
+def _anchor(points: np.ndarray, faces: np.ndarray, kind: str) -> tuple[np.ndarray, dict]:
+    """(3,) the landmark the garment is hung by (collar or waistband centre) and the opening sized against the
+    body (hem of a top, waistband of a bottom)."""
+    ops = openings(points, faces)
+    return ops[0]["centre"], (ops[-1] if kind == "top" else ops[0])
+
+
+def _target(lm: dict, kind: str, pcfg) -> np.ndarray:
+    if kind == "top":
+        return lm["neck"] + np.asarray(pcfg.collar_offset, np.float64)
+    return np.array([0.0, lm["waist_y"], lm["neck"][2]]) + np.asarray(pcfg.waist_offset, np.float64)
+
+
+def _unit(points, faces, kind, lm, pcfg, stated, where) -> tuple[float, str]:
+    """Metres per file unit: the stated one, else from the sizing opening's girth against the body's there."""
+    height = float(lm["torso"].bounds[1][1] - lm["low"])
+    if stated not in (None, "auto"):
+        unit = metres_per_unit(stated, "garment.position_unit")
+        extent = float(np.ptp(points, axis=0).max()) * unit
+        if extent > float(pcfg.max_extent) * max(height, 1e-9):
+            raise ValueError(f"{where}: the garment spans {extent:.2f} m with garment.position_unit={stated}, "
+                             f"{extent / height:.1f}x the body's height: far larger than any body; give the "
+                             "file's unit (garment.position_unit=cm, mm, ...) or garment.position_unit=auto")
+        return unit, str(stated)
+    anchor, sizing = _anchor(points, faces, kind)
+    unit = 1.0
+    for _ in range(4):  # the body's girth is taken where the opening lands, which depends on the unit
+        y = _target(lm, kind, pcfg)[1] + (sizing["centre"][1] - anchor[1]) * unit
+        unit = float(pcfg.opening_ease) * _girth_at(lm, y) / max(sizing["perimeter"], 1e-12)
+    for name, m in UNITS.items():
+        if max(unit / m, m / unit) <= float(pcfg.unit_snap):
+            return m, name
+    return unit * float(pcfg.odd_scale_ease) / float(pcfg.opening_ease), "odd scale"
+
+
+def _inside_fraction(points: np.ndarray, body: Body, lm: dict, rotations=None) -> float:
+    """The fraction of the torso's cloth (|x| inside the arm joints, below the shoulders) inside the body."""
+    sel = (np.abs(points[:, 0]) < lm["arm_x"]) & (points[:, 1] < lm["shoulder_y"] - 0.05)
+    if not sel.any():
+        return 0.0
+    return float((_sdf(body, points[sel], rotations) < 0.0).mean())
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit direction a onto unit direction b (Rodrigues)."""
+    v, c = np.cross(a, b), float(np.clip(a @ b, -1.0, 1.0))
+    k = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + k + k @ k / (1.0 + c) if c > -1.0 + 1e-9 else -np.eye(3)
+
+
+def _arm_rotations(body: Body, turns: dict) -> torch.Tensor:
+    """(1, J, 3, 3) the rest pose with each side's arm joint turned by turns[side], a (3, 3) rotation in root
+    axes about the joint, expressed in the joint's own frame."""
+    sk = body.skeleton
+    rot = torch.eye(3, dtype=torch.float64).repeat(1, sk.num_joints, 1, 1)
+    frames = sk.frames().double()
+    for side, world in turns.items():
+        j = sk.index(ARM_JOINTS[side])
+        rot[0, j] = frames[j].T @ torch.as_tensor(world) @ frames[j]  # forward_kinematics applies F R F^T
+    return rot
+
+
+def _unpose(points: np.ndarray, body: Body, rotations: torch.Tensor, neighbours: int) -> np.ndarray:
+    """Garment points on the body posed by rotations (1, J, 3, 3) taken back to its rest pose, with the skinning
+    weights of the posed body's nearest vertices (inverse-distance blended): (P, 3)."""
+    transforms = forward_kinematics(body.skeleton, rotations)[0]  # (J+1, 4, 4)
+    weights = body.weights.double()
+    posed = torch.einsum("vk,kij->vij", weights, transforms[:, :3, :]).numpy()  # per body vertex (Vb, 3, 4)
+    posed_vertices = np.einsum("vij,vj->vi", posed[:, :, :3], body.vertices.double().numpy()) + posed[:, :, 3]
+    dist, idx = cKDTree(posed_vertices).query(points, k=neighbours)
+    w = 1.0 / np.maximum(dist, 1e-6)
+    w /= w.sum(1, keepdims=True)
+    blend = np.einsum("pk,pkj->pj", w, weights.numpy()[idx])  # (P, J+1)
+    m = torch.einsum("pk,kij->pij", torch.as_tensor(blend), transforms[:, :3, :]).numpy()  # (P, 3, 4)
+    return np.linalg.solve(m[:, :, :3], (points - m[:, :, 3])[..., None])[..., 0]
+
+
+def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, limit_deg: float) -> dict:
+    """The rotation (3, 3, root axes) turning each side's rest arm onto the garment's sleeve, for the sleeves
+    more than limit_deg off the arm (`sleeve_axes`: like with like, the arm's skin in the sleeve's band); {}
+    when none is."""
+    return {side: _rotation_between(a["arm"], a["axis"]) for side, a in sleeve_axes(points, faces, body).items()
+            if side in ARM_JOINTS and a["angle_deg"] > limit_deg}
+
+
+def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kind: str, lm: dict) -> bool:
+    """Whether a garment in metres was placed on this body by its maker: every vertex within the shrink-wrap's
+    reach (garment.shrinkwrap.max_start_distance) and, for a top, its collar above the shoulders (a top from
+    another body's frame can sit within reach of the hips, as the issue's SMPL top did)."""
+    reach = (gcfg.get("shrinkwrap") or {}).get("max_start_distance")
+    if float(_sdf(body, points).max()) > float(0.3 if reach is None else reach):
+        return False
+    return kind != "top" or _anchor(points, faces, kind)[0][1] >= lm["shoulder_y"]
+
+
+def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None
+         ) -> str | None:
+    """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words."""
+    lm = lm or _landmarks(body)
+    d = _sdf(body, points)
+    anchor, _ = _anchor(points, faces, kind)
+    if kind == "top" and anchor[1] < lm["shoulder_y"]:
+        return (f"its collar (the highest opening, centre {np.round(anchor, 3).tolist()}) is below the body's "
+                f"shoulders (y = {lm['shoulder_y']:.2f} m)")
+    if kind == "bottom" and abs(anchor[1] - lm["waist_y"]) > float(pcfg.max_anchor_error):
+        return (f"its waistband (centre {np.round(anchor, 3).tolist()}) is not at the body's waist "
+                f"(y = {lm['waist_y']:.2f} m)")
+    if np.linalg.norm(anchor - _target(lm, kind, pcfg)) > float(pcfg.max_anchor_error):
+        return (f"its {'collar' if kind == 'top' else 'waistband'} (centre {np.round(anchor, 3).tolist()}) is "
+                f"more than garment.placement.max_anchor_error = {pcfg.max_anchor_error} m from where it is worn "
+                f"({np.round(_target(lm, kind, pcfg), 3).tolist()})")
+    median = float(np.median(np.abs(d)))
+    if median > float(pcfg.max_median_distance):
+        return (f"half its cloth is more than {median:.2f} m from the body (garment.placement.max_median_distance "
+                f"= {pcfg.max_median_distance} m)")
+    return None
+
+
+def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where: str = "<garment>"
+                  ) -> tuple[np.ndarray, Placement]:
+    """The garment's vertices (V, 3), in the file's numbers, placed on the rest body: (V, 3) m and what was
+    done (see the module docstring). ``gcfg``: the garment config node (position_unit, position_offset,
+    placement). One ValueError naming the file when the garment does not sit on the body after placement."""
+    pcfg = gcfg.placement
+    p = np.asarray(points, np.float64)
+    f = np.asarray(faces)
+    kind = garment_kind_of(p, f, where)
+    lm = _landmarks(body)
+    stated = gcfg.get("position_unit", "auto")
+    offset = gcfg.get("position_offset")
+    before = float(np.median(np.abs(_sdf(body, p))))
+    if offset is not None:  # the user's frame: the unit and the shift as given, nothing registered
+        unit, name = _unit(p, f, kind, lm, pcfg, "m" if stated in (None, "auto") else stated, where)
+        placed = p * unit + np.asarray(offset, np.float64)
+        return placed, Placement(unit, name, kind, np.asarray(offset, np.float64), False, {}, before,
+                                 float(np.median(np.abs(_sdf(body, placed)))))
+    if stated in (None, "auto", "m", 1.0) and _already_placed(p, f, body, gcfg, kind, lm):
+        return p, Placement(1.0, "m", kind, np.zeros(3), True, {}, before, before)
+    unit, name = _unit(p, f, kind, lm, pcfg, stated, where)
+    x = p * unit
+    anchor, _ = _anchor(x, f, kind)
+    target = _target(lm, kind, pcfg)
+    x = x + (target - anchor)
+    if name == "odd scale":  # refine about the anchor: grown until the torso's cloth is out of the body (a
+        # tight garment's hem is smaller than opening_ease assumes; a loose one is kept at the estimate)
+        lo, hi = (float(s) for s in pcfg.scale_range)
+        for s in np.geomspace(lo, hi, int(pcfg.scale_steps)):
+            y = target + s * (x - target)
+            if _inside_fraction(y, body, lm) <= float(pcfg.max_inside_fraction):
+                x, unit = y, unit * s
+                break
+    turned: dict[str, float] = {}
+    for _ in range(int(pcfg.transfer_iterations) if kind == "top" else 0):
+        # each pass takes what the last left: a long sleeve's band follows the forearm, not the upper arm turned
+        turns = _transfer_turns(x, f, body, float(pcfg.transfer_min_deg))
+        if not turns:
+            break
+        x = _unpose(x, body, _arm_rotations(body, turns), int(pcfg.skin_neighbours))
+        for side, r in turns.items():
+            turned[side] = turned.get(side, 0.0) + float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
+    x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
+    placement = Placement(unit, name, kind, x.mean(0) - (p * unit).mean(0), False, turned, before,
+                          float(np.median(np.abs(_sdf(body, x)))), stats["inside"])
+    wrong = sits(x, f, body, pcfg, kind, lm)
+    if wrong is not None:
+        raise ValueError(f"{where}: placed on the body ({placement.unit_name}, shifted by "
+                         f"{np.round(placement.translation, 2).tolist()} m), the garment does not sit on it: {wrong}. "
+                         "Give its unit and frame by hand (garment.position_unit=..., garment.position_offset="
+                         "[x,y,z] in metres on the rest body: y up, root at the waist, x to the body's left)")
+    return x, placement
+
+
+def placed_mesh(path, gcfg, body: Body | None) -> tuple[ObjMesh, Placement | None]:
+    """A tool's garment OBJ as the importer takes it, in metres on the rest body: read (UVs optional), its
+    loose vertices dropped (counted in the log), placed (`place_garment`, when ``garment.placement.enabled``
+    and a body is given; else the stated unit and offset), and charted by projection when it has no UVs."""
+    where = str(path)
+    mesh, loose = drop_loose(read_obj(path, "garment OBJ", require_uv=False))
+    if loose:
+        log.info("%s: %d loose vertices (used by no face) dropped", where, loose)
+    pcfg = gcfg.get("placement")
+    placement = None
+    if body is not None and pcfg is not None and pcfg.get("enabled", False):
+        x, placement = place_garment(mesh.vertices, mesh.faces, body, gcfg, where)
+        log.info("%s: %s", where, "; ".join(placement.lines()))
+    else:
+        unit = gcfg.get("position_unit", "m")
+        x = (mesh.vertices * metres_per_unit("m" if unit in (None, "auto") else unit, "garment.position_unit")
+             + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0), np.float64))
+    mesh = replace(mesh, vertices=x)
+    if not len(mesh.uv):
+        mesh = projected_charts(mesh)
+        log.info("%s: no UVs: front and back charts made by projection", where)
+    return mesh, placement
