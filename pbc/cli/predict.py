@@ -31,7 +31,7 @@ EXAMPLES = """examples:
 """
 # the options that only a BVH clip takes, and their defaults
 MOTION_OPTIONS = {"bvh_map": "auto", "frames": None, "fps": None, "clamp_to_range": False, "video": "mp4",
-                  "no_glb": False}
+                  "no_glb": False, "allow_rest": False, "max_frames": None}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -64,9 +64,15 @@ def parser() -> argparse.ArgumentParser:
     motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): a mesh per frame, motion.mp4, garment.glb")
     motion.add_argument("--bvh-map", default="auto", metavar="TABLE",
                         help="the joint map: a table of conf/motion (" + ", ".join(shipped_joint_maps())
-                        + ") or a YAML file of that layout; auto (default): the shipped table knowing most joints")
+                        + ") or a YAML file of that layout; auto (default): a shipped table knowing every joint, "
+                        "else matched by name and structure (Mixamo, Bandai Namco, LAFAN1, Blender, ...; "
+                        "`pbc motion inspect CLIP` shows the match)")
     motion.add_argument("--frames", metavar="START:STOP:STEP", help="the clip's frames (a Python slice), e.g. 0:300:4")
     motion.add_argument("--fps", type=float, help="resample the selected frames at this rate (slerp)")
+    motion.add_argument("--allow-rest", action="store_true", help="go on when the body's arms, legs or spine "
+                        "match no joint of the clip (they stay at rest; refused otherwise)")
+    motion.add_argument("--max-frames", type=int, metavar="N", help="the most frames a request may make "
+                        "(default: max_frames of conf/motion/sequence.yaml, 100000)")
     motion.add_argument("--clamp-to-range", action="store_true", help="clamp joint angles into the training poses' "
                         "range before predicting (frames outside are flagged either way)")
     motion.add_argument("--video", choices=("mp4", "gif", "none"), default="mp4", help="body + garment video "
@@ -119,7 +125,8 @@ def run(argv: list[str]) -> int:
 
 def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
     """--poses clip.bvh: the clip read and checked whole before anything is written."""
-    motion = read_motion(args.poses, predictor.dataset, args.bvh_map, args.frames, args.fps)
+    motion = read_motion(args.poses, predictor.dataset, args.bvh_map, args.frames, args.fps, args.allow_rest,
+                         args.max_frames)
     if args.max is not None:
         motion = dataclasses.replace(motion, poses=motion.poses[:args.max], times=motion.times[:args.max],
                                      source_frames=motion.source_frames[:args.max])

@@ -47,6 +47,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--sequence", metavar="FILE", help="a pose sequence for the timeline: .npy of (N, 10, 3, 3) "
                                                        "or (N, 90) rotations, or a .bvh clip (joints mapped "
                                                        "automatically, as pbc predict --poses clip.bvh)")
+    ap.add_argument("--allow-rest", action="store_true", help="a .bvh sequence: go on when the body's arms, legs or "
+                    "spine match no joint of the clip (they stay at rest; refused otherwise)")
     ap.add_argument("--data", metavar="DIR", help="the runs' dataset, when it moved from where they recorded it")
     ap.add_argument("--host", default=str(cfg.host), help=f"address to serve on (default {cfg.host}: this "
                                                           "machine only)")
@@ -69,7 +71,7 @@ def run(argv: list[str]) -> int:
     predictor = ClothPredictor.from_runs(whole, args.patches, stitch, data_dir=args.data)
     if predictor.stitcher is not None and args.pca:
         predictor.stitcher.pca = load_pca(args.pca, dataset_hash(predictor.dataset.dir))
-    sequence, fps = load_sequence(args.sequence, predictor.dataset) if args.sequence else (None, None)
+    sequence, fps = load_sequence(args.sequence, predictor.dataset, args.allow_rest) if args.sequence else (None, None)
     viewer = start_viewer(predictor, args.host, args.port, sequence, cfg, sequence_fps=fps)
     print(f"pbc view: {url(viewer)}  (Ctrl-C stops it)", flush=True)
     try:

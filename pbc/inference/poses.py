@@ -16,9 +16,8 @@ from pbc.core.validate import as_poses
 from pbc.data.trimmed import recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
-from pbc.motion.bvh import read_bvh
 from pbc.motion.ranges import angle_range, range_from_record
-from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, parse_frames
+from pbc.motion.retarget import Motion, poses_from_clip
 
 log = logging.getLogger(__name__)
 
@@ -101,13 +100,14 @@ def posed_bodies(dataset, poses: Tensor, person=None, chunk: int = 64) -> Tensor
 
 
 def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frames: str | None = None,
-                fps: float | None = None) -> Motion:
-    """A BVH clip as the body's poses (Motion.poses (N, J, 3, 3)): its joints mapped by `joint_map` (a table
-    of conf/motion or a YAML file; "auto": the shipped table knowing most of its joints), `frames` a
-    START:STOP:STEP slice of its frames, resampled at `fps` (None: as selected). Bad files: one ValueError
-    naming the line and the fix (pbc.motion.bvh)."""
-    bvh = read_bvh(path)
-    return bvh_to_poses(bvh, dataset.body.skeleton, choose_joint_map(bvh, joint_map), parse_frames(frames), fps)
+                fps: float | None = None, allow_rest: bool = False, max_frames: int | None = None) -> Motion:
+    """A motion clip as the dataset's body's poses (Motion.poses (N, J, 3, 3)) through
+    `pbc.motion.retarget.poses_from_clip`: its joints matched by `joint_map` (a table of conf/motion or a YAML
+    file; "auto": a shipped table knowing every joint, else by name and structure), `frames` a START:STOP:STEP
+    slice of its frames, resampled at `fps` (None: as selected); the body's arms, legs or spine left undriven
+    refused unless `allow_rest`; more than `max_frames` poses refused (None: conf/motion/sequence.yaml's).
+    Bad files: one ValueError naming the line and the fix (pbc.motion.bvh)."""
+    return poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames)
 
 
 def training_pose_range(dataset) -> np.ndarray:

@@ -107,10 +107,10 @@ def error_colors(error_cm: np.ndarray, max_cm: float, colormap: str) -> np.ndarr
 # ----------------------------------------------------------------------------- sequences and ports
 
 
-def load_sequence(path: str | Path, dataset) -> tuple[Tensor, float | None]:
+def load_sequence(path: str | Path, dataset, allow_rest: bool = False) -> tuple[Tensor, float | None]:
     """A pose sequence for the timeline: an .npy of rotations ((N, J, 3, 3) or (N, J*9), checked by
     `pbc.inference.poses.read_poses`) or a .bvh clip (`pbc.inference.poses.read_motion`: joint map "auto", every
-    frame) ->
+    frame; `allow_rest`: go on when the body's arms, legs or spine match no joint of the clip) ->
     (poses (N, J, 3, 3) float32, the clip's frames a second, None for an .npy)."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -120,7 +120,7 @@ def load_sequence(path: str | Path, dataset) -> tuple[Tensor, float | None]:
     if not path.is_file():
         raise ValueError(f"sequence file {path} does not exist")
     if suffix == ".bvh":
-        motion = read_motion(path, dataset)
+        motion = read_motion(path, dataset, allow_rest=allow_rest)
         return torch.as_tensor(np.asarray(motion.poses), dtype=torch.float32), float(motion.fps)
     return read_poses(path, dataset)[0], None
 

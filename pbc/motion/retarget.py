@@ -295,8 +295,11 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
     if missing:
         notes.append(f"{len(missing)} body joints are not in the clip and stay at rest: {', '.join(missing)}")
 
+    limit = settings.max_frames if max_frames is None else max_frames
+    if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+        raise ValueError(f"--max-frames {limit!r}: give the most frames a request may make, an integer >= 1")
     idx = output_frames(bvh, frames, fps)
-    check_frame_count(bvh, idx, fps, int(settings.max_frames if max_frames is None else max_frames))
+    check_frame_count(bvh, idx, fps, limit)
 
     # the rest: the OFFSETs' layout; a skeleton lying flat (its orientation in the channels) takes frame 0's
     # posture as its rest instead, each joint's rotation then taken relative to frame 0's
