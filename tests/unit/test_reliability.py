@@ -258,3 +258,62 @@ def test_garment_fit_into_a_read_only_folder_names_it_and_the_flag(tmp_path, mon
                                               r"a writable folder with --out DIR"):
         Fit(garment, [], locked / "fit").inspect_and_check()
     assert not (locked / "fit").exists()
+
+
+# ============================================================================ finite geometry
+SQUARE = """# exported by Blender 4.2
+o Cloth
+v 0.0 0.0 0.0
+v 0.1 0.0 0.0
+v 0.1 0.1 0.0
+v 0.0 0.1 0.0
+vt 0.0 0.0
+vt 1.0 0.0
+vt 1.0 1.0
+vt 0.0 1.0
+vn 0.0 0.0 1.0
+s 0
+f 1/1/1 2/2/1 3/3/1 4/4/1
+"""
+
+
+@pytest.mark.parametrize(("line", "bad", "what"), [(4, "v nan nan nan", "vertex"),
+                                                   (8, "vt 1.0 inf", "texture coordinate"),
+                                                   (11, "vn 0.0 -nan 1.0", "normal")])
+def test_a_non_finite_vertex_uv_or_normal_is_refused_naming_the_line(tmp_path, line, bad, what, capsys):
+    from pbc.cli.garment import main as garment_main
+    from pbc.geometry.meshio import read_obj
+
+    lines = SQUARE.splitlines()
+    lines[line - 1] = bad
+    path = tmp_path / "shirt.obj"
+    path.write_text("\n".join(lines) + "\n")
+    (tmp_path / "ok.obj").write_text(SQUARE)
+    assert read_obj(tmp_path / "ok.obj").vertices.shape == (4, 3)
+    with pytest.raises(ValueError, match=rf"{path}: line {line}: the {what} .* is not finite \(NaN or inf\)"):
+        read_obj(path)
+    assert exit_code(garment_main, ["inspect", str(path)]) == 2  # the door users meet: one line, no table
+    err = capsys.readouterr()
+    assert f"line {line}: the {what}" in err.err and "not finite" in err.err and not err.out
+
+
+def test_a_body_file_with_a_nan_is_refused_naming_the_array_and_row(tmp_path, body):
+    from pbc.geometry.body.base import load_body, save_body
+
+    save_body(body, tmp_path / "ok.npz")
+    assert load_body(tmp_path / "ok.npz").vertices.shape == body.vertices.shape
+    broken = body.vertices.clone()
+    broken[7, 1] = float("nan")
+    save_body(type(body)(**{**body.__dict__, "vertices": broken}), tmp_path / "nan.npz")
+    with pytest.raises(ValueError, match=r"nan.npz: array 'vertices' is not finite \(NaN or inf\) in row\(s\) 7;"):
+        load_body(tmp_path / "nan.npz")
+
+
+def test_a_binary_file_given_as_an_obj_names_the_file(tmp_path, capsys):
+    from pbc.cli.garment import main as garment_main
+
+    path = tmp_path / "shirt.obj"
+    path.write_bytes(bytes(range(256)) * 4)  # random bytes: not UTF-8
+    assert exit_code(garment_main, ["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "not a text OBJ file" in err

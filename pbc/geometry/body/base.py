@@ -172,6 +172,8 @@ _KEYS = (
     "limits_deg", "rest_frames", "prim_names", "prim_kind", "prim_bone", "prim_a", "prim_b",
     "prim_radii", "prim_parts", "blend_radius",
 )  # fmt: skip
+_FLOAT_KEYS = ("vertices", "weights", "rest_heads", "limits_deg", "rest_frames", "prim_a", "prim_b", "prim_radii",
+               "blend_radius")
 
 
 def save_body(body: Body, path) -> None:
@@ -218,6 +220,14 @@ def load_body(path) -> Body:
         raise ValueError(f"{path} is not a valid body file: {e}") from e
     if int(a["format_version"]) != BODY_FORMAT_VERSION:
         raise ValueError(f"{path}: body format {int(a['format_version'])}, expected {BODY_FORMAT_VERSION}")
+    for key in _FLOAT_KEYS:  # a NaN vertex or joint poses and skins every drape into NaN, far from its cause
+        values = np.asarray(a[key], np.float64)
+        rows = np.flatnonzero(~np.isfinite(values.reshape(len(values), -1) if values.ndim else values.reshape(1, 1))
+                              .all(1))
+        if rows.size:
+            raise ValueError(f"{path}: array {key!r} is not finite (NaN or inf) in row(s) "
+                             f"{', '.join(map(str, rows[:5].tolist()))}{' ...' if rows.size > 5 else ''}; "
+                             "write the body again (save_body) from finite arrays")
     skel = Skeleton(
         names=tuple(str(n) for n in a["joint_names"]),
         parents=tuple(int(p) for p in a["parents"]),
