@@ -65,7 +65,7 @@ def drop_loose(mesh: ObjMesh) -> tuple[ObjMesh, int]:
 
 
 def projected_charts(mesh: ObjMesh) -> ObjMesh:
-    """UVs for a mesh without any (vertices in metres on the body: y up, z forward): the front and back
+    """UVs for a mesh without any (its vertices as modelled, any unit: y up, z forward): the front and back
     projections, as pbc's own shirt is laid out. A face whose outward normal points forward goes to the
     ``front`` chart at (x, y), the others to ``back`` at (-x, y); a vertex on the border between them keeps one
     UV in each. The projection never folds (a face's side is the sign of its projected area)."""

@@ -37,7 +37,7 @@ from pbc.geometry.body.skeleton import forward_kinematics
 from pbc.geometry.garment.checks import sleeve_axes
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
-from pbc.geometry.meshops import boundary_loops, push_out
+from pbc.geometry.meshops import boundary_loops, mesh_pieces, push_out
 from pbc.geometry.units import UNITS, metres_per_unit
 
 log = logging.getLogger(__name__)
@@ -289,23 +289,24 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
 
 def placed_mesh(path, gcfg, body: Body | None) -> tuple[ObjMesh, Placement | None]:
     """A tool's garment OBJ as the importer takes it, in metres on the rest body: read (UVs optional), its
-    loose vertices dropped (counted in the log), placed (`place_garment`, when ``garment.placement.enabled``
-    and a body is given; else the stated unit and offset), and charted by projection when it has no UVs."""
+    loose vertices dropped (counted in the log), charted by projection as modelled when it has no UVs, and placed
+    (`place_garment`, when ``garment.placement.enabled``, a body is given and the mesh is one piece; else the
+    stated unit and offset)."""
     where = str(path)
     mesh, loose = drop_loose(read_obj(path, "garment OBJ", require_uv=False))
     if loose:
         log.info("%s: %d loose vertices (used by no face) dropped", where, loose)
+    if not len(mesh.uv):  # projected as modelled (the garment's own pose: an A-posed sleeve would cover the side)
+        mesh = projected_charts(mesh)
+        log.info("%s: no UVs: front and back charts made by projection", where)
     pcfg = gcfg.get("placement")
     placement = None
-    if body is not None and pcfg is not None and pcfg.get("enabled", False):
+    several = int(mesh_pieces(mesh.faces, len(mesh.vertices)).max()) + 1 > 1  # an outfit: split it first (checks)
+    if body is not None and pcfg is not None and pcfg.get("enabled", False) and not several:
         x, placement = place_garment(mesh.vertices, mesh.faces, body, gcfg, where)
         log.info("%s: %s", where, "; ".join(placement.lines()))
     else:
         unit = gcfg.get("position_unit", "m")
         x = (mesh.vertices * metres_per_unit("m" if unit in (None, "auto") else unit, "garment.position_unit")
              + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0), np.float64))
-    mesh = replace(mesh, vertices=x)
-    if not len(mesh.uv):
-        mesh = projected_charts(mesh)
-        log.info("%s: no UVs: front and back charts made by projection", where)
-    return mesh, placement
+    return replace(mesh, vertices=x), placement

@@ -1,0 +1,117 @@
+"""A garment from another ecosystem lands where pbc's own shirt sits on the body (pbc.geometry.garment.placement):
+the four files of tests/helpers/ecosystems.py (a SMPL-frame T-pose top, a 3x-scale pattern tee in centimetres
+with loose vertices, a shirt without UVs, a decimetre A-pose shirt) on Anny in its A-pose and its T-pose, and
+what is refused in one line. No drapes here (tests/integration/test_garment_fit.py fits them)."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from pbc.cli.garment import run
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment.checks import sleeve_axes
+from pbc.geometry.garment.placement import openings, placed_mesh
+from pbc.geometry.meshio import read_obj
+from tests.helpers.ecosystems import ECOSYSTEMS, LOOSE, shirt
+
+
+@pytest.fixture(scope="module", params=["anny", "anny_tpose"])
+def world(request, tmp_path_factory):
+    """(body name, body, garment config, folder with the four files and `ref.obj`: pbc's shirt as it sits)."""
+    folder = tmp_path_factory.mktemp(request.param)
+    for name, make in ECOSYSTEMS.items():
+        (folder / f"{name}.obj").write_text(make(), newline="")
+    p, f, _, _ = shirt()
+    (folder / "ref.obj").write_text("\n".join([f"v {x} {y} {z}" for x, y, z in p]
+                                              + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]) + "\n")
+    cfg = load_config([f"body={request.param}", "garment=obj", "garment.obj=x"])
+    return request.param, body_from_config(cfg.body), cfg.garment, folder
+
+
+def test_each_garment_lands_within_a_few_centimetres_of_pbcs_shirt(world):
+    name, body, gcfg, folder = world
+    ref, _ = placed_mesh(folder / "ref.obj", gcfg, body)
+    torso = np.abs(ref.vertices[:, 0]) < 0.2
+    for garment in ("pattern_tee", "no_uv_shirt", "a_pose_shirt"):  # pbc's coarse shirt, vertex for vertex
+        mesh, placement = placed_mesh(folder / f"{garment}.obj", gcfg, body)
+        d = np.linalg.norm(mesh.vertices - ref.vertices, axis=1)
+        assert d[torso].mean() < 0.03 and d.mean() < 0.03, (name, garment, d.mean())
+        assert not placement.kept
+    assert placed_mesh(folder / "pattern_tee.obj", gcfg, body)[1].unit_name == "odd scale"
+    assert placed_mesh(folder / "a_pose_shirt.obj", gcfg, body)[1].unit_name == "dm"
+    # the long-sleeve top has more vertices: its collar where the shirt's is, 25 cm above SMPL's
+    top, placement = placed_mesh(folder / "smpl_top.obj", gcfg, body)
+    collar = openings(top.vertices, top.faces)[0]["centre"]
+    assert np.linalg.norm(collar - openings(ref.vertices, ref.faces)[0]["centre"]) < 0.02
+    assert placement.translation[1] > 0.2
+
+
+def test_sleeves_are_turned_onto_the_rest_arms(world):
+    name, body, gcfg, folder = world
+    # the T-pose top on the A-posed body, the A-pose shirt on the T-posed one: off by 35-50 degrees as given
+    garment = "smpl_top" if name == "anny" else "a_pose_shirt"
+    mesh, placement = placed_mesh(folder / f"{garment}.obj", gcfg, body)
+    assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
+    axes = sleeve_axes(mesh.vertices, mesh.faces, body)
+    assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
+
+
+def test_loose_vertices_are_dropped_and_counted_and_a_mesh_without_uvs_gets_front_and_back(world, caplog):
+    name, body, gcfg, folder = world
+    with caplog.at_level(logging.INFO):
+        tee, _ = placed_mesh(folder / "pattern_tee.obj", gcfg, body)
+    assert f"{LOOSE} loose vertices (used by no face) dropped" in caplog.text
+    assert len(tee.vertices) == len(shirt()[0])
+    plain, _ = placed_mesh(folder / "no_uv_shirt.obj", gcfg, body)
+    assert plain.groups == ["front", "back"] and len(plain.uv) > len(plain.vertices)
+    cfg = load_config([f"body={name}", "garment=obj", f"garment.obj={folder / 'no_uv_shirt.obj'}"])
+    garment, cage = garment_from_config(cfg.garment, body)
+    assert set(garment.face_side.tolist()) == {0, 1} and len(cage.patches) > 1
+
+
+def test_inspect_out_writes_fitted_obj_the_placed_garment(world, tmp_path, capsys):
+    name, body, gcfg, folder = world
+    assert run(["inspect", str(folder / "smpl_top.obj"), f"body={name}", "--out", str(tmp_path), "--no-wrap"]) == 0
+    text = capsys.readouterr().out
+    assert "placement (top): unit m" in text and "median distance to the rest body" in text
+    fitted = read_obj(tmp_path / "fitted.obj")
+    placed, _ = placed_mesh(folder / "smpl_top.obj", gcfg, body)
+    assert np.abs(fitted.vertices - placed.vertices).max() < 1e-5
+    assert (tmp_path / "on_body.png").is_file()
+
+
+def _sphere(radius: float = 0.3, n: int = 12) -> str:
+    th, ph = np.meshgrid(np.linspace(0.1, np.pi - 0.1, n), np.linspace(0, 2 * np.pi, n, endpoint=False))
+    p = np.stack([np.sin(th) * np.cos(ph), np.cos(th), np.sin(th) * np.sin(ph)], -1).reshape(-1, 3) * radius
+    p = np.vstack([p, [0, radius, 0], [0, -radius, 0]])
+    lines = [f"v {x} {y} {z}" for x, y, z in p]
+    for i in range(n):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, ((i + 1) % n) * n + j, ((i + 1) % n) * n + j + 1, i * n + j + 1
+            lines += [f"f {a + 1} {b + 1} {c + 1}", f"f {a + 1} {c + 1} {d + 1}"]
+        lines += [f"f {len(p) - 1} {((i + 1) % n) * n + 1} {i * n + 1}",
+                  f"f {len(p)} {i * n + n} {((i + 1) % n) * n + n}"]
+    return "\n".join(lines) + "\n"
+
+
+def test_what_is_not_a_garment_on_this_body_is_refused_in_one_line(world, tmp_path):
+    name, body, gcfg, folder = world
+    sphere = tmp_path / "ball.obj"
+    sphere.write_text(_sphere())
+    with pytest.raises(ValueError, match=r"ball.obj: a closed surface is not a garment") as err:
+        placed_mesh(sphere, gcfg, body)
+    assert "\n" not in str(err.value)
+    huge = load_config([f"body={name}", "garment=obj", "garment.obj=x", "garment.position_unit=m"]).garment
+    (tmp_path / "huge.obj").write_text(ECOSYSTEMS["pattern_tee"]())
+    with pytest.raises(ValueError, match=r"far larger than any body"):
+        placed_mesh(tmp_path / "huge.obj", huge, body)
+    p, f, _, _ = shirt()  # a shirt blown up 3x and stated in metres: it registers, but hangs off the body
+    (tmp_path / "tent.obj").write_text("\n".join([f"v {x} {y} {z}" for x, y, z in 3 * p]
+                                                 + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]) + "\n")
+    with pytest.raises(ValueError, match=r"tent.obj: placed on the body .* does not sit on it"):
+        placed_mesh(tmp_path / "tent.obj", huge, body)
