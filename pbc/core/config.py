@@ -47,6 +47,8 @@ def override_hint(message: str, overrides: list[str], config_name: str = "config
     key = message.split("'")[1] if message.startswith("Could not override '") else None
     if key is None:
         return suggest_config_key(message)
+    if (CONF_DIR / key.lstrip("+~").replace(".", "/")).is_dir():
+        return None  # a config group outside the defaults (scale=paper): Hydra's "+scale=paper" is the fix
     others = [a for a in overrides if "=" in a and not a.lstrip("+~").startswith(key + "=")
               and not a.startswith(("hydra.", "hydra/", "-"))]
     try:

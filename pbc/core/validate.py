@@ -279,6 +279,31 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     problems += _unknown_trainer_keys(cfg)
     if problems:
         raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
+    check_work_bounds(cfg)
+
+
+def check_work_bounds(cfg: Any) -> None:
+    """Refuse work a typo can ask for (`data.num_samples=2000000`, `image.whole_resolution=65536`): past the
+    config's `limits` (conf/config.yaml), one ValueError saying how much it would make and the override that
+    goes on. A config without `limits` (composed by hand) is not bounded."""
+    present, limits = _get(cfg, "limits")
+    if not present or limits is None:
+        return
+    _, samples = _get(cfg, "data.num_samples")
+    top = limits.get("max_samples")
+    if top is not None and _is_int(samples) and samples > top:
+        raise ValueError(f"data.num_samples={samples} would drape and store {samples:,} samples (one file each while "
+                         f"generating), over limits.max_samples={top}: if you meant it, add "
+                         f"limits.max_samples={samples}")
+    top = limits.get("max_image_resolution")
+    for key, channels in (("whole_resolution", 6), ("patch_resolution", 6), ("reference_resolution", 6)):
+        _, res = _get(cfg, f"image.{key}")
+        if top is not None and _is_int(res) and res > top:
+            size = channels * res * res * 4
+            raise ValueError(f"image.{key}={res} would make images of {res} x {res} pixels ({size / 2**30:,.1f} GiB "
+                             f"a float32 image of {channels} channels; every sample is rendered at it), over "
+                             f"limits.max_image_resolution={top}: if you meant it, add "
+                             f"limits.max_image_resolution={res}")
 
 
 # the trainer node's _target_ values whose keys are lightning.Trainer's keyword arguments

@@ -317,3 +317,25 @@ def test_a_binary_file_given_as_an_obj_names_the_file(tmp_path, capsys):
     assert exit_code(garment_main, ["inspect", str(path)]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "not a text OBJ file" in err
+
+
+# ============================================================================ bounds on work
+def test_work_past_the_limits_is_refused_saying_how_much_and_the_override(tmp_path, monkeypatch, capsys):
+    from pbc.cli.generate import main as generate_main
+    from pbc.core.validate import check_config
+
+    monkeypatch.chdir(tmp_path)
+    assert exit_code(generate_main, ["data=tshirt_tiny", "data.num_samples=2000000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("pbc generate: error: data.num_samples=2000000 would drape and store 2,000,000 samples (one file "
+                   "each while generating), over limits.max_samples=100000: if you meant it, add "
+                   "limits.max_samples=2000000")
+    assert not (tmp_path / "data").exists()
+    with pytest.raises(ValueError, match=r"image.patch_resolution=8192 would make images of 8192 x 8192 pixels "
+                                         r"\(1.5 GiB .*add limits.max_image_resolution=8192"):
+        check_config(load_config(["image.patch_resolution=8192"]))
+    # the override given goes on; the shipped paper scale is inside the limits
+    check_config(load_config(["image.patch_resolution=8192", "limits.max_image_resolution=8192"]))
+    check_config(load_config(["data=tshirt_paper", "+scale=paper"]))
+    with pytest.raises(Exception, match=r"\+scale=paper"):  # a group: Hydra's "+" advice is the right one
+        load_config(["scale=paper"])
