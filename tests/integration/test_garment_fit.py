@@ -31,6 +31,7 @@ from pbc.core.config import load_config  # noqa: E402
 from pbc.geometry.body import body_from_config  # noqa: E402
 from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
 from pbc.geometry.meshops import surface_distance  # noqa: E402
+from tests.helpers.ecosystems import ECOSYSTEMS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)
@@ -224,3 +225,20 @@ def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
     assert manifest["counts"]["kept"] >= 3 and manifest["shrinkwrap"]["patch_stretch_max"] < 2.0
     assert json.loads((fit / "whole" / "metrics.json").read_text())["status"] == "ok"
     assert (fit / "preview" / "contact_sheet.png").is_file() and "test vertex error over" in res.stdout
+
+
+def test_each_ecosystems_garment_is_fitted_where_it_belongs(tmp_path):
+    # tests/helpers/ecosystems.py: a SMPL-frame T-pose top and a decimetre A-pose shirt each on the body of the
+    # other rest pose, the 3x-scale pattern tee (loose vertices) and the shirt without UVs; placement, the
+    # checks, a few drapes, a smoke model, the preview. tests/unit/test_placement.py measures the placements
+    bodies = {"smpl_top": "anny", "pattern_tee": "anny_tpose", "no_uv_shirt": "anny", "a_pose_shirt": "anny_tpose"}
+    for name, make in ECOSYSTEMS.items():
+        garment = tmp_path / f"{name}.obj"
+        garment.write_text(make(), newline="")
+        out = tmp_path / "fit" / name
+        res = subprocess.run(["pbc", "garment", "fit", str(garment), f"body={bodies[name]}", *TINY,
+                              "--out", str(out), "--samples", SKIRT_SAMPLES], env=_env(tmp_path),
+                             capture_output=True, text=True, timeout=900)
+        assert res.returncode == 0, (name, res.stdout[-2000:], res.stderr[-2000:])
+        assert "placement (top)" in (out / "inspect" / "report.txt").read_text()
+        assert (out / "inspect" / "fitted.obj").is_file() and (out / "preview" / "predict.json").is_file()
