@@ -15,6 +15,8 @@ dragged slider shows its latest value rather than replaying every intermediate o
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
 import socket
 import sys
 import threading
@@ -417,6 +419,46 @@ class ClothViewer:
             self._player.join(timeout=10)
 
 
+def is_loopback(host: str) -> bool:
+    """Whether `host` is this machine only (127.0.0.0/8, ::1, localhost): nothing else can reach it."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a name: what it resolves to
+        try:
+            return ipaddress.ip_address(socket.gethostbyname(host)).is_loopback
+        except (OSError, ValueError):
+            return False
+
+
+def machine_address() -> str:
+    """This machine's address as other machines on its network see it: the source address of the default
+    route (a UDP socket is connected, nothing is sent), else the host name's address, else its name."""
+    with contextlib.suppress(OSError), socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.connect(("10.255.255.255", 1))
+        addr = s.getsockname()[0]
+        if not ipaddress.ip_address(addr).is_loopback and addr != "0.0.0.0":
+            return addr
+    with contextlib.suppress(OSError):
+        addr = socket.gethostbyname(socket.gethostname())
+        if not ipaddress.ip_address(addr).is_loopback:
+            return addr
+    return socket.gethostname()
+
+
+def network_warning(host: str, port: int) -> str | None:
+    """One line when the viewer serves more than this machine (it has no login), with the address to open."""
+    if is_loopback(host):
+        return None
+    where = machine_address() if host in WILDCARD_HOSTS else host
+    return (f"warning: the viewer on {host} is reachable from the network and has no login: anyone who can reach "
+            f"this machine can use it (--host 127.0.0.1 keeps it to this machine); open http://{where}:{port}/")
+
+
+WILDCARD_HOSTS = ("0.0.0.0", "::", "")  # every interface: no address to open as such
+
+
 def start_viewer(predictor: ClothPredictor, host: str | None = None, port: int | None = None,
                  sequence: Tensor | None = None, cfg=None, log=print,
                  sequence_fps: float | None = None) -> ClothViewer:
@@ -431,6 +473,9 @@ def start_viewer(predictor: ClothPredictor, host: str | None = None, port: int |
     server = viser.ViserServer(host=host, port=got, verbose=False)
     if got and server.get_port() != got:  # taken between the check and the bind: viser moved on by itself
         log(f"port {got} on {host} was taken meanwhile; the viewer is on {server.get_port()}")
+    warning = network_warning(host, server.get_port())
+    if warning:
+        log(warning)
     try:
         return ClothViewer(server, predictor, cfg, sequence, log, sequence_fps)
     except BaseException:
@@ -440,7 +485,8 @@ def start_viewer(predictor: ClothPredictor, host: str | None = None, port: int |
 
 def url(viewer: ClothViewer) -> str:
     host = viewer.server.get_host()
-    return f"http://{'localhost' if host in ('127.0.0.1', '::1', 'localhost') else host}:{viewer.server.get_port()}/"
+    shown = "localhost" if is_loopback(host) else machine_address() if host in WILDCARD_HOSTS else host
+    return f"http://{shown}:{viewer.server.get_port()}/"
 
 
 def wait_forever(viewer: ClothViewer, poll_s: float = 1.0) -> None:

@@ -339,3 +339,29 @@ def test_work_past_the_limits_is_refused_saying_how_much_and_the_override(tmp_pa
     check_config(load_config(["data=tshirt_paper", "+scale=paper"]))
     with pytest.raises(Exception, match=r"\+scale=paper"):  # a group: Hydra's "+" advice is the right one
         load_config(["scale=paper"])
+
+
+# ============================================================================ the viewer on the network
+def test_a_viewer_serving_the_network_warns_in_one_line_and_gives_the_address_to_open(tmp_path):
+    from test_view import tiny_predictor
+
+    from pbc.jobs.view import machine_address, start_viewer, url
+
+    predictor = tiny_predictor(tmp_path / "fake")
+    for host, warned in (("0.0.0.0", True), ("127.0.0.1", False)):
+        said: list[str] = []
+        viewer = start_viewer(predictor, host, 0, log=said.append)
+        try:
+            link = url(viewer)
+        finally:
+            viewer.close()
+            viewer.server.stop()
+        warnings = [s for s in said if "reachable from the network" in s]
+        assert len(warnings) == (1 if warned else 0), said
+        assert "0.0.0.0" not in link
+        if warned:
+            assert "\n" not in warnings[0] and "no login" in warnings[0]
+            assert warnings[0].endswith(f"open http://{machine_address()}:{viewer.server.get_port()}/")
+            assert link == f"http://{machine_address()}:{viewer.server.get_port()}/"
+        else:
+            assert link.startswith("http://localhost:")
