@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "garment": ("garment", "a garment file: inspect (charts, fit, settings), split (an outfit), fit (file -> model)"),
     "view": ("view", "a local web viewer: body + predicted garment under joint sliders, in the browser"),
     "pretrained": ("pretrained", "the models shipped with pbc (--pretrained NAME): list them, pack a run as one"),
+    "motion": ("motion", "a motion clip: inspect (dialect, units, rest pose, joint match, a figure)"),
 }
 
 

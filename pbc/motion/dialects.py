@@ -183,7 +183,7 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
         named_mid = [i for i, k in enumerate(chain) if parts[k][1] in syn[mid_role]]
         named_end = [i for i, k in enumerate(chain) if parts[k][1] in syn[end_role]]
         if named_mid and named_mid[0] >= 1:
-            k, reason = named_mid[0], f"named {mid_role}"
+            k, reason = named_mid[0], f"named {mid_role.replace('_', ' ')}"
         elif named_end and named_end[0] >= 2:
             k, reason = named_end[0] - 1, f"the parent of the {end_role} (named {end_role})"
         elif len(chain) >= 3:  # no telling name: the middle of the two longest consecutive links
@@ -202,8 +202,9 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
             j = chain[i]
             joints[str(limb[role])] = names[j]
             why[str(limb[role])] = (reason if role == mid_role else
-                                    f"{role.replace('_', ' ')}: {'parent' if i < k else 'child'} of "
-                                    f"{names[chain[k]]} on the {'left' if side == 'l' else 'right'} {kind}'s chain")
+                                    f"{'parent' if i == k - 1 else 'grandparent' if i == k - 2 else 'child'} of "
+                                    f"{names[chain[k]]} ({reason}) on the {'left' if side == 'l' else 'right'} "
+                                    f"{kind}'s chain")
             if i + 1 < len(chain):
                 toward[names[j]] = names[chain[i + 1]]
 

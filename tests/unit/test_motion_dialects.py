@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.cli import exit_code
 from helpers.mocap import DIALECTS, clip_text, expected_map
 from omegaconf import OmegaConf
 
@@ -191,3 +192,32 @@ def test_a_request_of_too_many_frames_is_refused_with_the_count(tmp_path):
 def test_settings_files_are_not_tables():
     with pytest.raises(ValueError, match="holds settings, not a joint map"):
         load_joint_map("dialects")
+
+
+def test_pbc_motion_inspect_prints_the_match_and_draws_the_figure(tmp_path, capsys):
+    from PIL import Image
+
+    from pbc.cli.motion import main
+
+    clip = tmp_path / "walk.bvh"
+    clip.write_text(clip_text("bandai", n_frames=3, max_deg=20.0))
+    out = tmp_path / "walk.png"
+    coarse = "body.mesh.voxel_size=0.04"
+    assert exit_code(main, ["inspect", str(clip), coarse, "--out", str(out), "--frame", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "dialect: Bandai Namco; units: cm" in printed and "rest pose: flat" in printed
+    row = next(line for line in printed.splitlines() if line.startswith("l_arm "))
+    assert row.split()[1] == "UpperArm_L" and "named forearm" in row
+    assert f"figure: {out} (frame 1)" in printed
+    img = np.asarray(Image.open(out).convert("L"), dtype=float)
+    assert img.shape[1] > img.shape[0] > 400 and img.std() > 10  # two panels, something drawn
+    # a clip the body's arms cannot follow with the CMU table: shown, and said to be refused elsewhere
+    assert exit_code(main, ["inspect", str(clip), coarse, "--bvh-map", "cmu_mb", "--no-figure"]) == 0
+    assert "refused by pbc predict / view / data.poses: the body's l_arm, r_arm" in capsys.readouterr().out
+    # a bad file: one line, exit 2, nothing written
+    bad = tmp_path / "bad.bvh"
+    bad.write_text(clip.read_text().replace("JOINT Chest", "JOINT Spine"))
+    assert exit_code(main, ["inspect", str(bad), coarse, "--out", str(tmp_path / "bad.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pbc motion: error: {bad}:") and "used twice" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad.png").exists()

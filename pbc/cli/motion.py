@@ -1,0 +1,63 @@
+"""`pbc motion inspect CLIP.bvh [body overrides]`: what pbc makes of a motion clip, before predicting with it.
+
+    pbc motion inspect walk.bvh                        # the mannequin; the figure at the clip's middle frame
+    pbc motion inspect walk.bvh body=anny --frame 40 --out walk.png
+    pbc motion inspect walk.bvh --bvh-map my_rig.yaml  # a joint map of your own (conf/motion/cmu_mb.yaml's layout)
+
+Prints the clip's dialect, units, skeleton height and rest pose, the match (body joint <- clip joint, and
+why), the clip joints that drive nothing, and whether `pbc predict`, `pbc view` and `data.poses` would
+refuse it (a body arm, leg or spine matched to no joint); writes a PNG of the clip's skeleton at a frame
+beside the body posed by it (--out; default <clip name>.inspect.png in the current folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pbc.cli.errors import entry_point
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.motion.bvh import check_skeleton, read_bvh
+from pbc.motion.inspect import clip_figure, describe
+from pbc.motion.retarget import bvh_to_poses, choose_joint_map
+
+
+def run(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="pbc motion", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("action", choices=("inspect",))
+    ap.add_argument("clip", help="a .bvh motion clip")
+    ap.add_argument("overrides", nargs="*", help="Hydra overrides of the body, e.g. body=anny")
+    ap.add_argument("--bvh-map", default="auto", metavar="TABLE", help="a table of conf/motion or a YAML file of "
+                    "that layout; auto (default): a shipped table knowing every joint, else by name and structure")
+    ap.add_argument("--frame", type=int, metavar="K", help="the clip frame of the figure (default: the middle one)")
+    ap.add_argument("--out", help="the PNG to write (default: <clip name>.inspect.png here)")
+    ap.add_argument("--no-figure", action="store_true", help="the report only")
+    args = ap.parse_args(argv)
+    clip = Path(args.clip)
+    if clip.suffix.lower() != ".bvh":
+        raise ValueError(f"{clip}: give a .bvh motion clip")
+    out = Path(args.out or f"{clip.stem}.inspect.png")
+    if not args.no_figure and out.suffix.lower() != ".png":
+        raise ValueError(f"--out {out}: give a .png file name")
+    bvh = read_bvh(clip)
+    check_skeleton(bvh)
+    frame = bvh.num_frames // 2 if args.frame is None else args.frame
+    if not -bvh.num_frames <= frame < bvh.num_frames:
+        raise ValueError(f"--frame {frame}: {clip} has frames 0 to {bvh.num_frames - 1}")
+    frame %= bvh.num_frames
+    body = body_from_config(load_config(args.overrides).body)
+    # the whole report, even when predict would refuse the clip: that is what a user inspects it for
+    motion = bvh_to_poses(bvh, body.skeleton, choose_joint_map(bvh, args.bvh_map), slice(frame, frame + 1),
+                          allow_rest=True)
+    print("\n".join(describe(bvh, motion, body.skeleton)))
+    if not args.no_figure:
+        print(f"figure: {clip_figure(out, bvh, motion, body, 0)} (frame {frame})")
+    return 0
+
+
+main = entry_point("motion", run)
+
+if __name__ == "__main__":
+    main()
