@@ -135,10 +135,9 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None, what:
         raise ValueError(f"{what} {path} is corrupt or truncated ({type(err).__name__}: {err}); {fix}") from err
 
 
-def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu") -> dict:
-    """`torch.load` of a Lightning checkpoint with one clear error naming the file when it is corrupt."""
-
-
+def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu", fix: str = "") -> dict:
+    """`torch.load` of a Lightning checkpoint with one clear error naming the file when it is corrupt, and
+    `fix` (default: resume from another checkpoint of the run, or train again)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
@@ -146,8 +145,9 @@ def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu") -> dict:
         ck = torch.load(path, map_location=map_location, weights_only=False)
     except (RuntimeError, EOFError, OSError, ValueError, pickle.UnpicklingError, zipfile.BadZipFile) as err:
         raise ValueError(
-            f"checkpoint {path} is corrupt or truncated ({type(err).__name__}: {err}); delete it and resume from "
-            "another checkpoint of the run (checkpoints/epoch_*.ckpt) or train again"
+            f"checkpoint {path} is corrupt or truncated ({type(err).__name__}: {err}); "
+            + (fix or "delete it and resume from another checkpoint of the run (checkpoints/epoch_*.ckpt) or train "
+               "again")
         ) from err
     if not isinstance(ck, dict) or "state_dict" not in ck:
         raise ValueError(f"{path} is not a Lightning checkpoint (no state_dict); pass a .ckpt written by pbc.train")

@@ -28,7 +28,7 @@ from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.operators import image_sizes
 from pbc.pixels.target import dataset_skinner, image_operators, make_target, patch_crops
-from pbc.pretrained import pretrained_dir, resolve_run
+from pbc.pretrained import pretrained_dir, repair_advice, resolve_run, shipped_model_of
 from pbc.stitch.pca import check_pca_matches, dataset_hash, fit_pca
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE, build_stitcher
 
@@ -101,7 +101,8 @@ def predictor_precision(precision: str, device: str | torch.device) -> str:
 def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
     """The network of a ClothModule checkpoint, in eval mode, and the checkpoint's hparams."""
 
-    ck = load_checkpoint(checkpoint)  # a corrupt file is named, with the fix
+    shipped = shipped_model_of(checkpoint)  # a shipped model has no other checkpoint to fall back on
+    ck = load_checkpoint(checkpoint, fix=repair_advice(shipped) if shipped else "")  # a corrupt file is named
     hp = ck["hyper_parameters"]
     net = instantiate(hp["net"])
     state = {k[4:]: v for k, v in ck["state_dict"].items() if k.startswith("net.")}

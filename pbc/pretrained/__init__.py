@@ -38,3 +38,19 @@ def resolve_run(run):
     if isinstance(run, str) and run.startswith(PREFIX):
         return pretrained_dir(run[len(PREFIX):])
     return run
+
+
+def shipped_model_of(path) -> str | None:
+    """The name of the shipped model whose folder holds `path` (a file or dir), None for any other path."""
+    try:
+        rel = Path(path).resolve().relative_to(SHIPPED_DIR)
+    except ValueError:
+        return None
+    return rel.parts[0] if rel.parts and (SHIPPED_DIR / rel.parts[0] / "metrics.json").is_file() else None
+
+
+def repair_advice(name: str) -> str:
+    """How to get a damaged shipped model back: it has no other checkpoint to fall back on, and no run to retrain."""
+    return (f"it belongs to the model {name!r} shipped with pbc, damaged on disk: reinstall pbc (pip install "
+            f"--force-reinstall pbc; in a clone, git checkout -- pbc/pretrained/{name}) or pack it again from its "
+            f"training run (pbc pretrained pack RUN --name {name})")

@@ -365,3 +365,25 @@ def test_a_viewer_serving_the_network_warns_in_one_line_and_gives_the_address_to
             assert link == f"http://{machine_address()}:{viewer.server.get_port()}/"
         else:
             assert link.startswith("http://localhost:")
+
+
+# ============================================================================ messages
+def test_a_shipped_models_corrupt_weights_advise_reinstalling_not_an_epoch_it_lacks(tmp_path, monkeypatch):
+    import pbc.pretrained
+    from pbc.inference.predictor import load_decoder
+
+    shipped = tmp_path / "pretrained"
+    weights = shipped / "tshirt" / "checkpoints" / "weights_fp16.ckpt"
+    weights.parent.mkdir(parents=True)
+    (shipped / "tshirt" / "metrics.json").write_text("{}")
+    weights.write_bytes(b"PK\x03\x04 truncated")
+    monkeypatch.setattr(pbc.pretrained, "SHIPPED_DIR", shipped)
+    with pytest.raises(ValueError, match=r"weights_fp16.ckpt is corrupt or truncated .* shipped with pbc, damaged on "
+                                         r"disk: reinstall pbc .*pbc pretrained pack RUN --name tshirt") as err:
+        load_decoder(weights)
+    assert "epoch_" not in str(err.value)
+    own = tmp_path / "run" / "checkpoints" / "last.ckpt"  # a trained run's: its other checkpoints are the fix
+    own.parent.mkdir(parents=True)
+    own.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(ValueError, match=r"resume from another checkpoint of the run \(checkpoints/epoch_\*.ckpt\)"):
+        load_decoder(own)
