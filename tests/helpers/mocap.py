@@ -15,7 +15,10 @@ offsets along +X like Bandai's, 3 rotation channels. Blender's exporter: the arm
 from __future__ import annotations
 
 import numpy as np
+import torch
 from scipy.spatial.transform import Rotation
+
+from pbc.geometry.body.skeleton import forward_kinematics
 
 # (key, parent key, T-pose head in metres: x left, y up, z forward); the spine and neck are filled per dialect
 LIMBS = [
@@ -207,3 +210,37 @@ def key_of(dialect: str, prefix: str | None = None) -> dict[str, str]:
     """clip joint name -> the skeleton key (l_upper, spine0, ...)."""
     joints, _ = skeleton(dialect, prefix)
     return {name: k for name, _, k, _ in joints}
+
+
+LIMB_JOINTS = ("l_arm", "r_arm", "l_forearm", "r_forearm", "l_hip", "r_hip", "l_knee", "r_knee")
+
+
+def worst_direction_error(skel, m, bvh) -> float:
+    """Degrees: the largest angle over frames and limb joints between the body's bone (posed by m.poses) and
+    the same bone by the file's forward kinematics (root removed, in body axes). A body joint with a child
+    points at it (the file: at the joint driving that child); one without (the mannequin's arm) along its
+    rest frame's y (the file: at the next joint of its chain)."""
+    t = forward_kinematics(skel, torch.from_numpy(m.poses)).numpy()
+    heads, frames = skel.rest_heads.double().numpy(), skel.frames().double().numpy()
+    file_pos = bvh.root_relative_positions() @ m.axes.T
+    index = {n: i for i, n in enumerate(bvh.names)}
+    worst, checked = 0.0, 0
+    for j in LIMB_JOINTS:
+        if j not in skel.names:
+            continue
+        i = skel.index(j)
+        child = next((c for c, p in enumerate(skel.parents) if p == i), None)
+        if child is not None:
+            def posed(k):
+                return t[:, 1 + k, :3, :3] @ heads[k] + t[:, 1 + k, :3, 3]
+            body = posed(child) - posed(i)
+            file_child = m.mapped[skel.names[child]]
+        else:
+            body = t[:, 1 + i, :3, :3] @ frames[i][:, 1]
+            file_child = m.table.toward[m.mapped[j]]
+        f = file_pos[:, index[file_child]] - file_pos[:, index[m.mapped[j]]]
+        cos = (body * f).sum(1) / np.linalg.norm(body, axis=1) / np.linalg.norm(f, axis=1)
+        worst = max(worst, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max()))
+        checked += 1
+    assert checked >= 2
+    return worst

@@ -9,52 +9,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from helpers.cli import exit_code
-from helpers.mocap import DIALECTS, clip_text, expected_map
+from helpers.mocap import DIALECTS, clip_text, expected_map, worst_direction_error
 from omegaconf import OmegaConf
 
-from pbc.geometry.body.skeleton import forward_kinematics, skeleton_from_config
+from pbc.geometry.body.skeleton import skeleton_from_config
 from pbc.motion.bvh import BvhError, parse_bvh, read_bvh
 from pbc.motion.dialects import guess_dialect, split_name
-from pbc.motion.retarget import Motion, bvh_to_poses, choose_joint_map, load_joint_map, poses_from_clip
+from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, poses_from_clip
 
 ROOT = Path(__file__).resolve().parents[2]
 SKEL = skeleton_from_config(OmegaConf.load(ROOT / "conf/body/mannequin.yaml"))
-LIMB_JOINTS = ("l_arm", "r_arm", "l_forearm", "r_forearm", "l_hip", "r_hip", "l_knee", "r_knee")
-
-
-def worst_direction_error(skel, m: Motion, bvh) -> float:
-    """Degrees: the largest angle over frames and limb joints between the body's bone (posed by m.poses) and
-    the same bone by the file's forward kinematics (root removed, in body axes). A body joint with a child
-    points at it (the file: at the joint driving that child); one without (the mannequin's arm) along its
-    rest frame's y (the file: at the next joint of its chain)."""
-    t = forward_kinematics(skel, torch.from_numpy(m.poses)).numpy()
-    heads, frames = skel.rest_heads.double().numpy(), skel.frames().double().numpy()
-    file_pos = bvh.root_relative_positions() @ m.axes.T
-    index = {n: i for i, n in enumerate(bvh.names)}
-    worst, checked = 0.0, 0
-    for j in LIMB_JOINTS:
-        if j not in skel.names:
-            continue
-        i = skel.index(j)
-        child = next((c for c, p in enumerate(skel.parents) if p == i), None)
-        if child is not None:
-            def posed(k):
-                return t[:, 1 + k, :3, :3] @ heads[k] + t[:, 1 + k, :3, 3]
-            body = posed(child) - posed(i)
-            file_child = m.mapped[skel.names[child]]
-        else:
-            body = t[:, 1 + i, :3, :3] @ frames[i][:, 1]
-            file_child = m.table.toward[m.mapped[j]]
-        f = file_pos[:, index[file_child]] - file_pos[:, index[m.mapped[j]]]
-        cos = (body * f).sum(1) / np.linalg.norm(body, axis=1) / np.linalg.norm(f, axis=1)
-        worst = max(worst, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max()))
-        checked += 1
-    assert checked >= 2
-    return worst
-
-
 REST = {"mixamo": "T-pose", "bandai": "flat", "lafan1": "flat", "blender": "A-pose", "rokoko": "arms down"}
 UNITS = {"mixamo": "cm", "bandai": "cm", "lafan1": "cm", "blender": "m", "rokoko": "cm"}
 
