@@ -387,3 +387,30 @@ def test_a_shipped_models_corrupt_weights_advise_reinstalling_not_an_epoch_it_la
     own.write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(ValueError, match=r"resume from another checkpoint of the run \(checkpoints/epoch_\*.ckpt\)"):
         load_decoder(own)
+
+
+def test_the_datasets_space_check_asks_for_what_the_merge_writes(tmp_path, monkeypatch):
+    """A body of 20,000 vertices: its npz takes its arrays' bytes; the old guess counted every scene array x4
+    and refused disks with room ("3.1 MiB needed, 3.9 MiB free" for a 0.9 MiB dataset)."""
+    import pbc.data.generate as gen
+    from test_data_faults import _big_disk, _fake_run
+
+    out, args = _fake_run(tmp_path, monkeypatch)
+    scene = args[6]
+    scene.body.vertices = np.ones((20000, 3), np.float32)
+    scene.body.weights = np.ones((20000, 11), np.float32)
+
+    def save_body(body, path):
+        with pbc_io.atomic_path(path, suffix=".npz") as tmp:
+            np.savez(tmp, vertices=body.vertices, weights=body.weights)
+
+    monkeypatch.setattr(gen, "save_body", save_body)
+    monkeypatch.setattr(pbc_io.shutil, "disk_usage", _big_disk())
+    asked = []
+    real_check = gen.require_free_space
+    monkeypatch.setattr(gen, "require_free_space", lambda path, needed, *a: asked.append(needed) or
+                        real_check(path, needed, *a))
+    gen.merge(*args)
+    written = sum(p.stat().st_size for p in out.iterdir() if p.is_file())
+    assert written <= asked[0] <= 1.05 * written, (asked, written)
+    assert not (out / "work" / ".size_probe").exists()
