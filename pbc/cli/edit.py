@@ -7,6 +7,7 @@ import argparse
 import json
 
 from pbc.cli.errors import entry_point
+from pbc.core.io import naming_full_disk
 from pbc.edit import __doc__ as EDIT_DOC
 from pbc.jobs.edit import run_edit
 
@@ -39,7 +40,10 @@ def parse_args(argv=None):
 
 
 def run(argv: list[str]) -> int:
-    record = run_edit(parse_args(argv))
+    args = parse_args(argv)
+    with naming_full_disk(args.out, "edit output directory", "free space there or give another --out; every file "
+                          "written is whole (written, then renamed)"):
+        record = run_edit(args)
     print(json.dumps(record, indent=1))
     return 0
 

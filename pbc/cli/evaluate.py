@@ -11,6 +11,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from pbc.cli.errors import entry_point, run_hydra
+from pbc.core.io import naming_full_disk
 from pbc.core.validate import check_config
 from pbc.jobs.evaluate import evaluate, markdown_table
 
@@ -19,7 +20,10 @@ log = logging.getLogger(__name__)
 
 def evaluate_job(cfg: DictConfig) -> float:
     check_config(cfg)
-    metrics = evaluate(cfg, Path(HydraConfig.get().runtime.output_dir))
+    out = Path(HydraConfig.get().runtime.output_dir)
+    with naming_full_disk(out, "evaluation dir", "free space there or give the evaluation another folder "
+                          "(hydra.run.dir=...); every file written is whole (written, then renamed)"):
+        metrics = evaluate(cfg, out)
     log.info("\n%s", markdown_table(metrics))
     best = f"patches_{cfg.stitch.method}" if metrics["patch_runs"] is not None else "whole"
     return metrics["entries"].get(best, {}).get("vertex_error_cm", float("nan"))

@@ -391,9 +391,10 @@ def test_a_shipped_models_corrupt_weights_advise_reinstalling_not_an_epoch_it_la
 
 def test_the_datasets_space_check_asks_for_what_the_merge_writes(tmp_path, monkeypatch):
     """A body of 20,000 vertices: its npz takes its arrays' bytes; the old guess counted every scene array x4
-    and refused disks with room ("3.1 MiB needed, 3.9 MiB free" for a 0.9 MiB dataset)."""
-    import pbc.data.generate as gen
+    (3.4x the real size) and refused disks with room ("3.1 MiB needed, 3.9 MiB free")."""
     from test_data_faults import _big_disk, _fake_run
+
+    import pbc.data.generate as gen
 
     out, args = _fake_run(tmp_path, monkeypatch)
     scene = args[6]
@@ -414,3 +415,25 @@ def test_the_datasets_space_check_asks_for_what_the_merge_writes(tmp_path, monke
     written = sum(p.stat().st_size for p in out.iterdir() if p.is_file())
     assert written <= asked[0] <= 1.05 * written, (asked, written)
     assert not (out / "work" / ".size_probe").exists()
+
+
+def test_evaluate_and_edit_on_a_full_disk_name_their_folder(tmp_path, monkeypatch, capsys):
+    import pbc.cli.edit
+    import pbc.cli.evaluate
+
+    def full_disk(*args, **kwargs):
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        except OSError as err:
+            raise RuntimeError("savefig failed") from err  # as matplotlib wraps it
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(pbc.cli.edit, "run_edit", full_disk)
+    assert exit_code(pbc.cli.edit.main, ["--out", str(tmp_path / "e")]) == 2
+    assert capsys.readouterr().err.startswith(f"pbc edit: error: no space left on the device holding edit output "
+                                              f"directory {tmp_path / 'e'}")
+    monkeypatch.setattr(pbc.cli.evaluate, "evaluate", full_disk)
+    assert exit_code(pbc.cli.evaluate.main, ["whole_run=x", "patch_runs=null", f"hydra.run.dir={tmp_path / 'v'}"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pbc evaluate: error: no space left on the device holding evaluation dir {tmp_path / 'v'}")
+    assert "hydra.run.dir" in err
