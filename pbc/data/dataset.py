@@ -7,6 +7,9 @@ Layout (see docs/interfaces.md):
     embedding.npz   body triangle + barycentric weights + collision part of every garment vertex
     poses.npy       (N, J, 3, 3) float32 joint rotations of the kept samples
     verts.npy       (N, V, 3) float32 draped garment vertices (root frame, metres)
+  N = counts.kept, plus counts.mirrored rows at the end with `data.mirror` (the mirror images of the training
+  rows listed in manifest "mirrored", pbc.data.mirror); with `data.poses` the manifest's "pose_source" holds
+  each row's clip (-1: the D.3 sampler) and frame (pbc.data.mocap)
   a dataset of several people (`data.body_shape`, pbc.data.shapes) also has
     shapes.npz      phenotype keys (P,), values (K, P), rest vertices (K, Vb, 3), rest heads (K, J, 3)
     person.npy      (N,) int64 the person each kept sample is draped on
@@ -74,6 +77,12 @@ class ClothDataset:
         return np.asarray(self.manifest["splits"][name], dtype=np.int64)
 
 
+def num_rows(manifest: dict) -> int:
+    """Rows of a dataset's arrays: its kept drapes, then the mirror images of its training rows (data.mirror)."""
+    counts = manifest["counts"]
+    return int(counts["kept"]) + int(counts.get("mirrored", 0))
+
+
 def person_kw(data, rows) -> dict:
     """The keyword a Skinner call takes for sample rows `rows` (B,) of `data`: {} for one body (or a stand-in
     dataset without people), {"person": (B,) long} for a dataset of several people, so that each sample is
@@ -126,7 +135,7 @@ def load_dataset(directory: str | Path, check: bool = True) -> ClothDataset:
     cage = load_cage(d / "cage.json", garment)
     body = load_body(d / "body.npz")
     emb = load_embedding(d / "embedding.npz")
-    n, v, j = manifest["counts"]["kept"], garment.vertices.shape[0], len(body.skeleton.names)
+    n, v, j = num_rows(manifest), garment.vertices.shape[0], len(body.skeleton.names)
     poses = load_npy(d / "poses.npy", shape=(n, j, 3, 3))
     verts = load_npy(d / "verts.npy", shape=(n, v, 3))
     if emb.face.shape[0] != v:

@@ -51,16 +51,19 @@ from pbc.core.io import (
 )
 from pbc.core.validate import check_config, identity_diff, moving_joints
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
+from pbc.data.mirror import MirrorMap, mirror_map, mirror_poses, mirror_verts
+from pbc.data.mocap import motion_capture_poses, source_files_hash
 from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.base import Body, pose_body, save_body
+from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
 from pbc.sim.batched import batched_drape_for_garment
 from pbc.sim.drape import check_garment_result, drape_garment
-from pbc.sim.poses import sample_poses, sampling_settings_from_config
+from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
 
 log = logging.getLogger(__name__)
 
@@ -112,6 +115,18 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
     people = sample_phenotypes(cfg)
     if people is not None:  # only with data.body_shape: single-body datasets keep their fingerprint
         fp["body_shapes"] = {"keys": list(people[0]), "values": people[1].tolist()}
+    # each key below only when its setting is away from its default: existing datasets keep their fingerprint
+    data = cfg.data
+    if data.get("poses") is not None:  # the clips' content (not where they lie) and how they are mixed
+        fp["pose_source"] = {"files": source_files_hash(data.poses),
+                             "sampled_fraction": float(data.get("poses_sampled_fraction") or 0.0),
+                             "joint_map": str(data.get("poses_joint_map") or "auto"),
+                             "allow_rest": bool(data.get("poses_allow_rest"))}
+    if data.get("mirror"):
+        fp["mirror"] = {"tolerance": float(data.mirror_tolerance)}
+    modes = modes_record(sampling_settings_from_config(cfg.body.sampling))
+    if modes:  # the sampler's extra ranges (hanging arms, walking legs) change the poses
+        fp["sampling_modes"] = modes
     return fp
 
 
@@ -466,16 +481,14 @@ def _generate(cfg: DictConfig) -> Path:
     log.info("scene built in %.1f s (%d body, %d garment vertices)", timings["scene"],
              scene.body.vertices.shape[0], scene.garment.vertices.shape[0])
     work = out / "work"
-    (work / "samples").mkdir(parents=True, exist_ok=True)
     fp = fingerprint(cfg, scene)
-    _check_or_write_fingerprint(out, fp)
-
+    # bad clips and an asymmetric garment are refused here, before anything is written
     t0 = time.perf_counter()
-    settings = sampling_settings_from_config(cfg.body.sampling)
-    poses, pose_stats = sample_poses(scene.body.skeleton, int(data.num_samples), int(data.seed), scene.body, settings)
-    poses = poses.numpy().astype(np.float32)
-    angles = np.asarray(pose_stats.pop("angles_deg"), dtype=np.float32)
+    poses, angles, pose_stats, sources = dataset_poses(cfg, scene)
     timings["sample_poses"] = time.perf_counter() - t0
+    mirror = scene_mirror_map(cfg, scene, poses)
+    (work / "samples").mkdir(parents=True, exist_ok=True)
+    _check_or_write_fingerprint(out, fp)
 
     n_shards = int(data.num_shards)
     shards = range(n_shards) if data.shard is None else [int(data.shard)]
@@ -494,8 +507,39 @@ def _generate(cfg: DictConfig) -> Path:
     timings["drape_wall"] = time.perf_counter() - t0
     if data.shard is not None:
         return out
-    merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings, batch=k, num_shards=n_shards)
+    merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings, batch=k, num_shards=n_shards,
+          sources=sources, mirror=mirror)
     return out
+
+
+def dataset_poses(cfg: DictConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray, dict, dict | None]:
+    """The generation poses (N, J, 3, 3) float32, their Euler angles (N, J, 3) float32, the pose stats, and
+    each pose's source (None: all from the D.3 sampler; else `pbc.data.mocap.motion_capture_poses`'s).
+    Pose i depends only on the config and the seed."""
+    data = cfg.data
+    settings = sampling_settings_from_config(cfg.body.sampling)
+    n, seed, skel = int(data.num_samples), int(data.seed), scene.body.skeleton
+    if data.get("poses") is not None:
+        return motion_capture_poses(data.poses, n, float(data.get("poses_sampled_fraction") or 0.0), seed, skel,
+                                    scene.body, settings, str(data.get("poses_joint_map") or "auto"),
+                                    bool(data.get("poses_allow_rest")))
+    poses, pose_stats = sample_poses(skel, n, seed, scene.body, settings)
+    angles = np.asarray(pose_stats.pop("angles_deg"), dtype=np.float32)
+    return poses.numpy().astype(np.float32), angles, pose_stats, None
+
+
+MIRROR_PROBES = 4  # dataset poses the body's symmetry is checked under (and the rest pose)
+
+
+def scene_mirror_map(cfg: DictConfig, scene: Scene, poses: np.ndarray) -> MirrorMap | None:
+    """With data.mirror: the scene's checked mirror map (pbc.data.mirror; an asymmetric skeleton, body or
+    garment is one ValueError), probed under the first dataset poses; None without."""
+    if not cfg.data.get("mirror"):
+        return None
+    bodies = scene.people if scene.people is not None else [scene.body]
+    return mirror_map(bodies, scene.garment.vertices.cpu().numpy(), scene.garment.faces.cpu().numpy(),
+                      float(cfg.data.mirror_tolerance), poses[:MIRROR_PROBES],
+                      where=f"the garment ({len(scene.garment.vertices)} vertices)")
 
 
 def _report_progress(work: Path, num_poses: int, k: int, n_shards: int, shard, todo: list[list[int]]) -> None:
@@ -593,8 +637,12 @@ def missing_shards(work: Path, num_poses: int, batch: int = 1, num_shards: int =
 
 
 def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings,
-          batch: int = 1, num_shards: int = 1) -> None:
+          batch: int = 1, num_shards: int = 1, sources: dict | None = None, mirror: MirrorMap | None = None) -> None:
     """Collect all sample files into the final arrays and write the manifest last.
+
+    `sources` (data.poses): each generation pose's clip and frame, recorded per kept sample (`pose_source`).
+    `mirror` (data.mirror): after the split, every training sample's mirror image is appended and joins the
+    training split (the validation and test samples' mirrors are never made).
 
     An unfinished shard is named (a killed shard job: run it again, it resumes). The space the arrays
     need is checked before anything is written, and a disk that fills up anyway is one DiskFull naming
@@ -667,6 +715,12 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     arrays = {"poses.npy": poses[kept], "verts.npy": verts, "angles.npy": angles[kept].astype(np.float32)}
     if _shapes(scene) is not None:  # each kept sample's person (data.body_shape)
         arrays["person.npy"] = np.array([person_of(i, scene.shapes) for i in kept], np.int64)
+    rows = kept  # each dataset row's generation sample
+    if mirror is not None:  # after the split: no validation or test pose has its mirror in training
+        rows = _add_mirrors(arrays, manifest, mirror, splits["train"], kept)
+    if sources is not None:
+        manifest["pose_source"] = {"clips": sources["clips"], "clip": [int(sources["clip"][i]) for i in rows],
+                                   "frame": [int(sources["frame"][i]) for i in rows]}
 
     fix = (f"free space there (or move {out} to a disk with room and point paths.data_dir at it), then run the "
            "same command again: the drapes in work/ are kept and only the merge is redone")
@@ -683,6 +737,26 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
                 (out / name).unlink()
         raise
     shutil.rmtree(work, ignore_errors=True)
+
+
+def _add_mirrors(arrays: dict[str, np.ndarray], manifest: dict, mirror: MirrorMap, train: list[int],
+                 kept: list[int]) -> list[int]:
+    """Append the mirror image of every training row to `arrays` and to the training split; record them
+    in `manifest` (counts.mirrored; mirrored: the rows, the rows they mirror, the measured asymmetry).
+    Returns each dataset row's generation sample (a mirror's is its original's)."""
+    n = len(arrays["poses.npy"])
+    poses = mirror_poses(arrays["poses.npy"][train], mirror)
+    arrays["poses.npy"] = np.concatenate([arrays["poses.npy"], poses])
+    arrays["verts.npy"] = np.concatenate([arrays["verts.npy"], mirror_verts(arrays["verts.npy"][train], mirror)])
+    arrays["angles.npy"] = np.concatenate([arrays["angles.npy"], xzy_angles(poses).astype(np.float32)])
+    if "person.npy" in arrays:  # a person's mirror is the same person (checked symmetric)
+        arrays["person.npy"] = np.concatenate([arrays["person.npy"], arrays["person.npy"][train]])
+    new = list(range(n, n + len(train)))
+    manifest["splits"]["train"] = list(train) + new
+    manifest["counts"]["mirrored"] = len(train)
+    manifest["source_index"] = list(kept) + [kept[i] for i in train]
+    manifest["mirrored"] = {"rows": new, "of": list(train), **_plain(mirror.stats)}
+    return manifest["source_index"]
 
 
 # a discard reason (pbc.sim.drape.check_sample) -> what it measures and its likely cause, for the user

@@ -75,6 +75,11 @@ def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean
     if src and len(src) == len(ds):
         manifest["source_index"] = [src[int(i)] for i in idx]
     manifest["counts"] = dict(manifest.get("counts") or {}, kept=int(len(idx)))
+    manifest["counts"].pop("mirrored", None)  # the rows kept are numbered afresh: none is a mirror row any more
+    manifest.pop("mirrored", None)
+    source = manifest.get("pose_source")
+    if source and len(source.get("clip", ())) == len(ds):
+        manifest["pose_source"] = dict(source, **{k: [source[k][int(i)] for i in idx] for k in ("clip", "frame")})
     manifest["splits"] = {s: (list(range(len(idx))) if s == split else []) for s in SPLITS}
     manifest["trimmed_from"] = {"dir": str(Path(ds.dir).resolve()), "fingerprint": dataset_fingerprint(ds),
                                 "split": split, "rows": [int(i) for i in idx],

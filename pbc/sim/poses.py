@@ -11,6 +11,13 @@ so x uniform and sin(z) uniform spread the arm direction uniformly over the sphe
 Sampling is deterministic: candidates are drawn in fixed-size blocks, block b from
 numpy.random.default_rng([seed, b]), and kept in order, so kept sample i depends only on the seed
 (not on n); the first k of sample_poses(n) equal sample_poses(k).
+
+Modes (`sampling.modes`, beyond D.3): the postures real motion holds most, which D.3's sphere sampler
+rarely draws (arms hanging: the lowest 15% of the altitude range is 6% of a uniform sphere), drawn on
+purpose. A candidate falls in a mode with the mode's `fraction`; its named joint axes are then uniform in a
+share of their limits (0 = the limit's min, 1 = its max, so the same share fits a re-rested body), the
+other axes as D.3 draws them; pruning follows as for any candidate. Modes draw from their own stream,
+default_rng([seed, b, 1]): with every fraction 0 (the default) the poses are those of D.3 alone, bit for bit.
 """
 
 from __future__ import annotations
@@ -54,6 +61,9 @@ class SamplingSettings:
     probes_per_leg: int = 53
     leg_probe_min_distance: float = 0.15  # m from the hip joint: clear of the groin, where the legs meet
     leg_torso_joints: tuple[str, ...] = ()  # the primitives (by joint, `root` included) a leg must not enter
+    # the active modes (fraction > 0): (name, fraction, ((joint, axis, low share, high share), ...)), see
+    # the module docstring; a mode at fraction 0 is left out, so the default equals a config with every mode off
+    modes: tuple = ()
 
 
 _NAME_LISTS = ("halfnormal_joints", "posed_joints", "left_leg", "right_leg", "leg_torso_joints")
@@ -66,7 +76,67 @@ def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
     if unknown:
         raise ValueError(f"unknown sampling settings {sorted(unknown)}; known: {sorted(known)}")
     kw = {k: (tuple(str(n) for n in v) if k in _NAME_LISTS else v) for k, v in cfg.items()}
+    kw["modes"] = _parse_modes(cfg.get("modes") or {})
     return SamplingSettings(**kw)
+
+
+def _parse_modes(modes: Mapping) -> tuple:
+    """`sampling.modes` ({name: {fraction, range: {joint: {axis: [low, high] shares}}}}) -> the active modes,
+    checked (fractions in [0, 1] summing to at most 1, shares 0 <= low <= high <= 1, axes x / y / z)."""
+    out, total = [], 0.0
+    for name, mode in modes.items():
+        key = f"sampling.modes.{name}"
+        unknown = set(mode) - {"fraction", "range"}
+        if unknown:
+            raise ValueError(f"{key}: unknown keys {sorted(unknown)}; a mode has a fraction and a range")
+        fraction = float(mode.get("fraction", 0.0))
+        if not 0.0 <= fraction <= 1.0:
+            raise ValueError(f"{key}.fraction={fraction}: give the share of poses drawn in this mode, in [0, 1]")
+        total += fraction
+        ranges = []
+        for joint, axes in (mode.get("range") or {}).items():
+            for axis, share in axes.items():
+                ok = axis in ("x", "y", "z") and len(share) == 2 and 0.0 <= float(share[0]) <= float(share[1]) <= 1.0
+                if not ok:
+                    raise ValueError(f"{key}.range.{joint}.{axis}={list(share)}: give an axis x, y or z and "
+                                     "[low, high] shares of the joint's limits, 0 <= low <= high <= 1")
+                ranges.append((str(joint), "xyz".index(axis), float(share[0]), float(share[1])))
+        if fraction > 0:
+            out.append((str(name), fraction, tuple(ranges)))
+    if total > 1.0 + 1e-9:
+        raise ValueError(f"sampling.modes: the fractions sum to {total:g} > 1; lower them (the rest is plain D.3)")
+    return tuple(out)
+
+
+def modes_record(settings: SamplingSettings) -> dict:
+    """The active modes as plain data (a dataset's fingerprint): {name: {fraction, range: [[joint, axis,
+    low, high], ...]}}; empty when every mode is off."""
+    return {name: {"fraction": f, "range": [[j, "xyz"[a], lo, hi] for j, a, lo, hi in ranges]}
+            for name, f, ranges in settings.modes}
+
+
+def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, settings: SamplingSettings) -> None:
+    """Put candidates (n, J, 3) degrees, in place, into the modes: candidate i falls in mode k with its
+    fraction, and that mode's joint axes are redrawn uniformly in their share of the limits. Joints the
+    sampler keeps at rest (`posed_joints`) stay there."""
+    if not settings.modes:
+        return
+    n = len(angles)
+    lim = skel.limits_deg.double().numpy()
+    pick = rng.random(n)
+    u = rng.random((n, sum(len(r) for _, _, r in settings.modes)))  # every stream drawn: counts never shift it
+    posed = set(settings.posed_joints)
+    start, col = 0.0, 0
+    for name, fraction, ranges in settings.modes:
+        rows = (pick >= start) & (pick < start + fraction)
+        start += fraction
+        for joint, axis, lo, hi in ranges:
+            j = skel.indices([joint], f"sampling.modes.{name}.range")[0]
+            if not posed or joint in posed:
+                a, b = lim[j, axis]
+                low, high = a + lo * (b - a), a + hi * (b - a)
+                angles[rows, j, axis] = low + u[rows, col] * (high - low)
+            col += 1
 
 
 def _axis_rotation(angles_rad: Tensor, axis: int) -> Tensor:
@@ -252,6 +322,7 @@ def sample_poses(
                 f"({pruned} pruned); the limits or pruning are too strict"
             )
         angles = sample_angles(skel, settings.block_size, np.random.default_rng([seed, block]), settings)
+        apply_modes(angles, skel, np.random.default_rng([seed, block, 1]), settings)
         block += 1
         if probes is not None:
             with torch.no_grad():
@@ -311,11 +382,13 @@ def plot_angle_histograms(angles, skel: Skeleton, path, bins: int = 40) -> None:
 
 __all__ = [
     "SamplingSettings",
+    "apply_modes",
     "arm_probe_indices",
     "euler_xzy_to_matrix",
     "leg_probe_indices",
     "legs_collide",
     "legs_pruned",
+    "modes_record",
     "plot_angle_histograms",
     "probes_inside_torso",
     "sample_angles",
