@@ -73,9 +73,11 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
         if j in motion.mapped:
             p = pos[index[motion.mapped[j]]]
             ax_clip.plot(p[0], p[1], "o", color=colours[i], ms=7, mec="k")
-            ax_clip.annotate(f"{motion.mapped[j]} ({j})", p[:2], fontsize=6, xytext=(4, 2), textcoords="offset points")
-    ax_clip.set_title(f"the clip's skeleton, frame {frame}\n{motion.table.dialect or 'unknown'} names, "
-                      f"{motion.units}, rest: {motion.rest_pose}", fontsize=9)
+            short = motion.mapped[j].rsplit(":", 1)[-1]  # the namespace ('mixamorig:') is in the report
+            ax_clip.annotate(short, p[:2], fontsize=6, xytext=(4, 2), textcoords="offset points")
+    ax_clip.set_title(f"the clip's skeleton, frame {frame} (its own forward kinematics)\n"
+                      f"{motion.table.dialect or 'unknown'} names, {motion.units}, rest: {motion.rest_pose}; "
+                      "coloured: joints driving the body", fontsize=9)
 
     verts = pose_body(body, torch.from_numpy(motion.poses[k:k + 1]).to(body.vertices.dtype))[0].double().numpy()
     tri = verts[body.faces.long().numpy()]  # (F, 3, 3)
@@ -92,8 +94,8 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
             ax_body.plot(heads[[par, i], 0], heads[[par, i], 1], "-", color="0.2", lw=1)
         ax_body.plot(heads[i, 0], heads[i, 1], "o", color=colours[i] if j in motion.mapped else "w", ms=6, mec="k")
         ax_body.annotate(j, heads[i, :2], fontsize=6, xytext=(4, 2), textcoords="offset points")
-    ax_body.set_title(f"the body posed by it ({len(motion.mapped)} of {len(skel.names)} joints driven; "
-                      "white: none)", fontsize=9)
+    ax_body.set_title(f"the body posed by it: {len(motion.mapped)} of {len(skel.names)} joints driven\n"
+                      "(same colour: driven by that clip joint; white: turns with its parent)", fontsize=9)
     lo = np.minimum(pos.min(0), verts.min(0))
     hi = np.maximum(pos.max(0), verts.max(0))
     pad = 0.05 * float((hi - lo)[:2].max())

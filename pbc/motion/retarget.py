@@ -146,21 +146,23 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
 
 
-def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg) -> str:
+def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_joints=()) -> str:
     """The clip's rest pose (positions rest (J, 3)): "T-pose", "A-pose", "arms down", "arms up", "standing"
     (no arms matched) or "flat" (the skeleton lies along one direction at zero rotation, its orientation in
-    the channels: Bandai Namco), from the angles between the spine and the upper arm and the thigh."""
+    the channels: Bandai Namco), from the angles between the spine and the upper arm and the thigh. bvh_joints:
+    the clip's joints (an upper arm without a `toward` points at its first child)."""
     body = dialect_settings().body
     m = table.joints
 
     def pos(body_joint):
         return rest[index[m[body_joint]]] if m.get(body_joint) in index else None
 
-    def bone(body_joint):
+    def bone(body_joint):  # towards the next joint of its chain (a table's: its first child in the file)
         name = m.get(body_joint)
-        if name not in index or table.toward.get(name) not in index:
+        if name not in index:
             return None
-        return rest[index[table.toward[name]]] - rest[index[name]]
+        nxt = table.toward.get(name) or next((k.name for k in bvh_joints if k.parent == index[name]), None)
+        return None if nxt is None else rest[index[nxt]] - rest[index[name]]
 
     top = next((pos(j) for j in [body.head, *reversed(list(body.neck)), *reversed(list(body.spine))]
                 if pos(j) is not None), None)
@@ -304,13 +306,14 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
     # the rest: the OFFSETs' layout; a skeleton lying flat (its orientation in the channels) takes frame 0's
     # posture as its rest instead, each joint's rotation then taken relative to frame 0's
     rest = bvh.rest_positions()
-    kind = rest_pose_kind(rest, index, table, dialect_settings().rest)
+    kind = rest_pose_kind(rest, index, table, dialect_settings().rest, bvh.joints)
     ref = np.tile(np.eye(3), (len(bvh.joints), 1, 1))
     if kind == "flat":
         ref = bvh.root_relative_rotations(slice(0, 1))[0]
         rest = bvh.root_relative_positions(slice(0, 1))[0]
-        notes.append(f"the clip's rest skeleton lies flat (its orientation is in the channels): frame 0 "
-                     f"({rest_pose_kind(rest, index, table, dialect_settings().rest)}) stands in for its rest")
+        frame0 = rest_pose_kind(rest, index, table, dialect_settings().rest, bvh.joints)
+        notes.append(f"the clip's rest skeleton lies flat (its orientation is in the channels): frame 0 ({frame0}) "
+                     "stands in for its rest")
     heads = skeleton.rest_heads.double().numpy()
     body_frames = skeleton.frames().double().numpy()
     order = [j for j in names if j in mapped]
