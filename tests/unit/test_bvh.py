@@ -330,3 +330,32 @@ def test_cli_bad_bvh_is_one_line_exit_2_nothing_written(setup_motion, tmp_path, 
     err = capsys.readouterr().err
     assert err.startswith(f"pbc predict: error: {bad}:5: ") and len(err.strip().splitlines()) == 1, err
     assert not out.exists()
+
+
+def test_cli_refuses_unbounded_frames_and_limbs_at_rest_before_writing(setup_motion, tmp_path, capsys):
+    """A 16-frame clip at --fps 1e6 would make 1.25 million frames (it ran for hours); a Bandai Namco walk read
+    through the CMU table left the arms at rest. Both: one line, exit 2, nothing written; the flags go on."""
+    from helpers.mocap import clip_text as dialect_clip
+
+    _, whole = setup_motion
+    clip = tmp_path / "short.bvh"
+    clip.write_text(clip_text(random_poses(16), frames_line=None))  # 16 frames at 120 fps: 0.125 s
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out), "--fps", "1e7"]) == 2
+    err = capsys.readouterr().err
+    n = int(15 * 0.0083333 * 1e7 + 1e-9) + 1  # the span of 16 frames at the file's frame time, at 1e7 fps
+    assert f"would make {n:,} frames, more than the limit of 100,000" in err and f"--max-frames {n}" in err
+    assert len(err.strip().splitlines()) == 1 and not out.exists()
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out), "--fps", "240", "--max-frames",
+                            "29", "--video", "none", "--no-glb"]) == 2
+    assert "would make 30 frames, more than the limit of 29" in capsys.readouterr().err and not out.exists()
+    walk = tmp_path / "bandai.bvh"
+    walk.write_text(dialect_clip("bandai", n_frames=3))
+    assert exit_code(main, [str(whole), "--poses", str(walk), "--out", str(out), "--bvh-map", "cmu_mb"]) == 2
+    err = capsys.readouterr().err
+    assert "the body's l_arm, r_arm, spine1 would stay at rest" in err and "--allow-rest" in err and not out.exists()
+    assert exit_code(main, [str(whole), "--poses", str(walk), "--out", str(out), "--video", "none", "--no-glb"]) == 0
+    res = json.loads((out / "predict.json").read_text())
+    assert res["motion"]["dialect"] == "Bandai Namco" and res["motion"]["rest_pose"] == "flat"
+    assert res["motion"]["mapped"]["l_arm"] == "UpperArm_L"
