@@ -150,7 +150,7 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dic
         arm = arms[side] if skin is None or skin[1] > 0.35 else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
         angle = float(np.degrees(np.arccos(np.clip(abs(axis @ arm), 0.0, 1.0))))
         out[side] = {"axis": axis, "arm": arm, "angle_deg": angle, "droop_deg": droop_deg(axis),
-                     "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum())}
+                     "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum()), "centre": centre[sel].mean(0)}
     return out
 
 

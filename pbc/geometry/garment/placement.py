@@ -33,7 +33,6 @@ from scipy.spatial import cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
-from pbc.geometry.body.skeleton import forward_kinematics
 from pbc.geometry.garment.checks import sleeve_axes
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
@@ -43,6 +42,7 @@ from pbc.geometry.units import UNITS, metres_per_unit
 log = logging.getLogger(__name__)
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
+SLEEVE_BAND = 0.05  # m along a sleeve's axis either side of its band's centre: where its radius is measured
 
 
 @dataclass
@@ -165,22 +165,38 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k / (1.0 + c) if c > -1.0 + 1e-9 else -np.eye(3)
 
 
-def _arm_rotations(body: Body, turns: dict) -> torch.Tensor:
-    """(1, J, 3, 3) the rest pose with each side's arm joint turned by turns[side], a (3, 3) rotation in root
-    axes about the joint, expressed in the joint's own frame."""
+def arm_chain(body: Body, side: str) -> set[int]:
+    """The joints (model-input indices) of one side's arm: its arm joint and every joint below it."""
     sk = body.skeleton
-    rot = torch.eye(3, dtype=torch.float64).repeat(1, sk.num_joints, 1, 1)
-    frames = sk.frames().double()
-    for side, world in turns.items():
-        j = sk.index(ARM_JOINTS[side])
-        rot[0, j] = frames[j].T @ torch.as_tensor(world) @ frames[j]  # forward_kinematics applies F R F^T
-    return rot
+    chain = {sk.index(ARM_JOINTS[side])}
+    for j, parent in enumerate(sk.parents):  # parents precede children
+        if parent in chain:
+            chain.add(j)
+    return chain
 
 
-def _unpose(points: np.ndarray, body: Body, rotations: torch.Tensor, neighbours: int) -> np.ndarray:
-    """Garment points on the body posed by rotations (1, J, 3, 3) taken back to its rest pose, with the skinning
-    weights of the posed body's nearest vertices (inverse-distance blended): (P, 3)."""
-    transforms = forward_kinematics(body.skeleton, rotations)[0]  # (J+1, 4, 4)
+def _arm_transforms(body: Body, turns: dict) -> torch.Tensor:
+    """(J+1, 4, 4) bone transforms of the body with each side's arm chain (its arm joint and every joint below
+    it) turned by turns[side] = (R (3, 3) root axes, pivot (3,)) about the pivot, every other bone at rest. The
+    pivot is the garment's own shoulder (on its sleeve's axis), not the body's joint: a sleeve modelled on
+    another body turns where its maker turned it."""
+    sk = body.skeleton
+    out = torch.eye(4, dtype=torch.float64).repeat(sk.num_joints + 1, 1, 1)
+    for side, turn in turns.items():
+        rot, pivot = turn["rot"], turn["pivot"]
+        chain = arm_chain(body, side)
+        t = np.eye(4)
+        t[:3, :3], t[:3, 3] = rot, pivot - rot @ pivot
+        for j in chain:
+            out[1 + j] = torch.as_tensor(t)
+    return out
+
+
+def _unpose(points: np.ndarray, body: Body, turns: dict, neighbours: int, ramp: float) -> np.ndarray:
+    """Garment points on the body with its arms turned (`_arm_transforms` of turns) taken back to its rest pose,
+    with the skinning weights of the posed body's nearest vertices (inverse-distance blended), each sleeve's own
+    points held to its arm (`_sleeve_membership`): (P, 3)."""
+    transforms = _arm_transforms(body, turns)
     weights = body.weights.double()
     posed = torch.einsum("vk,kij->vij", weights, transforms[:, :3, :]).numpy()  # per body vertex (Vb, 3, 4)
     posed_vertices = np.einsum("vij,vj->vi", posed[:, :, :3], body.vertices.double().numpy()) + posed[:, :, 3]
@@ -188,16 +204,51 @@ def _unpose(points: np.ndarray, body: Body, rotations: torch.Tensor, neighbours:
     w = 1.0 / np.maximum(dist, 1e-6)
     w /= w.sum(1, keepdims=True)
     blend = np.einsum("pk,pkj->pj", w, weights.numpy()[idx])  # (P, J+1)
+    for side, turn in turns.items():
+        cols = [1 + j for j in sorted(arm_chain(body, side))]
+        had = blend[:, cols].sum(1)
+        member, cylinder = _sleeve_membership(points, turn, ramp)
+        want = np.maximum(had * cylinder, member)  # the body's arm weights inside the sleeve only
+        rest = 1.0 - had
+        blend *= np.where(rest > 1e-9, (1.0 - want) / np.maximum(rest, 1e-9), 0.0)[:, None]  # the other bones
+        blend[:, cols] = 0.0
+        blend[:, cols[0]] = want  # the chain turns as one bone (`_arm_transforms`)
+        # cloth the arm alone held, outside the sleeve (an A-posed arm against the torso's side): the shoulder's
+        blend[:, 1 + body.skeleton.parents[min(cols) - 1]] += 1.0 - blend.sum(1)
     m = torch.einsum("pk,kij->pij", torch.as_tensor(blend), transforms[:, :3, :]).numpy()  # (P, 3, 4)
     return np.linalg.solve(m[:, :, :3], (points - m[:, :, 3])[..., None])[..., 0]
 
 
 def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, limit_deg: float) -> dict:
-    """The rotation (3, 3, root axes) turning each side's rest arm onto the garment's sleeve, for the sleeves
-    more than limit_deg off the arm (`sleeve_axes`: like with like, the arm's skin in the sleeve's band); {}
-    when none is."""
-    return {side: _rotation_between(a["arm"], a["axis"]) for side, a in sleeve_axes(points, faces, body).items()
-            if side in ARM_JOINTS and a["angle_deg"] > limit_deg}
+    """Per side whose sleeve is more than limit_deg off the rest arm (`sleeve_axes`: like with like, the arm's
+    skin in the sleeve's band): {rot (3, 3) turning the rest arm onto the sleeve, pivot (3,) the point of the
+    sleeve's axis nearest the body's shoulder joint, axis (3,), radius (m) of the sleeve round it}; {} when no
+    sleeve is off."""
+    sk = body.skeleton
+    out = {}
+    for side, a in sleeve_axes(points, faces, body).items():
+        if side in ARM_JOINTS and a["angle_deg"] > limit_deg:
+            joint = sk.rest_heads[sk.index(ARM_JOINTS[side])].double().numpy()
+            pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
+            rel = points - a["centre"]
+            along = rel @ a["axis"]
+            radial = np.linalg.norm(rel - along[:, None] * a["axis"], axis=1)
+            band = (np.abs(along) < SLEEVE_BAND) & (radial < 2 * SLEEVE_BAND)
+            out[side] = {"rot": _rotation_between(a["arm"], a["axis"]), "pivot": pivot, "axis": a["axis"],
+                         "radius": float(np.median(radial[band])) if band.any() else SLEEVE_BAND}
+    return out
+
+
+def _sleeve_membership(points: np.ndarray, turn: dict, ramp: float) -> tuple[np.ndarray, np.ndarray]:
+    """How much each point belongs to the sleeve (P,) 0..1: beyond the pivot along the sleeve's axis (a ramp of
+    `ramp` m across it) within 1.5 sleeve radii of the axis; and (P,) bool, whether it lies in that cylinder at
+    all. A loose sleeve's underside lies nearer the torso's side than the arm, and an A-posed arm lies against
+    the torso's side: the nearest body vertex alone would leave the one behind and carry the other off."""
+    rel = points - turn["pivot"]
+    along = rel @ turn["axis"]
+    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
+    cylinder = (radial < 1.5 * turn["radius"]) & (along > -0.5 * ramp)
+    return np.clip(along / ramp + 0.5, 0.0, 1.0) * cylinder, cylinder
 
 
 def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kind: str, lm: dict) -> bool:
@@ -272,8 +323,9 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
         turns = _transfer_turns(x, f, body, float(pcfg.transfer_min_deg))
         if not turns:
             break
-        x = _unpose(x, body, _arm_rotations(body, turns), int(pcfg.skin_neighbours))
-        for side, r in turns.items():
+        x = _unpose(x, body, turns, int(pcfg.skin_neighbours), float(pcfg.sleeve_ramp))
+        for side, turn in turns.items():
+            r = turn["rot"]
             turned[side] = turned.get(side, 0.0) + float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
     placement = Placement(unit, name, kind, x.mean(0) - (p * unit).mean(0), False, turned, before,
