@@ -60,6 +60,7 @@ from pbc.sim.drape import (
     as_numpy,
     check_drape_inputs,
     config_value,
+    configure_self_collision,
     init_warp,
     part_meshes,
     pattern_triangles,
@@ -487,10 +488,7 @@ class BatchedDrape:
         world_arr = wp_.array(pw.astype(np.int32), dtype=wp_.int32, device=model.device)
         offsets_arr = wp_.array(self.offsets.astype(np.float32), dtype=wp_.vec3, device=model.device)
         solver.collision = _world_collision_class()(model, world_arr, offsets_arr)
-        if not config_value(cfg, "self_collision", True):
-            solver.collision.stiff_vf = solver.collision.stiff_ee = solver.collision.stiff_ef = 0.0
-        elif config_value(cfg, "self_collision_radius") is not None:
-            solver.collision.radius = float(config_value(cfg, "self_collision_radius"))
+        configure_self_collision(solver.collision, cfg)
         # at most one body contact per particle (one candidate pair each): launch n threads, not 3K * n
         solver.collision.body_contact_max = n
 

@@ -261,6 +261,35 @@ def scene_builder(rest_pattern_triangles, faces, start, part_meshes, cfg):
     return builder, shape_ids
 
 
+SELF_COLLISION_TERMS = {"vertex_face": "stiff_vf", "edge_edge": "stiff_ee", "untangle": "stiff_ef"}
+
+
+def configure_self_collision(collision, cfg) -> None:
+    """Set Style3D's cloth-cloth contact (a `Collision` of newton 1.8.0) from cfg: the radius and the
+    stiffness of its three terms (cfg.self_collision_stiffness: vertex_face and edge_edge push layers
+    that come closer than 2 radii apart; untangle pulls apart cloth that already crosses itself).
+    Shared by the single and the batched drape so both simulate the same cloth. A key left out keeps
+    newton's value; self_collision: false turns all three off.
+    """
+    if not config_value(cfg, "self_collision", True):
+        collision.stiff_vf = collision.stiff_ee = collision.stiff_ef = 0.0
+        return
+    if config_value(cfg, "self_collision_radius") is not None:
+        collision.radius = float(config_value(cfg, "self_collision_radius"))
+    stiffness = config_value(cfg, "self_collision_stiffness") or {}
+    unknown = sorted(set(stiffness) - set(SELF_COLLISION_TERMS))
+    if unknown:
+        raise ValueError(f"sim.self_collision_stiffness has unknown term(s) {unknown}; the terms are "
+                         f"{sorted(SELF_COLLISION_TERMS)} (conf/sim/style3d.yaml)")
+    values = {term: float(stiffness[term]) for term in SELF_COLLISION_TERMS if stiffness.get(term) is not None}
+    for term, value in values.items():  # all checked before any is set
+        if not value >= 0.0:
+            raise ValueError(f"sim.self_collision_stiffness.{term} must be >= 0, got {stiffness[term]!r} "
+                             f"(conf/sim/style3d.yaml)")
+    for term, value in values.items():
+        setattr(collision, SELF_COLLISION_TERMS[term], value)
+
+
 def stepping(cfg) -> tuple[float, float, int, float, int, int, float, float]:
     """The frame loop's settings, read in one place for the single and the batched drape:
     (frame_dt, dt, substeps, tolerance, min_frames, max_frames, keep, residual_quantile), where `keep`
@@ -304,11 +333,7 @@ def build_drape_sim(rest_pattern_triangles, faces, start, body_vertices, body_fa
             linear_iterations=int(config_value(cfg, "linear_iterations"))
         ),
     )
-    self_thickness = config_value(cfg, "self_collision_radius")
-    if not config_value(cfg, "self_collision", True):
-        solver.collision.stiff_vf = solver.collision.stiff_ee = solver.collision.stiff_ef = 0.0
-    elif self_thickness is not None:
-        solver.collision.radius = float(self_thickness)
+    configure_self_collision(solver.collision, cfg)
 
     n = model.particle_count
     pipeline = newton.CollisionPipeline(
