@@ -52,7 +52,7 @@ class Placement:
     unit: float  # metres per file unit
     unit_name: str  # the named unit, or "odd scale"
     kind: str  # top / bottom
-    translation: np.ndarray  # (3,) m, added after the unit
+    translation: np.ndarray  # (3,) m, the collar's (a bottom's waistband's) move after the unit
     kept: bool  # the garment already sat on the body: nothing moved
     arm_turn_deg: dict = field(default_factory=dict)  # side -> degrees the body's arm was turned onto the sleeve
     distance_before: float = float("nan")  # m, median |distance| to the rest body, as the file's numbers in metres
@@ -328,7 +328,7 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             r = turn["rot"]
             turned[side] = turned.get(side, 0.0) + float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
-    placement = Placement(unit, name, kind, x.mean(0) - (p * unit).mean(0), False, turned, before,
+    placement = Placement(unit, name, kind, target - _anchor(p * unit, f, kind)[0], False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"])
     wrong = sits(x, f, body, pcfg, kind, lm)
     if wrong is not None:
