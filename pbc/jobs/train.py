@@ -60,6 +60,7 @@ from pbc.core.io import (
     load_checkpoint,
     lock_holder,
     naming_full_disk,
+    out_of_space,
     read_json,
     require_free_space,
     require_writable_dir,
@@ -244,7 +245,7 @@ def check_run_dir_free(out: Path, ckpt_spec: str | None) -> None:
 
 
 def training_results(out: Path) -> list[str]:
-    """What of another training run dir `out` holds: a finished metrics.json, checkpoints (empty: none)."""
+    """What run dir `out` holds of a training: a finished metrics.json, checkpoints (empty: nothing)."""
     out, found = Path(out), []
     if (out / "metrics.json").is_file():
         with contextlib.suppress(ValueError, FileNotFoundError):  # unreadable: not a finished record
@@ -273,13 +274,18 @@ def record_failure(cfg: DictConfig, err: BaseException) -> Path | None:
         return None
     record = RunRecord.failure(err, OmegaConf.to_container(cfg, resolve=False),
                                "".join(traceback.format_exception(err)))
-    if out.resolve() in _PAST_THE_DOOR:
-        return write_metrics(out, record)
     try:
+        if out.resolve() in _PAST_THE_DOOR:
+            return write_metrics(out, record)
         with run_dir_lock(out):
             return None if training_results(out) else write_metrics(out, record)
     except RunDirInUse:
         return None
+    except OSError as full:
+        if not out_of_space(full):
+            raise
+        log.warning("no room for the failed run's metrics.json in %s (the disk is full)", out)
+        return None  # the job's own error (its DiskFull) is the one to report
 
 
 RUN_DIR_FULL_FIX = ("free space there and run the same command with ckpt_path=last (the last complete checkpoint "
@@ -383,7 +389,8 @@ def fit_and_test(cfg: DictConfig, out: Path, t0: float, past_the_door: Callable[
     if is_rank_zero():
         _PAST_THE_DOOR.add(out.resolve())
         if past_the_door is not None:
-            past_the_door(out)
+            with naming_full_disk(out, "run dir", RUN_DIR_FULL_FIX):
+                past_the_door(out)
     if ckpt:
         log.info("resuming from %s", ckpt)
     loggers = [instantiate(c) for c in (cfg.get("logger") or {}).values()]

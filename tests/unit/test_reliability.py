@@ -437,3 +437,22 @@ def test_evaluate_and_edit_on_a_full_disk_name_their_folder(tmp_path, monkeypatc
     err = capsys.readouterr().err
     assert err.startswith(f"pbc evaluate: error: no space left on the device holding evaluation dir {tmp_path / 'v'}")
     assert "hydra.run.dir" in err
+
+
+def test_a_run_stopped_by_a_full_disk_reports_that_not_its_failed_record(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+
+    def full(self, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def fit_and_test(cfg, out, t0, past_the_door=None):
+        past_the_door(out)
+        monkeypatch.setattr(Path, "write_text", full)  # the disk is full: no room for metrics.json either
+        raise DiskFull(f"no space left on the device holding checkpoint {out}/checkpoints/last.ckpt: 1.0 MiB "
+                       "needed, 0 B free; free space there and run the same command with ckpt_path=last")
+
+    monkeypatch.setattr(pbc_train, "fit_and_test", fit_and_test)
+    assert exit_code(train_main, [f"hydra.run.dir={tmp_path / 'run'}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("pbc train: error: no space left on the device holding checkpoint ")
+    assert err[-1].endswith("ckpt_path=last")
