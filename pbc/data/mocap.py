@@ -84,8 +84,8 @@ def clip_poses(path: Path, skeleton: Skeleton, joint_map: str = "auto", allow_re
 
 
 # pbc.motion's refusals name pbc predict's options; generation's keys for the same settings
-CLIP_OPTIONS = {"--bvh-map ": "data.poses_joint_map=", "--bvh-map": "data.poses_joint_map", "--allow-rest": "data.poses_allow_rest=true",
-                "--max-frames": "(conf/motion/sequence.yaml max_frames)"}
+CLIP_OPTIONS = {"--bvh-map ": "data.poses_joint_map=", "--bvh-map": "data.poses_joint_map",
+                "--allow-rest": "data.poses_allow_rest=true", "--max-frames": "(conf/motion/sequence.yaml max_frames)"}
 
 
 def read_pose_source(path: str | Path, skeleton: Skeleton, posed_joints=(), joint_map: str = "auto",
