@@ -20,6 +20,14 @@ cost) and per drape-frame, build seconds, mean frames, the largest per-drape res
 and the mean/max distance in mm of the batched drapes from the single drapes of the same poses.
 Extra `key=value` arguments are config overrides
 (e.g. sim.max_frames=100).
+
+    python bench/drape.py compare [poses=6] [real=6] [data=tshirt_small] [overrides...]
+
+Kept drapes per CPU-hour, the settings before the real-motion fix (`OLD_SIM`: Style3D's untangling force
+on, newton's value) against the config's, side by side in one run on the same poses: the data config's
+first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
+each pose draped old then new so both share the machine's load alike. Per setting and pose set: keep
+rate, discard reasons, mean frames, CPU seconds a drape and kept drapes per CPU-hour; the ratio new/old.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -46,6 +55,8 @@ from pbc.sim.drape import (
     triangle_area_ratios,
 )
 from pbc.sim.poses import euler_xzy_to_matrix
+
+ROOT = Path(__file__).resolve().parents[1]
 
 # fixed, plausible poses (Euler degrees per axis (x, y, z), see pbc.sim.poses): rest; arms down 45 and
 # a forward bend; left arm raised and swung forward, right arm down, torso twisted and leaning
@@ -257,8 +268,99 @@ def batched_main(argv: list[str]) -> dict:
     return figures
 
 
+# the drape settings before the real-motion fix (docs/results/real_motion_drapes): untangling on
+OLD_SIM = ["sim.self_collision_stiffness.untangle=1.0"]
+REAL_CLIPS = ("tests/data/bvh/cmu_mb_02_01_walk.bvh", "tests/data/bvh/cmu_mb_01_01_lfingers.bvh")
+
+
+def real_motion_poses(skeleton, n: int) -> tuple[np.ndarray, list[str]]:
+    """Up to n frames (n, J, 3, 3) of the CMU excerpts, spread evenly over their frames (frame 0 of a
+    release file is the converter's calibration pose, not motion), with their names."""
+    from pbc.motion.bvh import read_bvh
+    from pbc.motion.retarget import bvh_to_poses, choose_joint_map, parse_frames
+
+    poses, names = [], []
+    for path in REAL_CLIPS:
+        bvh = read_bvh(ROOT / path)
+        motion = bvh_to_poses(bvh, skeleton, choose_joint_map(bvh, "auto"), parse_frames("1:"))
+        poses += list(np.asarray(motion.poses))
+        names += [f"{Path(path).stem}[{k + 1}]" for k in range(len(motion.poses))]
+    pick = np.unique(np.linspace(0, len(poses) - 1, min(n, len(poses))).round().astype(int))
+    return np.stack([poses[i] for i in pick]), [names[i] for i in pick]
+
+
+def compare_main(argv: list[str]) -> dict:
+    """Old against new drape settings on sampled and real-motion poses (see the module docstring)."""
+    from pbc.data.generate import build_scene
+    from pbc.sim.poses import sample_poses, sampling_settings_from_config
+
+    args = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith(("sim.", "body.", "garment.", "+")))
+    overrides = [a for a in argv if a.startswith(("sim.", "body.", "garment.", "+"))]
+    base = [f"data={args.get('data', 'tshirt_small')}", *overrides]
+    cfg_new, cfg_old = load_config(base), load_config([*base, *OLD_SIM])
+    scene, _ = build_scene(cfg_new)
+    garment, body, emb = scene.garment, scene.body, scene.embedding
+    n_sampled, n_real = int(args.get("poses", 6)), int(args.get("real", 6))
+    sampled, _ = sample_poses(body.skeleton, n_sampled, int(cfg_new.data.seed), body,
+                              sampling_settings_from_config(cfg_new.body.sampling))
+    real, real_names = real_motion_poses(body.skeleton, n_real)
+    sets = [("sampled", np.asarray(sampled)[:n_sampled], [f"sample {i}" for i in range(n_sampled)]),
+            ("real", real, real_names)]
+    device = device_name(cfg_new.sim.kernel_cache_dir)
+    print(f"# device: {device}; {cfg_new.data.name}: garment {garment.vertices.shape[0]} vertices; "
+          f"old = {' '.join(OLD_SIM)}", flush=True)
+    bv = pose_body(body, torch.from_numpy(np.asarray(sets[0][1][:1])).float())
+    t0 = time.perf_counter()  # warm-up: load (or compile) the kernels outside the timings
+    drape_garment(garment, embedded_points(bv, body.faces, emb)[0].numpy(), bv[0].numpy(), body, emb, cfg_new.sim)
+    print(f"# warm-up: {time.perf_counter() - t0:.1f} s", flush=True)
+
+    rows = []
+    for set_name, poses, names in sets:
+        for pose, name in zip(poses, names, strict=True):
+            bv = pose_body(body, torch.from_numpy(np.asarray(pose))[None].float())
+            start = embedded_points(bv, body.faces, emb)[0].numpy()
+            for setting, cfg in (("old", cfg_old), ("new", cfg_new)):
+                res = drape_garment(garment, start, bv[0].numpy(), body, emb, cfg.sim)
+                ok, reason = check_garment_result(res, garment, cfg.sim)
+                rows.append({"set": set_name, "pose": name, "setting": setting, "frames": int(res.iterations),
+                             "cpu_s": round(res.cpu_seconds, 2), "wall_s": round(res.seconds, 2), "ok": ok,
+                             "reason": reason or "kept", "residual": round(float(res.residual), 5)})
+                r = rows[-1]
+                print(f"{set_name:8s} {name:32s} {setting:4s} frames={r['frames']:4d} cpu={r['cpu_s']:6.2f}s "
+                      f"wall={r['wall_s']:6.2f}s {r['reason']}", flush=True)
+
+    summary = {}
+    print(f"\n{'poses':8s} {'setting':8s} {'n':>3s} {'kept':>5s} {'keep rate':>9s} {'mean frames':>11s} "
+          f"{'cpu s/drape':>11s} {'kept/cpu-h':>10s}  discards")
+    for set_name in ("sampled", "real", "all"):
+        for setting in ("old", "new"):
+            rs = [r for r in rows if r["setting"] == setting and set_name in ("all", r["set"])]
+            if not rs:
+                continue
+            cpu = sum(r["cpu_s"] for r in rs)
+            kept = sum(r["ok"] for r in rs)
+            reasons = {k: sum(r["reason"] == k for r in rs) for k in sorted({r["reason"] for r in rs}) if k != "kept"}
+            s = {"n": len(rs), "kept": kept, "keep_rate": round(kept / len(rs), 3),
+                 "mean_frames": round(float(np.mean([r["frames"] for r in rs])), 1),
+                 "cpu_s_per_drape": round(cpu / len(rs), 2), "kept_per_cpu_hour": round(3600 * kept / cpu, 1),
+                 "discards": reasons}
+            summary.setdefault(set_name, {})[setting] = s
+            print(f"{set_name:8s} {setting:8s} {s['n']:3d} {kept:5d} {s['keep_rate']:9.2f} {s['mean_frames']:11.1f} "
+                  f"{s['cpu_s_per_drape']:11.2f} {s['kept_per_cpu_hour']:10.1f}  {reasons}")
+        old, new = summary[set_name]["old"], summary[set_name]["new"]
+        summary[set_name]["cpu_per_drape_new_over_old"] = round(new["cpu_s_per_drape"] / old["cpu_s_per_drape"], 3)
+        summary[set_name]["kept_per_cpu_hour_new_over_old"] = (
+            round(new["kept_per_cpu_hour"] / old["kept_per_cpu_hour"], 2) if old["kept_per_cpu_hour"] else None)
+    figures = {"device": device, "data": str(cfg_new.data.name), "vertices": int(garment.vertices.shape[0]),
+               "old": OLD_SIM, "overrides": overrides, "summary": summary, "rows": rows}
+    print(json.dumps(figures))
+    return figures
+
+
 if __name__ == "__main__":
-    if any(a.startswith("batch=") for a in sys.argv[1:]):
+    if sys.argv[1:2] == ["compare"]:
+        compare_main(sys.argv[2:])
+    elif any(a.startswith("batch=") for a in sys.argv[1:]):
         batched_main(sys.argv[1:])
     else:
         main(sys.argv[1:])
