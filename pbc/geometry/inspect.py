@@ -91,14 +91,15 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     node (position_unit / position_offset / uv_unit / charts / shrinkwrap); wrap: also run the shrink-wrap
     (seconds) for its stretch per chart. Nothing is refused here: the numbers are what the checks read."""
     path = Path(path)
-    if gcfg.get("kind") == "obj":  # a tool's OBJ as the fit places it (MakeHuman clothes come fitted)
+    if gcfg.get("kind") == "obj":  # a tool's OBJ as the fit places it, in metres (MakeHuman clothes come fitted)
         mesh, placement = placed_mesh(path, gcfg, body)
+        p = mesh.vertices
     else:
         mesh, placement = read_obj(path, "garment OBJ"), None
+        unit = gcfg.get("position_unit") or "m"
+        p = (mesh.vertices * metres_per_unit("m" if unit == "auto" else unit, "garment.position_unit")
+             + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0)))
     check_mesh(mesh, str(path))
-    p = mesh.vertices * (1.0 if placement is not None else
-                         metres_per_unit(gcfg.get("position_unit") or "m", "garment.position_unit"))
-    p = p + (0.0 if placement is not None else np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0)))
     f = mesh.faces
     corners = mesh.uv[mesh.face_uv]
     island = uv_islands(f, corners)
