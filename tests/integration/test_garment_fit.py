@@ -230,17 +230,19 @@ def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
 def test_each_ecosystems_garment_is_fitted_where_it_belongs(tmp_path):
     # tests/helpers/ecosystems.py's garments through pbc garment fit at the smallest settings: the 3x-scale pattern
     # tee (loose vertices), the shirt without UVs and the decimetre A-pose shirt (its sleeves turned onto the
-    # T-posed arms) on the coarse mannequin; the long-sleeve SMPL top on T-posed Anny (the mannequin's arms are
-    # shorter than its sleeves). tests/unit/test_placement.py measures the placements on Anny A- and T-posed
+    # T-posed arms) on the coarse mannequin; the long-sleeve T-pose SMPL top on A-posed Anny (the mannequin's arms
+    # are shorter than its sleeves; 3 drapes on T-posed Anny kept too few), its sleeves turned down onto the arms.
+    # tests/unit/test_placement.py measures the placements on Anny A- and T-posed
     bodies = {"pattern_tee": MANNEQUIN, "no_uv_shirt": MANNEQUIN, "a_pose_shirt": MANNEQUIN,
-              "smpl_top": ["body=anny_tpose"]}
+              "smpl_top": ["body=anny"]}
+    samples = {"smpl_top": SKIRT_SAMPLES}
     for name, body in bodies.items():
         garment = tmp_path / f"{name}.obj"
         garment.write_text(ECOSYSTEMS[name](), newline="")
         out = tmp_path / "fit" / name
         res = subprocess.run(["pbc", "garment", "fit", str(garment), *body, *TINY, "--out", str(out),
-                              "--samples", "3", "--epochs", "1"], env=_env(tmp_path), capture_output=True,
-                             text=True, timeout=900)
+                              "--samples", samples.get(name, "3"), "--epochs", "1"], env=_env(tmp_path),
+                             capture_output=True, text=True, timeout=900)
         assert res.returncode == 0, (name, res.stdout[-2000:], res.stderr[-2000:])
         report = (out / "inspect" / "report.txt").read_text()
         assert "placement (top): unit " + {"pattern_tee": "odd scale", "a_pose_shirt": "dm"}.get(name, "m") in report
