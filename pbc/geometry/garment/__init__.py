@@ -72,7 +72,9 @@ def _with_cage(garment: Garment, gcfg, names=None, charts=None) -> tuple[Garment
     except ValueError as exc:
         if "made for a garment of" not in str(exc):
             raise
-        raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment; pass this garment's "
+        garment_file = f" (garment {gcfg.obj})" if gcfg.get("obj") else ""
+        raise ValueError(f"{exc}: the cage file {cage_path} belongs to another garment{garment_file}; pass this "
+                         "garment's "
                          "cage (garment.cage=...) or make one (garment=obj, or garment.cage=auto)") from None
 
 
