@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from helpers.a_pose import outfit_obj
 from pbc.core.config import load_config
 from pbc.geometry.garment.tshirt import make_tshirt
-from tests.helpers.a_pose import outfit_obj
 
 # where each file puts pbc's shirt (its collar made for the mannequin, neck joint at y = 0.46 m): SMPL's
 # T-posed neck sits about 0.25 m lower in SMPL's frame; a mannequin standing on y = 0 puts it 1.0 m higher

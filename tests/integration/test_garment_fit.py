@@ -24,6 +24,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.a_pose import outfit_obj  # noqa: E402
 from helpers.cli import exit_code  # noqa: E402
+from helpers.ecosystems import ECOSYSTEMS  # noqa: E402
 from helpers.mhclo_assets import bind_to_tights, hand_fit, write_mhclo_for_obj  # noqa: E402
 
 from pbc.cli.garment import main  # noqa: E402
@@ -31,7 +32,6 @@ from pbc.core.config import load_config  # noqa: E402
 from pbc.geometry.body import body_from_config  # noqa: E402
 from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
 from pbc.geometry.meshops import surface_distance  # noqa: E402
-from tests.helpers.ecosystems import ECOSYSTEMS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)
@@ -227,23 +227,30 @@ def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
     assert (fit / "preview" / "contact_sheet.png").is_file() and "test vertex error over" in res.stdout
 
 
-def test_each_ecosystems_garment_is_fitted_where_it_belongs(tmp_path):
-    # tests/helpers/ecosystems.py's garments through pbc garment fit at the smallest settings: the 3x-scale pattern
-    # tee (loose vertices), the shirt without UVs and the decimetre A-pose shirt (its sleeves turned onto the
-    # T-posed arms) on the coarse mannequin; the long-sleeve T-pose SMPL top on A-posed Anny (the mannequin's arms
-    # are shorter than its sleeves; 3 drapes on T-posed Anny kept too few), its sleeves turned down onto the arms.
-    # tests/unit/test_placement.py measures the placements on Anny A- and T-posed
+def test_each_ecosystems_garment_is_placed_and_one_is_fitted(tmp_path, capsys):
+    # tests/helpers/ecosystems.py's garments through the commands' door: `pbc garment inspect --out` places each
+    # (unit, registration, rest-pose transfer, push-out), runs the shrink-wrap and its checks and writes
+    # fitted.obj; the 3x-scale pattern tee (loose vertices, an odd unit) goes on through `pbc garment fit` at the
+    # smallest settings. The SMPL top's sleeves are longer than the mannequin's arms: it goes on A-posed Anny.
+    # tests/unit/test_placement.py measures every placement on Anny A- and T-posed; a fit of each would cost
+    # minutes of drapes apiece, past what CI affords
     bodies = {"pattern_tee": MANNEQUIN, "no_uv_shirt": MANNEQUIN, "a_pose_shirt": MANNEQUIN,
               "smpl_top": ["body=anny"]}
-    samples = {"smpl_top": SKIRT_SAMPLES}
+    units = {"pattern_tee": "odd scale", "a_pose_shirt": "dm"}
     for name, body in bodies.items():
         garment = tmp_path / f"{name}.obj"
         garment.write_text(ECOSYSTEMS[name](), newline="")
-        out = tmp_path / "fit" / name
-        res = subprocess.run(["pbc", "garment", "fit", str(garment), *body, *TINY, "--out", str(out),
-                              "--samples", samples.get(name, "3"), "--epochs", "1"], env=_env(tmp_path),
-                             capture_output=True, text=True, timeout=900)
-        assert res.returncode == 0, (name, res.stdout[-2000:], res.stderr[-2000:])
-        report = (out / "inspect" / "report.txt").read_text()
-        assert "placement (top): unit " + {"pattern_tee": "odd scale", "a_pose_shirt": "dm"}.get(name, "m") in report
-        assert (out / "inspect" / "fitted.obj").is_file() and (out / "preview" / "predict.json").is_file()
+        out = tmp_path / "inspect" / name
+        assert exit_code(main, ["inspect", str(garment), *body, "--out", str(out)]) == 0, capsys.readouterr().err
+        report = capsys.readouterr().out
+        assert "placement (top): unit " + units.get(name, "m") in report, (name, report)
+        fitted = (out / "fitted.obj").read_text()
+        assert fitted.count("\nv ") > 100, name
+    garment = tmp_path / "pattern_tee.obj"
+    out = tmp_path / "fit" / "pattern_tee"
+    res = subprocess.run(["pbc", "garment", "fit", str(garment), *MANNEQUIN, *TINY, "--out", str(out),
+                          "--samples", "3", "--epochs", "1"], env=_env(tmp_path),
+                         capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, (res.stdout[-2000:], res.stderr[-2000:])
+    assert "placement (top): unit odd scale" in (out / "inspect" / "report.txt").read_text()
+    assert (out / "inspect" / "fitted.obj").is_file() and (out / "preview" / "predict.json").is_file()

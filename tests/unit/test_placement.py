@@ -9,6 +9,7 @@ import logging
 
 import numpy as np
 import pytest
+from helpers.ecosystems import ECOSYSTEMS, LOOSE, shirt
 
 from pbc.cli.garment import run
 from pbc.core.config import load_config
@@ -17,7 +18,6 @@ from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.checks import sleeve_axes
 from pbc.geometry.garment.placement import openings, placed_mesh
 from pbc.geometry.meshio import read_obj
-from tests.helpers.ecosystems import ECOSYSTEMS, LOOSE, shirt
 
 
 @pytest.fixture(scope="module", params=["anny", "anny_tpose"])
