@@ -124,3 +124,11 @@ def anny_body(anny_cfg):
     from pbc.geometry.body import body_from_config
 
     return body_from_config(anny_cfg)
+
+
+@pytest.fixture
+def stop_at_data(monkeypatch):
+    """pbc.jobs.train.train stops with helpers.train_runs.ReachedTheData where it would open the dataset."""
+    from helpers.train_runs import stop_training_at_data
+
+    stop_training_at_data(monkeypatch)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from conftest import TINY_SAMPLES
 
+import pbc.jobs.train as pbc_train
 from helpers.synthetic import FakeSkinner, two_chart_garment
 from pbc.models.module import ClothModule
 from pbc.pixels.operators import ImageOperators
@@ -45,3 +46,15 @@ def _train(root: Path, data_dir: Path, *args: str) -> subprocess.CompletedProces
     env = dict(os.environ, PBC_ROOT=str(root))
     return subprocess.run([sys.executable, "-m", "pbc.train", *TINY, f"data.dir={data_dir}", *args], cwd=ROOT,
                           env=env, capture_output=True, text=True, timeout=300)
+
+
+class ReachedTheData(Exception):
+    """Raised where pbc.jobs.train.train would open the dataset: every door check before it ran."""
+
+
+def stop_training_at_data(monkeypatch) -> None:
+    """Make train() stop with ReachedTheData where it would build the DataModule (the doors' tests)."""
+    def datamodule(cfg):
+        raise ReachedTheData
+
+    monkeypatch.setattr(pbc_train, "datamodule", datamodule)

@@ -45,19 +45,7 @@ def finished_run(out: Path) -> Path:
     return out
 
 
-class ReachedTheData(Exception):
-    """Raised where train() would open the dataset."""
-
-
-@pytest.fixture
-def no_data(monkeypatch):
-    def datamodule(cfg):
-        raise ReachedTheData
-
-    monkeypatch.setattr(pbc_train, "datamodule", datamodule)
-
-
-def test_a_refused_training_changes_no_file_of_another_run(tmp_path, monkeypatch, capsys, no_data):
+def test_a_refused_training_changes_no_file_of_another_run(tmp_path, monkeypatch, capsys, stop_at_data):
     monkeypatch.chdir(tmp_path)
     run = finished_run(tmp_path / "runs" / "ref_whole")
     before = tree_hash(run)
@@ -85,7 +73,7 @@ def test_a_refused_training_changes_no_file_of_another_run(tmp_path, monkeypatch
 
 
 def test_a_training_refused_while_another_runs_in_the_dir_changes_none_of_its_files(tmp_path, monkeypatch, capsys,
-                                                                                     no_data):
+                                                                                     stop_at_data):
     monkeypatch.chdir(tmp_path)
     running = tmp_path / "runs" / "running"
     (running / ".hydra").mkdir(parents=True)

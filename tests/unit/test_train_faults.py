@@ -10,6 +10,7 @@ from pathlib import Path
 import lightning as L
 import pytest
 import torch
+from helpers.train_runs import ReachedTheData  # noqa: E402
 from omegaconf import OmegaConf
 
 import pbc.jobs.train as pbc_train
@@ -17,18 +18,6 @@ from pbc.core.config import load_config
 from pbc.core.io import LockHeld, dir_lock
 from pbc.core.validate import check_config, suggest_config_key
 from pbc.jobs.train import KeepBestOfResumedRun, RunDirInUse, RunDirTaken, record_failure
-
-
-class ReachedTheData(Exception):
-    """Raised where train() would open the dataset: everything before it ran."""
-
-
-@pytest.fixture
-def stop_at_data(monkeypatch):
-    def datamodule(cfg):
-        raise ReachedTheData
-
-    monkeypatch.setattr(pbc_train, "datamodule", datamodule)
 
 
 def _cfg(out: Path, *extra: str):
