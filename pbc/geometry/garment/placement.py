@@ -88,7 +88,7 @@ def openings(points: np.ndarray, faces: np.ndarray) -> list[dict]:
     return sorted(out, key=lambda o: -o["centre"][1])
 
 
-def garment_kind_of(points: np.ndarray, faces: np.ndarray, where: str) -> str:
+def top_or_bottom(points: np.ndarray, faces: np.ndarray, where: str) -> str:
     """``top`` (the highest opening, the collar, is narrower than the lowest, the hem) or ``bottom`` (the
     highest opening, the waistband, is the widest: trousers, a skirt). A closed surface is no garment."""
     ops = openings(points, faces)
@@ -292,7 +292,7 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     pcfg = gcfg.placement
     p = np.asarray(points, np.float64)
     f = np.asarray(faces)
-    kind = garment_kind_of(p, f, where)
+    kind = top_or_bottom(p, f, where)
     lm = _landmarks(body)
     stated = gcfg.get("position_unit", "auto")
     offset = gcfg.get("position_offset")
