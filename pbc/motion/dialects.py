@@ -15,6 +15,7 @@ and highest on highest. Each match keeps its reason (`JointMap.why`), which `pbc
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,9 +49,12 @@ class JointMap:
         return set(self.bones) | set(self.joints.values())
 
 
+@functools.lru_cache(maxsize=1)
 def dialect_settings():
-    """conf/motion/dialects.yaml."""
-    return OmegaConf.load(DIALECTS_FILE)
+    """conf/motion/dialects.yaml, read once a process (every joint name asks for it), read-only."""
+    cfg = OmegaConf.load(DIALECTS_FILE)
+    OmegaConf.set_readonly(cfg, True)
+    return cfg
 
 
 def split_name(name: str, cfg=None) -> tuple[str | None, str, str]:
