@@ -45,6 +45,10 @@ ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
 SLEEVE_BAND = 0.05  # m along a sleeve's axis either side of its band's centre: where its radius is measured
 
 
+# a joint this far below the root (the waist, m) is on a leg: the mannequin's lowest joint is its root
+LEG_BELOW_ROOT = 0.1
+
+
 @dataclass
 class Placement:
     """What `place_garment` did, for the log and `pbc garment inspect`."""
@@ -284,6 +288,11 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
     return None
 
 
+def has_legs(body: Body) -> bool:
+    """Whether the body has joints below its root (the waist): legs a bottom can be worn on."""
+    return bool((body.skeleton.rest_heads[:, 1] < -LEG_BELOW_ROOT).any())
+
+
 def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where: str = "<garment>"
                   ) -> tuple[np.ndarray, Placement]:
     """The garment's vertices (V, 3), in the file's numbers, placed on the rest body: (V, 3) m and what was
@@ -293,6 +302,10 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     p = np.asarray(points, np.float64)
     f = np.asarray(faces)
     kind = top_or_bottom(p, f, where)
+    if kind == "bottom" and not has_legs(body):
+        raise ValueError(f"{where}: its widest opening is at the top, a waistband: trousers or a skirt, worn on the "
+                         f"legs, and this body has no legs there (its joints: {', '.join(body.skeleton.names)}): "
+                         "use a body with legs (body=anny)")
     lm = _landmarks(body)
     stated = gcfg.get("position_unit", "auto")
     offset = gcfg.get("position_offset")
