@@ -302,10 +302,6 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     p = np.asarray(points, np.float64)
     f = np.asarray(faces)
     kind = top_or_bottom(p, f, where)
-    if kind == "bottom" and not has_legs(body):
-        raise ValueError(f"{where}: its widest opening is at the top, a waistband: trousers or a skirt, worn on the "
-                         f"legs, and this body has no legs there (its joints: {', '.join(body.skeleton.names)}): "
-                         "use a body with legs (body=anny)")
     lm = _landmarks(body)
     stated = gcfg.get("position_unit", "auto")
     offset = gcfg.get("position_offset")
@@ -317,6 +313,12 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
                                  float(np.median(np.abs(_sdf(body, placed)))))
     if stated in (None, "auto", "m", 1.0) and _already_placed(p, f, body, gcfg, kind, lm):
         return p, Placement(1.0, "m", kind, np.zeros(3), True, {}, before, before)
+    # a garment already sitting on the body (a tube top: its top opening the widest) was kept above; one that
+    # must be registered at a waist needs legs below it
+    if kind == "bottom" and not has_legs(body):
+        raise ValueError(f"{where}: its widest opening is at the top, a waistband: trousers or a skirt, worn on the "
+                         f"legs, and this body has no legs there (its joints: {', '.join(body.skeleton.names)}): "
+                         "use a body with legs (body=anny)")
     unit, name = _unit(p, f, kind, lm, pcfg, stated, where)
     x = p * unit
     anchor, _ = _anchor(x, f, kind)
