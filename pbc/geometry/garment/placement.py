@@ -313,6 +313,15 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
                                  float(np.median(np.abs(_sdf(body, placed)))))
     if stated in (None, "auto", "m", 1.0) and _already_placed(p, f, body, gcfg, kind, lm):
         return p, Placement(1.0, "m", kind, np.zeros(3), True, {}, before, before)
+    if stated not in (None, "auto"):  # a stated unit overrides the size; a garment that then sits within the
+        # shrink-wrap's reach in its own frame is where its maker put it (a flared skirt's hem is its widest
+        # opening, so by its openings alone it would be taken for a top and registered at the neck)
+        unit, name = _unit(p, f, kind, lm, pcfg, stated, where)
+        reach = (gcfg.get("shrinkwrap") or {}).get("max_start_distance")
+        if float(_sdf(body, p * unit).max()) <= float(0.3 if reach is None else reach):
+            placed = p * unit
+            return placed, Placement(unit, name, kind, np.zeros(3), True, {}, before,
+                                     float(np.median(np.abs(_sdf(body, placed)))))
     # a garment already sitting on the body (a tube top: its top opening the widest) was kept above; one that
     # must be registered at a waist needs legs below it
     if kind == "bottom" and not has_legs(body):
