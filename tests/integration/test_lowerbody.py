@@ -64,8 +64,9 @@ def test_trousers_wrap_and_drape_on_anny(tmp_path, anny_body):
     assert y.min() > max(ankles) and y.min() < max(ankles) + 0.15  # the hems just above the ankles
     ds = load_dataset(generate(cfg))
     counts = ds.manifest["counts"]
-    # seed 0: 6 of 8 kept; the 2 discards are a triangle folded at the front of the hip, none unsettled
-    assert counts["kept"] >= 5, counts
+    # seed 0: 6 of 8 kept with Style3D's untangling force on, 4 of 8 since it is off (sim.self_collision_stiffness:
+    # the real-motion drapes settle without it); the discards are area_compressed folds, none unsettled
+    assert counts["kept"] >= 4, counts
     assert "not_converged" not in counts["discarded"], counts
     v = np.asarray(ds.verts)
     assert np.isfinite(v).all() and v.shape[1] == scene.garment.num_vertices
