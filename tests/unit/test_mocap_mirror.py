@@ -15,9 +15,10 @@ from test_bvh import SKEL, clip_text, random_poses
 
 import pbc.data.generate as gen
 from pbc.cli.generate import main as generate_main
-from pbc.data.dataset import load_dataset
+from pbc.data.dataset import dataset_fingerprint, load_dataset
 from pbc.data.mirror import MIRROR, mirror_map, mirror_poses, mirror_verts
 from pbc.data.mocap import SAMPLED, clip_poses, farthest_pose_selection
+from pbc.data.subset import originals_and_mirrors, subset_dataset
 from pbc.geometry.body.base import pose_body
 from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.shrinkwrap import embedded_points
@@ -251,3 +252,45 @@ def test_hanging_arms_mode_draws_its_share_and_leaves_the_default_poses_alone(bo
     with pytest.raises(ValueError, match=r"sampling.modes.hanging_arms.range.l_arm.z=\[0.5, 0.2\]"):
         sampling_settings_from_config(OmegaConf.merge(on, {"modes": {"hanging_arms": {"range": {
             "l_arm": {"z": [0.5, 0.2]}}}}}))
+
+
+# ------------------------------------------------------------------------------------------- subsets
+def test_a_subset_trains_on_the_first_poses_and_their_mirrors_and_tests_as_its_source(tmp_path, no_drape):
+    """subset_dataset (a learning curve's sizes): the training split is the first n drapes and, with mirrors,
+    exactly their mirror rows; validation and test are the source's; every consumer of "the training split"
+    (here the recorded pose range) sees only the n; the source is not touched."""
+    ds = make(tmp_path / "mirrored", "data.num_samples=12", "data.mirror=true")
+    before = (ds.dir / "manifest.json").read_bytes()
+    originals, mirror_of = originals_and_mirrors(ds)
+    assert len(originals) == ds.manifest["counts"]["mirrored"] == len(mirror_of)
+    sub = load_dataset(subset_dataset(ds, tmp_path / "sub3", 3))
+    want = originals[:3] + [mirror_of[i] for i in originals[:3]]
+    assert sub.split("train").tolist() == want
+    for s in ("val", "test"):
+        assert np.array_equal(sub.split(s), ds.split(s))
+    np.testing.assert_array_equal(sub.verts, ds.verts)  # linked, not copied or changed
+    mm = mirror_map([no_drape.body], no_drape.garment.vertices.numpy(), no_drape.garment.faces.numpy(), 0.01,
+                    ds.poses[:2])
+    np.testing.assert_allclose(sub.poses[[mirror_of[i] for i in originals[:3]]],
+                               mirror_poses(ds.poses[originals[:3]], mm), atol=1e-6)
+    assert sub.manifest["subset_of"]["train_poses"] == 3 and sub.manifest["subset_of"]["mirrors"]
+    assert dataset_fingerprint(sub)["manifest_hash"] != dataset_fingerprint(ds)["manifest_hash"]
+    plain = load_dataset(subset_dataset(ds, tmp_path / "sub3_plain", 3, mirrors=False))
+    assert plain.split("train").tolist() == originals[:3]
+    np.testing.assert_allclose(training_pose_range(plain),
+                               training_pose_range(dataclasses.replace(ds, manifest={
+                                   **ds.manifest, "splits": {**ds.manifest["splits"], "train": originals[:3]}})))
+    assert (ds.dir / "manifest.json").read_bytes() == before
+
+
+def test_a_subset_the_source_cannot_give_is_refused_before_anything_is_written(tmp_path, no_drape):
+    ds = make(tmp_path / "plain", "data.num_samples=12")
+    n = len(ds.split("train"))
+    for bad, words in ((0, f"ask for 1..{n}"), (n + 1, f"has {n}")):
+        with pytest.raises(ValueError, match=words):
+            subset_dataset(ds, tmp_path / "bad", bad, mirrors=False)
+    with pytest.raises(ValueError, match="data.mirror=true"):
+        subset_dataset(ds, tmp_path / "bad", 2)
+    with pytest.raises(ValueError, match="inside its source"):
+        subset_dataset(ds, ds.dir / "sub", 2, mirrors=False)
+    assert not (tmp_path / "bad").exists() and not (ds.dir / "sub").exists()
