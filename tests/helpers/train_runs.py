@@ -1,12 +1,16 @@
-"""Helpers shared by tests/unit/test_train.py and tests/integration/test_train_jobs.py."""
+"""Helpers of the training tests (tests/unit/test_train*.py, test_faults.py, test_reliability.py and
+tests/integration/test_train_jobs.py)."""
 
 from __future__ import annotations
 
 import os
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
+import lightning as L
+import torch
 from conftest import TINY_SAMPLES
 
 import pbc.jobs.train as pbc_train
@@ -58,3 +62,32 @@ def stop_training_at_data(monkeypatch) -> None:
         raise ReachedTheData
 
     monkeypatch.setattr(pbc_train, "datamodule", datamodule)
+
+
+class ScriptedModule(L.LightningModule):
+    """A linear model fitted on `4 * batches` fixed random points (batches of 4) whose monitored
+    val/vertex_error_cm is scripted per epoch: `val[epoch]`, or 10 - epoch when `val` is None, so the best epoch
+    is known. The fault and checkpoint tests' stand-in for a ClothModule: a real Lightning fit in a second."""
+
+    def __init__(self, val: Sequence[float] | None = None, batches: int = 2):
+        super().__init__()
+        self.lin = torch.nn.Linear(2, 1)
+        self.val, self.batches = (None if val is None else list(val)), int(batches)
+
+    def training_step(self, batch, _):
+        x, y = batch
+        return torch.nn.functional.mse_loss(self.lin(x), y)
+
+    def validation_step(self, batch, _):
+        self.log("val/vertex_error_cm", float(10 - self.current_epoch if self.val is None
+                                              else self.val[self.current_epoch]))
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.01)
+
+    def train_dataloader(self):
+        x = torch.randn(4 * self.batches, 2, generator=torch.Generator().manual_seed(0))
+        return torch.utils.data.DataLoader(torch.utils.data.TensorDataset(x, x.sum(1, keepdim=True)), batch_size=4)
+
+    def val_dataloader(self):
+        return self.train_dataloader()

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.train_runs import ScriptedModule
 from omegaconf import OmegaConf
 
 from pbc.core.config import load_config
@@ -144,32 +145,6 @@ NB = 3  # training batches per epoch
 VAL = [1.0, 0.5, 0.7, 0.9, 1.1, 1.2, 1.3, 1.4]  # improves once (epoch 1), then never
 
 
-class Tiny(__import__("lightning").LightningModule):
-    """A linear model whose val/vertex_error_cm is scripted per epoch, so the best epoch is known."""
-
-    def __init__(self):
-        super().__init__()
-        self.lin = torch.nn.Linear(2, 1)
-
-    def training_step(self, batch, _):
-        x, y = batch
-        return torch.nn.functional.mse_loss(self.lin(x), y)
-
-    def validation_step(self, batch, _):
-        self.log("val/vertex_error_cm", VAL[self.current_epoch])
-
-    def configure_optimizers(self):
-        return torch.optim.SGD(self.parameters(), lr=0.01)
-
-    def train_dataloader(self):
-        g = torch.Generator().manual_seed(0)
-        x = torch.randn(NB * 4, 2, generator=g)
-        return torch.utils.data.DataLoader(torch.utils.data.TensorDataset(x, x.sum(1, keepdim=True)), batch_size=4)
-
-    def val_dataloader(self):
-        return self.train_dataloader()
-
-
 def shipped_checkpoints(dirpath: Path) -> list:
     """The checkpoint callbacks of conf/callbacks (the default preset), writing to `dirpath`."""
     from hydra.utils import instantiate
@@ -218,13 +193,14 @@ def test_resume_after_kill_continues_where_it_stopped_not_from_the_best_epoch(tm
     ck, killed = tmp_path / "ck", tmp_path / "killed"
     torch.manual_seed(0)
     with pytest.raises(Killed):
-        trainer([Kill(4, ck, killed), *shipped_checkpoints(ck)], 8).fit(Tiny())
+        trainer([Kill(4, ck, killed), *shipped_checkpoints(ck)], 8).fit(ScriptedModule(VAL, NB))
     # killed during epoch 4: epochs 0..3 done, the best was epoch 1, epochs 2 and 3 did not improve
     assert sorted(p.name for p in killed.glob("*.ckpt")) == ["epoch_001.ckpt", "last.ckpt"]
     last = load_checkpoint(killed / "last.ckpt")
     assert (last["epoch"], last["global_step"]) == (3, 4 * NB)
     rec = Record()
-    trainer([rec, *shipped_checkpoints(tmp_path / "ck2")], 6).fit(Tiny(), ckpt_path=killed / "last.ckpt")
+    trainer([rec, *shipped_checkpoints(tmp_path / "ck2")], 6).fit(ScriptedModule(VAL, NB),
+                                                                  ckpt_path=killed / "last.ckpt")
     assert rec.starts[0] == (4, 4 * NB)  # resumed epoch and step are the killed ones
     assert [e for e, _ in rec.starts] == [4, 5]
 
@@ -243,7 +219,7 @@ def test_sigterm_writes_last_checkpoint_at_the_step_reached(tmp_path):
     previous = signal.getsignal(signal.SIGTERM)
     try:
         with pytest.raises(SystemExit):  # Lightning's SIGTERMException
-            trainer([Sigterm(2, 1), *shipped_checkpoints(ck)], 8).fit(Tiny())
+            trainer([Sigterm(2, 1), *shipped_checkpoints(ck)], 8).fit(ScriptedModule(VAL, NB))
     finally:
         signal.signal(signal.SIGTERM, previous)
     last = load_checkpoint(ck / "last.ckpt")

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 from helpers.cli import exit_code
+from helpers.train_runs import ScriptedModule
 from hydra.utils import instantiate
 
 import pbc.core.io as pbc_io
@@ -105,31 +106,6 @@ def test_a_training_past_the_door_writes_its_hydra_config(tmp_path, monkeypatch)
 
 
 # ============================================================================ full disks
-class Linear(L.LightningModule):
-    """Two parameters fitted on 8 points: a run that saves checkpoints every epoch in a second."""
-
-    def __init__(self):
-        super().__init__()
-        self.lin = torch.nn.Linear(2, 1)
-
-    def training_step(self, batch, _):
-        x, y = batch
-        return torch.nn.functional.mse_loss(self.lin(x), y)
-
-    def validation_step(self, batch, _):
-        self.log("val/vertex_error_cm", float(10 - self.current_epoch))
-
-    def configure_optimizers(self):
-        return torch.optim.SGD(self.parameters(), lr=0.01)
-
-    def train_dataloader(self):
-        x = torch.randn(8, 2, generator=torch.Generator().manual_seed(0))
-        return torch.utils.data.DataLoader(torch.utils.data.TensorDataset(x, x.sum(1, keepdim=True)), batch_size=4)
-
-    def val_dataloader(self):
-        return self.train_dataloader()
-
-
 def _trainer(ckpt_dir: Path, epochs: int) -> L.Trainer:
     nodes = load_config([]).callbacks  # the shipped preset: the best epoch_NNN.ckpt and last.ckpt
     callbacks = [instantiate(nodes[n], dirpath=str(ckpt_dir)) for n in ("model_checkpoint", "last_checkpoint")]
@@ -140,7 +116,7 @@ def _trainer(ckpt_dir: Path, epochs: int) -> L.Trainer:
 
 def test_a_full_disk_during_training_keeps_the_last_complete_checkpoint_and_names_the_file(tmp_path, monkeypatch):
     ckpts = tmp_path / "run" / "checkpoints"
-    _trainer(ckpts, 2).fit(Linear())
+    _trainer(ckpts, 2).fit(ScriptedModule())
     assert torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 1
 
     write_bytes = Path.write_bytes
@@ -152,14 +128,14 @@ def test_a_full_disk_during_training_keeps_the_last_complete_checkpoint_and_name
     monkeypatch.setattr(Path, "write_bytes", full_disk)
     with pytest.raises(DiskFull, match=r"checkpoint .*checkpoints/\S+\.ckpt: \d+\.\d [KM]iB needed(.|\n)*"
                                        r"ckpt_path=last") as err:
-        _trainer(ckpts, 4).fit(Linear(), ckpt_path=ckpts / "last.ckpt")
+        _trainer(ckpts, 4).fit(ScriptedModule(), ckpt_path=ckpts / "last.ckpt")
     assert "Errno" not in str(err.value)
     # the previous complete files stay, no temporary file is left beside them
     assert sorted(p.name for p in ckpts.iterdir()) == ["epoch_001.ckpt", "last.ckpt"]
     assert torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 1
     monkeypatch.setattr(Path, "write_bytes", write_bytes)  # space freed: the run resumes from it
     trainer = _trainer(ckpts, 4)
-    trainer.fit(Linear(), ckpt_path=ckpts / "last.ckpt")
+    trainer.fit(ScriptedModule(), ckpt_path=ckpts / "last.ckpt")
     assert trainer.current_epoch == 4 and torch.load(ckpts / "last.ckpt", weights_only=False)["epoch"] == 3
 
 

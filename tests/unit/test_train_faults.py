@@ -9,8 +9,7 @@ from pathlib import Path
 
 import lightning as L
 import pytest
-import torch
-from helpers.train_runs import ReachedTheData  # noqa: E402
+from helpers.train_runs import ReachedTheData, ScriptedModule
 from omegaconf import OmegaConf
 
 import pbc.jobs.train as pbc_train
@@ -75,33 +74,6 @@ def test_run_dir_of_a_killed_run_needs_resume_and_a_failed_door_check_does_not(t
 
 
 # ============================================================================ resume: the best of both runs
-class Scripted(L.LightningModule):
-    """A linear model whose monitored val/vertex_error_cm is scripted per epoch (`VAL`)."""
-
-    VAL: list[float] = []
-
-    def __init__(self):
-        super().__init__()
-        self.lin = torch.nn.Linear(2, 1)
-
-    def training_step(self, batch, _):
-        x, y = batch
-        return torch.nn.functional.mse_loss(self.lin(x), y)
-
-    def validation_step(self, batch, _):
-        self.log("val/vertex_error_cm", self.VAL[self.current_epoch])
-
-    def configure_optimizers(self):
-        return torch.optim.SGD(self.parameters(), lr=0.01)
-
-    def train_dataloader(self):
-        x = torch.randn(8, 2, generator=torch.Generator().manual_seed(0))
-        return torch.utils.data.DataLoader(torch.utils.data.TensorDataset(x, x.sum(1, keepdim=True)), batch_size=4)
-
-    def val_dataloader(self):
-        return self.train_dataloader()
-
-
 @pytest.fixture(scope="module")
 def shipped_callbacks():
     """The default preset's two checkpoint callbacks (best by the monitor, then last.ckpt), unresolved."""
@@ -113,13 +85,12 @@ def shipped_callbacks():
 def _fit(nodes, dirpath: Path, epochs: int, ckpt: Path | None, val: list[float]):
     from hydra.utils import instantiate
 
-    Scripted.VAL = val
     callbacks = [instantiate(dict(node, dirpath=str(dirpath), monitor=mon)) for node, mon in nodes.values()]
     if ckpt is not None:
         callbacks.append(KeepBestOfResumedRun(ckpt))  # what pbc.train adds to a resumed run
     t = L.Trainer(max_epochs=epochs, callbacks=callbacks, logger=False, enable_progress_bar=False,
                   enable_model_summary=False, accelerator="cpu", num_sanity_val_steps=0)
-    t.fit(Scripted(), ckpt_path=ckpt)
+    t.fit(ScriptedModule(val), ckpt_path=ckpt)
     return t.checkpoint_callback
 
 
