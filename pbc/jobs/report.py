@@ -594,6 +594,26 @@ def relative_paths(text: str, out: Path, sweep_dir: Path) -> str:
     return text
 
 
+# (header, metric, the paper's key) of each column of the paper's tables
+TABLE1_COLUMNS = (("train vertex", f"train/{VERTEX}", "train_vertex"),
+                  ("train normal", f"train/{NORMAL}", "train_normal"),
+                  ("test vertex", f"test/{VERTEX}", "test_vertex"), ("test normal", f"test/{NORMAL}", "test_normal"))
+TABLE2_COLUMNS = (TABLE1_COLUMNS[0], TABLE1_COLUMNS[2])
+
+
+def _paper_table(rows: list[Row], has_runs: bool, first: str, columns, figure: str | None, empty: str) -> list[str]:
+    """A paper table's markdown lines: one line per row (ours beside the paper's, `cell`), its problems and
+    footnotes, its figure; `empty` when the sweep has no run for it."""
+    if not has_runs:
+        return [empty]
+    lines = [_md_table([first, *(h for h, _, _ in columns), "runs"],
+                       [[r.label, *(cell(r, k, pk) for _, k, pk in columns), len(r.runs)] for r in rows])]
+    lines += ["", *_problems(rows), *_footnote(rows)]
+    if figure:
+        lines += ["", f"![{figure.split('.')[0].replace('table', 'Table ')}]({figure})"]
+    return lines
+
+
 def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     n = {s: sum(r.status == s for r in runs) for s in (OK, FAILED, INCOMPLETE)}
     md = [f"# Sweep report: `{sweep_dir.name}`", ""]
@@ -638,50 +658,11 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
            "per setting that is within run-to-run noise, so it neither supports nor refutes the ordering."]
 
     md += ["", "## Table 1: loss functions (whole-shirt CNN)", ""]
-    if any(r.runs for r in t1):
-        md.append(
-            _md_table(
-                ["loss", "train vertex", "train normal", "test vertex", "test normal", "runs"],
-                [
-                    [
-                        r.label,
-                        cell(r, f"train/{VERTEX}", "train_vertex"),
-                        cell(r, f"train/{NORMAL}", "train_normal"),
-                        cell(r, f"test/{VERTEX}", "test_vertex"),
-                        cell(r, f"test/{NORMAL}", "test_normal"),
-                        len(r.runs),
-                    ]
-                    for r in t1
-                ],
-            )
-        )
-        md += ["", *_problems(t1), *_footnote(t1)]
-        if "table1" in figs:
-            md += ["", f"![Table 1]({figs['table1']})"]
-    else:
-        md.append("No whole-shirt runs in this sweep (run the `losses` sweep).")
-
+    md += _paper_table(t1, any(r.runs for r in t1), "loss", TABLE1_COLUMNS, figs.get("table1"),
+                       "No whole-shirt runs in this sweep (run the `losses` sweep).")
     md += ["", "## Table 2: fully connected baselines vs. the CNN", ""]
-    if any(r.runs for r in t2[:-1]):
-        md.append(
-            _md_table(
-                ["model", "train vertex", "test vertex", "runs"],
-                [
-                    [
-                        r.label,
-                        cell(r, f"train/{VERTEX}", "train_vertex"),
-                        cell(r, f"test/{VERTEX}", "test_vertex"),
-                        len(r.runs),
-                    ]
-                    for r in t2
-                ],
-            )
-        )
-        md += ["", *_problems(t2), *_footnote(t2)]
-        if "table2" in figs:
-            md += ["", f"![Table 2]({figs['table2']})"]
-    else:
-        md.append("No FC runs in this sweep (run the `architectures` sweep).")
+    md += _paper_table(t2, any(r.runs for r in t2[:-1]), "model", TABLE2_COLUMNS, figs.get("table2"),
+                       "No FC runs in this sweep (run the `architectures` sweep).")
 
     md += ["", "## Hierarchy: whole vs. stitched patches", ""]
     if hier:
