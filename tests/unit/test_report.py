@@ -171,6 +171,9 @@ def test_report_tables_equal_metrics_json(sweep, built):
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1] == "0.3 (0.33)" and cells[3] == "0.41 (0.44)" and cells[4] == "0.026 (0.027)"
     assert re.search(r"\| L2 \+ N \| failed", md)
+    # Table 2 has its own columns (no normals: the FC baselines are compared on vertices) and figure
+    assert "| model | train vertex | test vertex | runs |" in md
+    assert "![Table 1](table1.png)" in md and "![Table 2](table2.png)" in md
     # Failed, killed and missing runs are listed with their reason, not dropped.
     assert "FloatingPointError: non-finite train loss nan" in md
     assert "no run with experiment=whole, loss=l1_normal" in md
