@@ -21,13 +21,15 @@ and the mean/max distance in mm of the batched drapes from the single drapes of 
 Extra `key=value` arguments are config overrides
 (e.g. sim.max_frames=100).
 
-    python bench/drape.py compare [poses=6] [real=6] [data=tshirt_small] [overrides...]
+    python bench/drape.py compare [poses=6] [real=6] [batch=8] [data=tshirt_small] [overrides...]
 
 Kept drapes per CPU-hour, the settings before the real-motion fix (`OLD_SIM`: Style3D's untangling force
 on, newton's value) against the config's, side by side in one run on the same poses: the data config's
 first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
-each pose draped old then new so both share the machine's load alike. Per setting and pose set: keep
-rate, discard reasons, mean frames, CPU seconds a drape and kept drapes per CPU-hour; the ratio new/old.
+each pose draped old then new so both share the machine's load alike, then (batch=K > 1) each pose set
+again with the new settings in one batched model of K worlds (pbc/sim/batched.py, what `sim.batch_size=K`
+generates with; its one-off build reported apart). Per setting and pose set: keep rate, discard reasons,
+mean frames, CPU seconds a drape and kept drapes per CPU-hour; the ratios to old.
 """
 
 from __future__ import annotations
@@ -329,11 +331,34 @@ def compare_main(argv: list[str]) -> dict:
                 print(f"{set_name:8s} {name:32s} {setting:4s} frames={r['frames']:4d} cpu={r['cpu_s']:6.2f}s "
                       f"wall={r['wall_s']:6.2f}s {r['reason']}", flush=True)
 
+    batch = int(args.get("batch", 8))
+    settings = ["old", "new"]
+    if batch > 1:  # the new settings through the batched model: one model of `batch` worlds for each pose set
+        from pbc.sim.batched import batched_drape_for_garment
+
+        setting = f"new_k{batch}"
+        settings.append(setting)
+        for set_name, poses, names in sets:
+            bvs = pose_body(body, torch.from_numpy(np.asarray(poses)).float())
+            starts = embedded_points(bvs, body.faces, emb).numpy()
+            c0, t0 = time.process_time(), time.perf_counter()
+            bd = batched_drape_for_garment(garment, body, emb, cfg_new.sim, min(batch, len(poses)), starts[0],
+                                           bvs[0].numpy())
+            build_cpu = time.process_time() - c0
+            results = bd.run(starts, bvs.numpy())
+            print(f"# {set_name}: {setting} built in {time.perf_counter() - t0:.1f} s ({build_cpu:.1f} CPU s, "
+                  "not counted: a generation worker builds it once)", flush=True)
+            for res, name in zip(results, names, strict=True):
+                ok, reason = check_garment_result(res, garment, cfg_new.sim)
+                rows.append({"set": set_name, "pose": name, "setting": setting, "frames": int(res.iterations),
+                             "cpu_s": round(res.cpu_seconds, 2), "wall_s": round(res.seconds, 2), "ok": ok,
+                             "reason": reason or "kept", "residual": round(float(res.residual), 5)})
+
     summary = {}
     print(f"\n{'poses':8s} {'setting':8s} {'n':>3s} {'kept':>5s} {'keep rate':>9s} {'mean frames':>11s} "
           f"{'cpu s/drape':>11s} {'kept/cpu-h':>10s}  discards")
     for set_name in ("sampled", "real", "all"):
-        for setting in ("old", "new"):
+        for setting in settings:
             rs = [r for r in rows if r["setting"] == setting and set_name in ("all", r["set"])]
             if not rs:
                 continue
@@ -347,10 +372,13 @@ def compare_main(argv: list[str]) -> dict:
             summary.setdefault(set_name, {})[setting] = s
             print(f"{set_name:8s} {setting:8s} {s['n']:3d} {kept:5d} {s['keep_rate']:9.2f} {s['mean_frames']:11.1f} "
                   f"{s['cpu_s_per_drape']:11.2f} {s['kept_per_cpu_hour']:10.1f}  {reasons}")
-        old, new = summary[set_name]["old"], summary[set_name]["new"]
-        summary[set_name]["cpu_per_drape_new_over_old"] = round(new["cpu_s_per_drape"] / old["cpu_s_per_drape"], 3)
-        summary[set_name]["kept_per_cpu_hour_new_over_old"] = (
-            round(new["kept_per_cpu_hour"] / old["kept_per_cpu_hour"], 2) if old["kept_per_cpu_hour"] else None)
+        old = summary[set_name]["old"]
+        for setting in settings[1:]:
+            new = summary[set_name][setting]
+            summary[set_name][f"cpu_per_drape_{setting}_over_old"] = round(new["cpu_s_per_drape"]
+                                                                           / old["cpu_s_per_drape"], 3)
+            summary[set_name][f"kept_per_cpu_hour_{setting}_over_old"] = (
+                round(new["kept_per_cpu_hour"] / old["kept_per_cpu_hour"], 2) if old["kept_per_cpu_hour"] else None)
     figures = {"device": device, "data": str(cfg_new.data.name), "vertices": int(garment.vertices.shape[0]),
                "old": OLD_SIM, "overrides": overrides, "summary": summary, "rows": rows}
     print(json.dumps(figures))
