@@ -46,6 +46,7 @@ from pbc.pretrained.pack import mean_training_offsets, score
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[2]
+SAMPLES_SEEN = 2000  # the curve's budget per point; a point trained for another budget is named for it
 CLIPS = (REPO / "tests/data/bvh/cmu_mb_02_01_walk.bvh", REPO / "tests/data/bvh/cmu_mb_01_01_lfingers.bvh")
 
 
@@ -79,8 +80,9 @@ def mocap_set(work: Path, overrides: list[str]) -> dict:
 
 def train_point(work: Path, pool, overrides: list[str], n: int, mirrors: bool, samples_seen: int) -> dict:
     """Train (or find) the point's run; returns its record without scores."""
-    name = f"n{n:04d}_{'mirror' if mirrors else 'plain'}"
-    sub = work / "subsets" / name
+    data_name = f"n{n:04d}_{'mirror' if mirrors else 'plain'}"
+    name = data_name + ("" if samples_seen == SAMPLES_SEEN else f"_s{samples_seen}")
+    sub = work / "subsets" / data_name
     run = work / "runs" / name
     done = run / "learning_curve_point.json"
     if done.is_file():
@@ -96,7 +98,7 @@ def train_point(work: Path, pool, overrides: list[str], n: int, mirrors: bool, s
     t0 = time.time()
     subprocess.run(cmd, check=True, cwd=REPO)
     record = {"name": name, "train_poses": n, "mirrors": mirrors, "train_rows": rows, "epochs": epochs,
-              "samples_seen": epochs * rows, "train_wall_s": round(time.time() - t0, 1)}
+              "budget": samples_seen, "samples_seen": epochs * rows, "train_wall_s": round(time.time() - t0, 1)}
     write_json(done, record)
     return record
 
@@ -126,22 +128,28 @@ def plot(results: list[dict], path: Path, data: str) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
     for ax, key, title in ((axes[0], "sampled", "held-out sampled poses (D.3)"),
                            (axes[1], "mocap", "held-out motion-capture frames (CMU)")):
-        for mirrors, style in ((False, "-"), (True, "--")):
-            pts = sorted((r for r in results if r["mirrors"] == mirrors), key=lambda r: r["train_poses"])
-            if not pts:
-                continue
+        groups = sorted({(r["mirrors"], r.get("budget", SAMPLES_SEEN)) for r in results})
+        for mirrors, budget in groups:
+            pts = sorted((r for r in results if r["mirrors"] == mirrors and r.get("budget", SAMPLES_SEEN) == budget),
+                         key=lambda r: r["train_poses"])
+            style = ("--" if mirrors else "-") + ("o" if budget == SAMPLES_SEEN else "^")
             x = [r["train_poses"] for r in pts]
-            tag = "mirrored" if mirrors else "plain"
-            ax.plot(x, [r[key]["model_cm"] for r in pts], style + "o", color="C0", label=f"model ({tag})")
-            ax.plot(x, [r[key]["mean_shape_cm"] for r in pts], style + "s", color="C1",
-                    label=f"training mean shape ({tag})")
+            tag = ("mirrored" if mirrors else "plain") + ("" if budget == SAMPLES_SEEN else f", {budget:,} seen")
+            ax.plot(x, [r[key]["model_cm"] for r in pts], style, color="C0" if budget == SAMPLES_SEEN else "C2",
+                    label=f"model ({tag})")
+            if budget == SAMPLES_SEEN:
+                ax.plot(x, [r[key]["mean_shape_cm"] for r in pts], style[:-1] + "s", color="C1",
+                        label=f"training mean shape ({tag})")
         ax.set_xscale("log")
+        ticks = sorted({r["train_poses"] for r in results})
+        ax.set_xticks(ticks, [str(t) for t in ticks])
+        ax.minorticks_off()
         ax.set_xlabel("training poses (draped; mirror images not counted)")
         ax.set_title(title)
         ax.grid(True, alpha=0.3)
     axes[0].set_ylabel("mean vertex error (cm)")
     axes[1].legend(fontsize=8)
-    fig.suptitle(f"Whole-shirt model vs its training mean shape, {data}, equal samples seen per point")
+    fig.suptitle(f"Whole-shirt model vs its training mean shape, {data}: {SAMPLES_SEEN:,} samples seen per point")
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
@@ -151,7 +159,7 @@ def main(argv: list[str]) -> list[dict]:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("work", nargs="?", default="/tmp/pbc_learning_curve", type=Path)
     ap.add_argument("--sizes", default="50,100,200,400,all")
-    ap.add_argument("--samples-seen", type=int, default=2000)
+    ap.add_argument("--samples-seen", type=int, default=SAMPLES_SEEN)
     ap.add_argument("--num-samples", type=int, default=1200)
     ap.add_argument("--mirror", choices=("both", "off", "on"), default="both")
     ap.add_argument("--data", default="tshirt_small", help="the data config of the pool (tshirt_tiny: a smoke run)")
