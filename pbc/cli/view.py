@@ -7,7 +7,7 @@ import argparse
 
 from pbc.cli.errors import entry_point
 from pbc.inference.predictor import ClothPredictor, pretrained_run, stitch_config
-from pbc.jobs.view import check_port, load_sequence, start_viewer, url, view_config, wait_forever
+from pbc.jobs.view import check_port, load_sequence, start_viewer, stop_within, url, view_config, wait_forever
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
 
@@ -74,6 +74,7 @@ def run(argv: list[str]) -> int:
     sequence, fps = load_sequence(args.sequence, predictor.dataset, args.allow_rest) if args.sequence else (None, None)
     viewer = start_viewer(predictor, args.host, args.port, sequence, cfg, sequence_fps=fps)
     print(f"pbc view: {url(viewer)}  (Ctrl-C stops it)", flush=True)
+    stop_within(float(cfg.stop_grace_s))
     try:
         wait_forever(viewer)
     except KeyboardInterrupt:  # Ctrl-C is how a viewer ends, not a failure

@@ -16,7 +16,10 @@ dragged slider shows its latest value rather than replaying every intermediate o
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import ipaddress
+import os
+import signal
 import socket
 import sys
 import threading
@@ -487,6 +490,28 @@ def url(viewer: ClothViewer) -> str:
     host = viewer.server.get_host()
     shown = "localhost" if is_loopback(host) else machine_address() if host in WILDCARD_HOSTS else host
     return f"http://{shown}:{viewer.server.get_port()}/"
+
+
+def stop_within(grace_s: float, say=lambda text: print(text, flush=True)) -> None:
+    """Make Ctrl-C end this process whatever its threads do: SIGINT raises KeyboardInterrupt as Python's own
+    handler does, and arms a watchdog that, if the process is still alive `grace_s` seconds later (a thread
+    of the web server or a library holding the exit), writes every thread's stack to stderr, says the viewer
+    stopped, and exits with status 0: the user asked it to stop, and a second Ctrl-C should not be needed."""
+    def force_exit() -> None:
+        sys.stderr.write(f"pbc view: still running {grace_s:g} s after Ctrl-C; every thread's stack:\n")
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        say(f"pbc view: stopped (forced {grace_s:g} s after Ctrl-C)")
+        os._exit(0)
+
+    def on_interrupt(signum, frame) -> None:
+        watchdog = threading.Timer(grace_s, force_exit)
+        watchdog.daemon = True
+        watchdog.start()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_interrupt)
 
 
 def wait_forever(viewer: ClothViewer, poll_s: float = 1.0) -> None:

@@ -224,3 +224,27 @@ if __name__ == "__main__":
     ap.add_argument("--out", default=str(ROOT / "docs" / "figures" / "viewer.png"))
     a = ap.parse_args()
     print(write_figure(a.whole_run, a.patches, Path(a.out)))
+
+
+def test_ctrl_c_ends_the_process_even_when_a_thread_holds_its_exit():
+    """stop_within: a non-daemon thread that never ends would keep a viewer alive after Ctrl-C; the watchdog
+    ends the process within the grace, status 0, with every thread's stack on stderr to say what held it."""
+    script = (
+        "import os, signal, threading, time\n"
+        "from pbc.jobs.view import stop_within\n"
+        "threading.Thread(target=lambda: time.sleep(3600), name='holds-the-exit').start()\n"
+        "stop_within(1.0)\n"
+        "print('ready', flush=True)\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    time.sleep(60)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted', flush=True)\n"
+    )
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == ["ready", "interrupted", "pbc view: stopped (forced 1 s after Ctrl-C)"]
+    assert "still running 1 s after Ctrl-C" in proc.stderr and "holds-the-exit" not in proc.stdout
+    assert "Thread 0x" in proc.stderr  # faulthandler's per-thread stacks
+    assert time.monotonic() - t0 < 60
