@@ -21,10 +21,10 @@ from pathlib import Path
 
 from pbc.core.io import write_json
 from pbc.data.dataset import SPLITS, ClothDataset, dataset_fingerprint
+from pbc.data.trimmed import GEOMETRY_FILES
 
 # the arrays a dataset may hold (pbc.data.dataset's layout): linked, never copied
 ARRAY_FILES = ("poses.npy", "verts.npy", "angles.npy", "person.npy", "shapes.npz")
-GEOMETRY_FILES = ("garment.obj", "cage.json", "body.npz", "embedding.npz")
 
 
 def originals_and_mirrors(ds: ClothDataset) -> tuple[list[int], dict[int, int]]:
