@@ -6,6 +6,10 @@ equation carries their displacements to the other vertices; (b) vertices inside 
 out and every vertex is put on the surface; (c) an edge-length-equalising relaxation constrained to
 the surface spreads the distortion evenly; (d) each vertex is embedded in its closest body triangle.
 The surface is the body's analytic SDF (rest pose); the embedding uses the body mesh.
+
+Every step follows the body region a garment region covers (`garment_regions`): a sleeve is wrapped,
+projected and embedded on the arm it surrounds, a trouser leg on its leg, even where another part's
+surface is nearer (the inner sleeve of an A-posed body hangs a few centimetres from the torso's side).
 """
 
 from __future__ import annotations
@@ -48,23 +52,156 @@ def _sw_cfg(cfg):
 
 
 # --------------------------------------------------------------------------------------------------
+# body regions: which body part a garment region covers
+
+REGIONS = ("torso", "left arm", "right arm", "left leg", "right leg")
+LIMB_JOINTS = {1: "l_arm", 2: "r_arm", 3: "l_hip", 4: "r_hip"}  # each limb: this joint and its descendants
+LIMB_WEIGHT = 0.5  # a body vertex belongs to a limb when the limb's joints carry at least this skinning weight
+
+
+def body_region_faces(body: Body) -> list[np.ndarray | None]:
+    """Per region of REGIONS, the body triangles (ids) a garment region on it is wrapped and embedded on; None
+    for the torso (the whole surface) and for a limb the body lacks (the mannequin has no legs).
+
+    Arms: the body's arm part masks (``body.parts``); legs: the vertices the hip's chain carries at least
+    LIMB_WEIGHT of. A triangle is in a limb when any of its corners is, so the seam band (the shoulder, the
+    groin) stays reachable from both sides."""
+    sk = body.skeleton
+    names, parents = list(sk.names), list(sk.parents)
+    faces = body.faces.cpu().numpy()
+    weights = body.weights.cpu().numpy()
+    out: list[np.ndarray | None] = [None]
+    for r, joint in LIMB_JOINTS.items():
+        if joint not in names:
+            out.append(None)
+            continue
+        if r in (1, 2) and body.parts.shape[0] > r:
+            mask = body.parts[r].cpu().numpy().astype(bool)
+        else:
+            chain = {names.index(joint)}
+            for j, par in enumerate(parents):  # parents precede children
+                if par in chain:
+                    chain.add(j)
+            mask = weights[:, [1 + j for j in sorted(chain)]].sum(1) >= LIMB_WEIGHT
+        tri = np.flatnonzero(mask[faces].any(1))
+        out.append(tri if len(tri) else None)
+    return out
+
+
+ENCLOSE_DEG = 270.0  # a garment region surrounds a limb when it covers this much of the way round its bones
+ENCLOSE_SLICE = 0.03  # m along the limb's bones per slice of that measure
+
+
+def _limb_chain(body: Body, joint: str) -> np.ndarray:
+    """The bone segments (S, 2, 3) of the limb starting at ``joint``: joint -> child -> ... -> last joint."""
+    sk = body.skeleton
+    names, parents = list(sk.names), list(sk.parents)
+    heads = sk.rest_heads.double().cpu().numpy()
+    chain = [names.index(joint)]
+    while (children := [j for j, par in enumerate(parents) if par == chain[-1]]):
+        chain.append(children[0])
+    return np.asarray([(heads[a], heads[b]) for a, b in zip(chain[:-1], chain[1:], strict=True)]).reshape(-1, 2, 3)
+
+
+def encircled_degrees(points: np.ndarray, segs: np.ndarray) -> float:
+    """How far round the bones segs (S, 2, 3) the points (N, 3) reach, in degrees: the median over slices of
+    ENCLOSE_SLICE along each bone of 360 minus the widest empty angle about it (a ring: 360; one side: ~180).
+    A limb without bones (the mannequin's one-segment arm) is measured about its one segment."""
+    if len(segs) == 0 or len(points) < 3:
+        return 0.0
+    a, b = segs[:, 0], segs[:, 1]
+    ab = b - a
+    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    q = a[None] + t[..., None] * ab[None]
+    k = np.linalg.norm(points[:, None] - q, axis=2).argmin(1)  # the bone of each point
+    cover = []
+    for s in np.unique(k):
+        d = ab[s] / max(np.linalg.norm(ab[s]), 1e-12)
+        ref = np.cross(d, [0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.cross(d, [1.0, 0.0, 0.0])
+        ref /= np.linalg.norm(ref)
+        other = np.cross(d, ref)
+        sel = k == s
+        r = points[sel] - q[sel, s]
+        ang = np.degrees(np.arctan2(r @ other, r @ ref))
+        along = t[sel, s] * np.linalg.norm(ab[s])
+        for sl in np.unique(np.floor(along / ENCLOSE_SLICE)):
+            angles = np.sort(ang[np.floor(along / ENCLOSE_SLICE) == sl])
+            if len(angles) < 3:
+                continue
+            gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
+            cover.append(360.0 - gaps.max())
+    return float(np.median(cover)) if cover else 0.0
+
+
+def garment_regions(cage, points: np.ndarray, body: Body, candidates: int = 12, limbs: bool = True) -> np.ndarray:
+    """(V,) region of REGIONS per garment vertex (`_regions`)."""
+    return _regions(cage, points, body, candidates, limbs)[0]
+
+
+def _regions(cage, points: np.ndarray, body: Body, candidates: int = 12, limbs: bool = True
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """(V,) region of REGIONS per garment vertex at ``points`` (V, 3) (the garment as placed on the rest body).
+
+    pbc's shirt names its sleeve patches (``*sleeve_left*`` / ``*sleeve_right*``): those are on their arm, the
+    rest on the torso. Any other garment is decided per cage patch, so a whole sleeve goes with its arm: the
+    region whose surface the patch's vertices lie closest to, on median (the torso measured on its own
+    triangles, outside every limb; a limb's patch that reaches the other limb, like the seat of trousers, is
+    split between them vertex by vertex), kept for a limb only where the garment's patches on that limb surround it
+    (`encircled_degrees` >= ENCLOSE_DEG: a sleeve or a trouser leg, not a skirt's side beside a leg or a cape
+    over an arm). ``limbs`` False (garment.shrinkwrap.arm_parts: the skirt, the trousers): all torso.
+
+    Returns the regions (V,) and, where measured, the region each patch lies nearest (P,), else None."""
+    region = np.zeros(len(points), np.int64)
+    named = [p for p in cage.patches if "sleeve_left" in p.name or "sleeve_right" in p.name]
+    for p in named:
+        region[np.asarray(p.vertices, np.int64)] = 1 if "sleeve_left" in p.name else 2
+    if named or not limbs:
+        return region, None
+    surface = _RestSurface(body, candidates)
+    faces = body_region_faces(body)
+    reached = [r for r, tri in enumerate(faces) if tri is not None]
+    if not reached:
+        return region, None
+    in_limb = np.zeros(len(surface.tris), bool)
+    for r in reached:
+        in_limb[faces[r]] = True
+    allowed = {0: np.flatnonzero(~in_limb), **{r: faces[r] for r in reached}}
+    pts = np.asarray(points, np.float64)
+    dist = np.full((len(REGIONS), len(pts)), np.inf)
+    for r, tri in allowed.items():
+        if len(tri):
+            cp, _ = surface.closest(pts, tri)
+            dist[r] = np.linalg.norm(cp - pts, axis=1)
+    # a patch on a limb that reaches the other limb (the seat of trousers, over both thighs): each of its
+    # vertices on the limb it lies nearer
+    limb = 1 + np.argmin(dist[1:], axis=0)
+    nearest = np.zeros(len(cage.patches), np.int64)
+    for i, p in enumerate(cage.patches):
+        v = np.asarray(p.vertices, np.int64)
+        if len(v):
+            nearest[i] = int(np.argmin(np.median(dist[:, v], axis=1)))
+            on = limb[v] if nearest[i] > 0 else 0
+            region[v] = np.maximum(region[v], on)  # a seam between a limb's patch and the trunk's: limb
+    for r in reached:
+        on = region == r
+        if on.any() and encircled_degrees(pts[on], _limb_chain(body, LIMB_JOINTS[r])) < ENCLOSE_DEG:
+            region[on] = 0
+    return region, nearest
+
+
+# --------------------------------------------------------------------------------------------------
 # garment-side helpers
 
 
-def vertex_parts(cage, num_vertices: int, wrapped: np.ndarray | None = None, body: Body | None = None) -> np.ndarray:
+def vertex_parts(region: np.ndarray, wrapped: np.ndarray | None = None, body: Body | None = None) -> np.ndarray:
     """(V,) primary collision part per vertex (appendix D.6): 0 torso, 1 left arm, 2 right arm.
 
-    Sleeve patches (``*sleeve_left*`` / ``*sleeve_right*``) collide with their arm. With the wrapped rest
-    positions (V, 3) and the body, torso-panel vertices lying beyond an arm joint (|x| past the ``l_arm``
-    / ``r_arm`` head) collide with that arm too: they cover the upper arm, and a torso-only collider would
-    let them sink into it once the arm moves.
+    A vertex on an arm region (`garment_regions`) collides with that arm; legs collide with the torso part
+    (its primitives hold the legs). With the wrapped rest positions (V, 3) and the body, torso-region vertices
+    lying beyond an arm joint (|x| past the ``l_arm`` / ``r_arm`` head) collide with that arm too: they cover
+    the upper arm, and a torso-only collider would let them sink into it once the arm moves.
     """
-    part = np.zeros(num_vertices, np.int64)
-    for p in cage.patches:
-        if "sleeve_left" in p.name:
-            part[p.vertices] = 1
-        elif "sleeve_right" in p.name:
-            part[p.vertices] = 2
+    part = np.where(np.isin(region, (1, 2)), region, 0).astype(np.int64)
     if wrapped is not None and body is not None:
         names = list(body.skeleton.names)
         heads = body.skeleton.rest_heads.numpy()
@@ -138,11 +275,19 @@ class _RestSurface:
         self.tris = body.vertices.double().cpu().numpy()[body.faces.cpu().numpy()]  # (Fb, 3, 3)
         self.tree = cKDTree(self.tris.mean(axis=1))
         self.k = min(int(candidates), len(self.tris))
+        self._trees: dict = {}
+        self.region_faces = body_region_faces(body)
 
     def sdf(self, points: np.ndarray, part: int | None = None) -> np.ndarray:
         with torch.no_grad():
             p = torch.as_tensor(points, dtype=torch.float32)[None]
             return body_sdf(self.body, self.rot, p, part=part)[0].double().numpy()
+
+    def _tree(self, allowed: np.ndarray) -> cKDTree:
+        key = (len(allowed), int(allowed[0]), int(allowed[-1]), int(allowed.sum()))
+        if key not in self._trees:
+            self._trees[key] = cKDTree(self.tris[allowed].mean(axis=1))
+        return self._trees[key]
 
     def closest(self, points: np.ndarray, allowed: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +297,7 @@ class _RestSurface:
         if allowed is None:
             tree, ids, k = self.tree, None, self.k
         else:
-            tree, ids, k = cKDTree(self.tris[allowed].mean(axis=1)), allowed, min(self.k, len(allowed))
+            tree, ids, k = self._tree(allowed), allowed, min(self.k, len(allowed))
         _, cand = tree.query(pts, k=k)
         cand = np.asarray(cand).reshape(len(pts), k)
         if ids is not None:
@@ -165,6 +310,18 @@ class _RestSurface:
 
     def project(self, points: np.ndarray) -> np.ndarray:
         return self.closest(points)[0]
+
+    def closest_in_regions(self, points: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`closest` for garment points (N, 3) each kept on its region's triangles (region (N,) of REGIONS;
+        the torso, and a limb the body lacks, reach the whole surface)."""
+        cp, face = self.closest(points)
+        for r in np.unique(region):
+            tri = self.region_faces[r] if r < len(self.region_faces) else None
+            if tri is None:
+                continue
+            sel = region == r
+            cp[sel], face[sel] = self.closest(np.asarray(points)[sel], tri)
+        return cp, face
 
 
 def _bone_segments(body: Body) -> tuple[np.ndarray, np.ndarray, float]:
@@ -284,13 +441,15 @@ def cage_targets(garment: Garment, cage, body: Body, surface: _RestSurface, part
 
 
 def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, iterations: int, step: float,
-                     tol: float) -> tuple[np.ndarray, int]:
+                     tol: float, region: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Edge-length-equalising relaxation constrained to the body surface (appendix D.5).
 
     Per step: alpha_v = mean over incident edges of l_e / rest_e; edge (a, b) targets
     0.5 (alpha_a + alpha_b) rest_e; each vertex moves by ``step`` x the mean of its springs' position
-    corrections, then is projected back onto the surface. x (V, 3) -> (V, 3), steps taken.
+    corrections, then is projected back onto the surface (its region's, with ``region`` (V,)). x (V, 3) ->
+    (V, 3), steps taken.
     """
+    region = np.zeros(len(x), np.int64) if region is None else region
     edges, rest = garment_edges(garment)
     a, b = edges[:, 0], edges[:, 1]
     n = len(x)
@@ -309,7 +468,7 @@ def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, ite
         move = np.zeros_like(x)
         for k in range(3):
             move[:, k] = np.bincount(a, c[:, k], n) - np.bincount(b, c[:, k], n)
-        new = surface.project(x + step * move / deg[:, None])
+        new = surface.closest_in_regions(x + step * move / deg[:, None], region)[0]
         delta = np.abs(new - x).max()
         x = new
         if delta < tol:
@@ -319,11 +478,18 @@ def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, ite
 
 def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, dict]:
     """Steps (a)-(c): the garment shrink-wrapped onto the rest body, (V, 3) float64, and stats."""
+    x, _, stats = _wrap(garment, cage, body, cfg)
+    return x, stats
+
+
+def _wrap(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, np.ndarray, dict]:
+    """`wrap_positions` and the garment regions (V,) it wrapped each vertex on."""
     sw = _sw_cfg(cfg)
     t0 = time.perf_counter()
     surface = _RestSurface(body, int(sw.nearest_triangles))
-    part = vertex_parts(cage, garment.num_vertices)  # rays start from the bone under each patch
     x0 = garment.vertices.double().cpu().numpy()
+    region, nearest = _regions(cage, x0, body, int(sw.nearest_triangles), bool(sw.get("arm_parts", True)))
+    part = vertex_parts(region)  # rays start from the bone under each patch
     faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)
     chart_names = chart_names_from_cage(cage, face_chart, faces)
@@ -342,15 +508,15 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
     x = x0 + disp
     morph_inside = int((surface.sdf(x) < 0).sum())
     # (b) push out and settle every vertex on the surface (the wrap is skin tight)
-    x = surface.project(x)
+    x = surface.closest_in_regions(x, region)[0]
     before = area_ratio(garment, x)
     # (c) relaxation on the surface
     x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
-                                float(sw.relax_tol))
+                                float(sw.relax_tol), region)
     after = area_ratio(garment, x)
     pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
-    stretch = patch_stretch(face_areas(x, faces), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3)),
-                            face_patches(cage, faces), len(cage.patches))
+    wrapped_area, pattern_area = face_areas(x, faces), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3))
+    stretch = patch_stretch(wrapped_area, pattern_area, face_patches(cage, faces), len(cage.patches))
     stats = {"cage_vertices": int(len(ids)), "morph_inside": morph_inside, "relax_iterations": int(iters),
              "max_abs_sdf": float(np.abs(surface.sdf(x)).max())}
     stats.update(_ratio_stats(before, "area_before"))
@@ -363,16 +529,23 @@ def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray,
         fp = face_patches(cage, faces)
         patch_chart = [chart_names[int(np.bincount(face_chart[fp == p.id]).argmax())] if (fp == p.id).any() else "?"
                        for p in cage.patches]
-        check_stretch(stretch, [p.name for p in cage.patches], patch_chart, float(limit), sleeves)
+        on = [REGIONS[int(np.bincount(region[p.vertices]).argmax())] if len(p.vertices) else "torso"
+              for p in cage.patches]
+        overall = float(wrapped_area.sum() / max(float(pattern_area.sum()), 1e-30))
+        check_stretch(stretch, [p.name for p in cage.patches], patch_chart, float(limit), sleeves, on,
+                      None if nearest is None else [REGIONS[r] for r in nearest], overall)
     stats["wrap_seconds"] = time.perf_counter() - t0
-    return x, stats
+    return x, region, stats
 
 
-def embed_points(points: np.ndarray, body: Body, part: np.ndarray, candidates: int) -> Embedding:
-    """(d) Closest rest-body-mesh triangle and barycentric weights of points (V, 3); part (V,) is stored
-    as the primary collision part. ``candidates`` nearest triangle centroids are tested exactly."""
+def embed_points(points: np.ndarray, body: Body, part: np.ndarray, candidates: int,
+                 region: np.ndarray | None = None) -> Embedding:
+    """(d) Closest rest-body-mesh triangle and barycentric weights of points (V, 3), each within its region's
+    triangles when ``region`` (V,) is given (`garment_regions`); part (V,) is stored as the primary collision
+    part. ``candidates`` nearest triangle centroids are tested exactly."""
     surface = _RestSurface(body, candidates)
-    cpt, face = surface.closest(np.asarray(points, np.float64))
+    pts = np.asarray(points, np.float64)
+    cpt, face = surface.closest(pts) if region is None else surface.closest_in_regions(pts, region)
     w = trimesh.triangles.points_to_barycentric(surface.tris[face], cpt)
     w = np.clip(w, 0.0, None)  # the closest point is on the triangle: only round-off is negative
     w /= w.sum(1, keepdims=True)
@@ -385,17 +558,20 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
 
     cfg: the garment config (its ``shrinkwrap`` node is used) or that node itself. Returns the
     Embedding (V,) and stats: area distortion (wrapped area / pattern area per face) mean/min/max/std
-    before and after the relaxation, iterations, max |sdf| of the wrap, embedding error, seconds.
+    before and after the relaxation, iterations, max |sdf| of the wrap, embedding error, seconds, and how
+    many vertices each body region took.
     """
     t0 = time.perf_counter()
-    x, stats = wrap_positions(garment, cage, body, cfg)
+    x, region, stats = _wrap(garment, cage, body, cfg)
     # a garment that covers no arm (the skirt, the trousers: garment.shrinkwrap.arm_parts false) collides
     # with the torso part only, though its hips reach past the arm joints' x
     arms = bool(_sw_cfg(cfg).get("arm_parts", True))
-    part = vertex_parts(cage, garment.num_vertices, x if arms else None, body if arms else None)
-    emb = embed_points(x, body, part, int(_sw_cfg(cfg).nearest_triangles))
+    part = vertex_parts(region, x if arms else None, body if arms else None)
+    emb = embed_points(x, body, part, int(_sw_cfg(cfg).nearest_triangles), region)
     rest = embedded_points(body.vertices[None].double(), body.faces, emb)[0].numpy()
     stats["embed_max_distance"] = float(np.linalg.norm(rest - x, axis=1).max())
+    stats.update({f"region_{name.replace(' ', '_')}_vertices": int((region == r).sum())
+                  for r, name in enumerate(REGIONS)})
     stats["seconds"] = time.perf_counter() - t0
     return emb, stats
 

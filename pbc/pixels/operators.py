@@ -184,9 +184,12 @@ def build_operators(
     if exact:
         # Kaczmarz-style minimum-norm correction of the sampled rows: R += S^T D (I - S R), D = 1/|S_v|^2.
         # One step is exact where vertices read disjoint pixels; a few more settle shared pixels.
+        # Where vertices crowd a few pixels (a small chart at a low resolution) the steps can overshoot and
+        # grow without bound: the correction keeps the best R it met and stops once the residual runs away.
         D = sp.diags(1.0 / np.square(s_w).sum(1))
+        best, best_residual = R, residual
         for _ in range(max_iter):
-            if residual < tol:
+            if residual < tol or not residual < 100.0 * best_residual:
                 break
             E = eye - S @ R
             E.data[np.abs(E.data) < 1e-12] = 0.0
@@ -195,6 +198,9 @@ def build_operators(
             R.data[np.abs(R.data) < 1e-12] = 0.0
             R.eliminate_zeros()
             residual = abs(eye - S @ R).max()
+            if residual < best_residual:
+                best, best_residual = R, residual
+        R, residual = best, best_residual
     R.sort_indices()
     mask = np.diff(R.indptr) > 0
     return {

@@ -13,7 +13,7 @@ from pbc.core.config import load_garment_config
 from pbc.geometry.body.base import body_sdf
 from pbc.geometry.body.mannequin import build_mannequin
 from pbc.geometry.garment.tshirt import make_tshirt
-from pbc.geometry.shrinkwrap import embed_points, embedded_points, vertex_parts, wrap_positions
+from pbc.geometry.shrinkwrap import embed_points, embedded_points, garment_regions, vertex_parts, wrap_positions
 
 ROOT = Path(__file__).resolve().parents[2]
 COARSE_VOXEL = 0.025  # a coarse body mesh keeps the test in seconds
@@ -28,7 +28,7 @@ def wrapped():
     cfg = load_garment_config(conf / "garment" / "tshirt_coarse.yaml", conf / "image" / "default.yaml")
     garment, cage = make_tshirt(cfg)
     x, stats = wrap_positions(garment, cage, body, cfg)
-    emb = embed_points(x, body, vertex_parts(cage, garment.num_vertices), int(cfg.shrinkwrap.nearest_triangles))
+    emb = embed_points(x, body, vertex_parts(garment_regions(cage, x, body)), int(cfg.shrinkwrap.nearest_triangles))
     return body, garment, cage, x, stats, emb
 
 

@@ -225,24 +225,41 @@ def patch_stretch(wrapped_area: np.ndarray, pattern_area: np.ndarray, face_patch
 
 
 def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: list[str], limit: float,
-                  sleeves: dict | None = None) -> None:
+                  sleeves: dict | None = None, patch_regions: list[str] | None = None,
+                  patch_nearest: list[str] | None = None, overall: float | None = None) -> None:
     """Refuse a shrink-wrap that stretches a cage patch past ``limit`` x its pattern area, naming the chart,
-    the patch, the stretch and the likely fix (the rest pose when a sleeve is off the rest arm, else the
-    UV unit)."""
+    the patch, the stretch, the body part it was wrapped on (``patch_regions``), and the likely cause with its
+    fix: a sleeve off the rest arm (the rest pose), a patch wrapped on another body part than the one it lies
+    nearest (``patch_nearest``: it does not surround that limb), or, only when the whole garment is stretched
+    (``overall``, its wrapped over its pattern area, past 3/4 of the limit) or nothing else explains it, the UV
+    unit."""
     bad = np.flatnonzero(stretch > limit)
     if not len(bad):
         return
     k = int(bad[np.argmax(stretch[bad])])
     listed = ", ".join(f"{patch_names[i]} {stretch[i]:.1f}x" for i in bad[np.argsort(-stretch[bad])][:6])
+    on = f", wrapped on the {patch_regions[k]}" if patch_regions is not None else ""
     off = {s: a for s, a in (sleeves or {}).items() if a["angle_deg"] > 10.0}  # a sleeve clearly off its arm
-    if off:
+    uv_unit = ("the pattern is smaller than the garment: check garment.uv_unit (`pbc garment inspect` names the "
+               "one that fits)")
+    if overall is not None and overall > 0.75 * limit:
+        why = f"the whole garment is stretched {overall:.1f}x: {uv_unit}"
+    elif off:
         side, a = max(off.items(), key=lambda kv: kv[1]["angle_deg"])
         why = (f"the {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm: match the rest pose "
                "(rotate the sleeves onto the rest arms)")
+    elif patch_regions is not None and patch_nearest is not None and patch_regions[k] != patch_nearest[k]:
+        why = (f"the patch lies nearest the {patch_nearest[k]} but the garment there does not surround it, so it "
+               f"was wrapped on the {patch_regions[k]}: place the garment so its part round the "
+               f"{patch_nearest[k]} closes round it (a sleeve, a trouser leg), or cut off what hangs beside it")
+    elif patch_regions is not None:
+        why = (f"it lies too far from the {patch_regions[k]} or is caught between body parts: place the garment "
+               f"closer to the {patch_regions[k]} there (`pbc garment inspect --out DIR` shows it on the body)")
     else:
-        why = ("the pattern is smaller than the garment: check garment.uv_unit (`pbc garment inspect` names the "
-               "one that fits)")
+        why = uv_unit
     raise ValueError(
-        f"the shrink-wrap stretches chart '{patch_charts[k]}' (patch {patch_names[k]}) to {stretch[k]:.1f}x its "
+        f"the shrink-wrap stretches chart '{patch_charts[k]}' (patch {patch_names[k]}{on}) to {stretch[k]:.1f}x its "
         f"pattern area (patches past garment.shrinkwrap.max_patch_stretch = {limit:g}: {listed}); its drapes "
-        f"would all be discarded (area_stretched). Likely cause: {why}, or place the garment closer to the body")
+        f"would all be discarded (area_stretched). Likely cause: {why}")
+
+

