@@ -136,6 +136,9 @@ def operator_key(garment, resolution: int, pad: int, exact: bool) -> str:
     return h.hexdigest()[:16]
 
 
+READBACK_TOL = 1e-3  # |S R - I| past this: a vertex's value does not survive rendering and sampling back
+
+
 def build_operators(
     garment, resolution: int, pad: int, exact: bool = True, tol: float = 1e-7, max_iter: int = 50
 ) -> dict[str, np.ndarray]:
@@ -201,6 +204,12 @@ def build_operators(
             if residual < best_residual:
                 best, best_residual = R, residual
         R, residual = best, best_residual
+        if residual > READBACK_TOL:
+            err = np.asarray(abs(eye - S @ R).max(axis=1).todense()).ravel()
+            warnings.warn(f"at {res} x {res} px, {int((err > READBACK_TOL).sum())} of {V} garment vertices cannot be "
+                          f"read back from the cloth images (largest error {residual:.2g}): their charts are too "
+                          "small at this resolution; raise image.whole_resolution / image.patch_resolution",
+                          stacklevel=2)
     R.sort_indices()
     mask = np.diff(R.indptr) > 0
     return {

@@ -28,6 +28,7 @@ from pbc.geometry.shrinkwrap import (
     vertex_parts,
     wrap_positions,
 )
+from pbc.pixels.operators import build_operators
 
 SLEEVE_X = 0.25  # m: a cage patch centred this far from the midplane is a sleeve's (the torso's are at 0)
 
@@ -151,3 +152,15 @@ def test_the_stretch_refusal_names_the_body_part_and_the_cause():
         check_stretch(np.array([9.0, 9.5]), names, charts, 2.0, {}, ["torso", "left arm"], None, 9.2)
     assert "the whole garment is stretched 9.2x" in str(err.value) and "garment.uv_unit" in str(err.value)
     check_stretch(np.array([1.0, 1.9]), names, charts, 2.0)  # within the limit: nothing
+
+
+def test_operators_of_charts_too_small_for_the_image_stay_bounded_and_say_so(blouse):
+    # at 64 px the shirt's six charts crowd a few pixels each: the exact correction used to run away (|R| 4e42, a
+    # NaN loss at the first step); it keeps its best R and warns, naming the setting
+    _, g, _, _ = blouse
+    with pytest.warns(UserWarning, match="raise image.whole_resolution"):
+        small = build_operators(g, 64, 2)
+    assert np.isfinite(small["R_data"]).all() and np.abs(small["R_data"]).max() < 2.0
+    assert small["residual"] <= 1.0
+    big = build_operators(g, 256, 2)
+    assert big["residual"] < 1e-6
