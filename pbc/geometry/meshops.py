@@ -215,3 +215,33 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
             v = nxt[v]
         loops.append(np.asarray(loop, np.int64))
     return loops
+
+
+def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0.03) -> float:
+    """How far round the segments segs (S, 2, 3) (a limb's bones) the points (N, 3) reach, in degrees: each point
+    goes to its nearest segment; the median over slices ``slice_len`` m long along each segment of 360 minus
+    the widest empty angle about it (a ring round the limb: 360; cloth on one side of it: ~180)."""
+    if len(segs) == 0 or len(points) < 3:
+        return 0.0
+    a, b = segs[:, 0], segs[:, 1]
+    ab = b - a
+    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    q = a[None] + t[..., None] * ab[None]
+    k = np.linalg.norm(points[:, None] - q, axis=2).argmin(1)  # the bone of each point
+    cover = []
+    for s in np.unique(k):
+        d = ab[s] / max(np.linalg.norm(ab[s]), 1e-12)
+        ref = np.cross(d, [0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.cross(d, [1.0, 0.0, 0.0])
+        ref /= np.linalg.norm(ref)
+        other = np.cross(d, ref)
+        sel = k == s
+        r = points[sel] - q[sel, s]
+        ang = np.degrees(np.arctan2(r @ other, r @ ref))
+        along = t[sel, s] * np.linalg.norm(ab[s])
+        for sl in np.unique(np.floor(along / slice_len)):
+            angles = np.sort(ang[np.floor(along / slice_len) == sl])
+            if len(angles) < 3:
+                continue
+            gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
+            cover.append(360.0 - gaps.max())
+    return float(np.median(cover)) if cover else 0.0

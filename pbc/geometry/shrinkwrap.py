@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from pbc.geometry.body.base import Body, body_sdf
-from pbc.geometry.body.skeleton import MIDPLANE_TOL
+from pbc.geometry.body.skeleton import MIDPLANE_TOL, limb_segments
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
     chart_names_from_cage,
@@ -36,7 +36,7 @@ from pbc.geometry.garment.checks import (
     patch_stretch,
     sleeve_axes,
 )
-from pbc.geometry.meshops import face_areas, face_charts, solve_dirichlet
+from pbc.geometry.meshops import encircled_degrees, face_areas, face_charts, solve_dirichlet
 
 
 @dataclass
@@ -59,16 +59,12 @@ LIMB_JOINTS = {1: "l_arm", 2: "r_arm", 3: "l_hip", 4: "r_hip"}  # each limb: thi
 LIMB_WEIGHT = 0.5  # a body vertex belongs to a limb when the limb's joints carry at least this skinning weight
 
 
-def body_region_faces(body: Body) -> list[np.ndarray | None]:
-    """Per region of REGIONS, the body triangles (ids) a garment region on it is wrapped and embedded on; None
-    for the torso (the whole surface) and for a limb the body lacks (the mannequin has no legs).
-
-    Arms: the body's arm part masks (``body.parts``); legs: the vertices the hip's chain carries at least
-    LIMB_WEIGHT of. A triangle is in a limb when any of its corners is, so the seam band (the shoulder, the
-    groin) stays reachable from both sides."""
+def body_region_masks(body: Body) -> list[np.ndarray | None]:
+    """Per region of REGIONS, the body vertices (Vb,) bool on it; None for the torso (everything) and for a limb
+    the body lacks (the mannequin has no legs). Arms: the body's arm part masks (``body.parts``); legs: the
+    vertices the hip's chain carries at least LIMB_WEIGHT of."""
     sk = body.skeleton
     names, parents = list(sk.names), list(sk.parents)
-    faces = body.faces.cpu().numpy()
     weights = body.weights.cpu().numpy()
     out: list[np.ndarray | None] = [None]
     for r, joint in LIMB_JOINTS.items():
@@ -83,74 +79,62 @@ def body_region_faces(body: Body) -> list[np.ndarray | None]:
                 if par in chain:
                     chain.add(j)
             mask = weights[:, [1 + j for j in sorted(chain)]].sum(1) >= LIMB_WEIGHT
-        tri = np.flatnonzero(mask[faces].any(1))
-        out.append(tri if len(tri) else None)
+        out.append(mask if mask.any() else None)
     return out
 
 
-ENCLOSE_DEG = 270.0  # a garment region surrounds a limb when it covers this much of the way round its bones
-ENCLOSE_SLICE = 0.03  # m along the limb's bones per slice of that measure
+def body_region_faces(body: Body, core: bool = False) -> list[np.ndarray | None]:
+    """Per region of REGIONS, the body triangles (ids) a garment region on it is wrapped and embedded on: those
+    with any corner on the limb, so the seam band (the shoulder, the groin) stays reachable from both sides; with
+    ``core``, those with every corner on it. None for the torso (the whole surface) and for a missing limb."""
+    faces = body.faces.cpu().numpy()
+    out: list[np.ndarray | None] = []
+    for mask in body_region_masks(body):
+        if mask is None:
+            out.append(None)
+            continue
+        on = mask[faces].all(1) if core else mask[faces].any(1)
+        out.append(np.flatnonzero(on) if on.any() else None)
+    return out
 
 
-def _limb_chain(body: Body, joint: str) -> np.ndarray:
-    """The bone segments (S, 2, 3) of the limb starting at ``joint``: joint -> child -> ... -> last joint."""
-    sk = body.skeleton
-    names, parents = list(sk.names), list(sk.parents)
-    heads = sk.rest_heads.double().cpu().numpy()
-    chain = [names.index(joint)]
-    while (children := [j for j, par in enumerate(parents) if par == chain[-1]]):
-        chain.append(children[0])
-    return np.asarray([(heads[a], heads[b]) for a, b in zip(chain[:-1], chain[1:], strict=True)]).reshape(-1, 2, 3)
-
-
-def encircled_degrees(points: np.ndarray, segs: np.ndarray) -> float:
-    """How far round the bones segs (S, 2, 3) the points (N, 3) reach, in degrees: the median over slices of
-    ENCLOSE_SLICE along each bone of 360 minus the widest empty angle about it (a ring: 360; one side: ~180).
-    A limb without bones (the mannequin's one-segment arm) is measured about its one segment."""
-    if len(segs) == 0 or len(points) < 3:
-        return 0.0
-    a, b = segs[:, 0], segs[:, 1]
-    ab = b - a
-    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
-    q = a[None] + t[..., None] * ab[None]
-    k = np.linalg.norm(points[:, None] - q, axis=2).argmin(1)  # the bone of each point
-    cover = []
-    for s in np.unique(k):
-        d = ab[s] / max(np.linalg.norm(ab[s]), 1e-12)
-        ref = np.cross(d, [0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.cross(d, [1.0, 0.0, 0.0])
-        ref /= np.linalg.norm(ref)
-        other = np.cross(d, ref)
-        sel = k == s
-        r = points[sel] - q[sel, s]
-        ang = np.degrees(np.arctan2(r @ other, r @ ref))
-        along = t[sel, s] * np.linalg.norm(ab[s])
-        for sl in np.unique(np.floor(along / ENCLOSE_SLICE)):
-            angles = np.sort(ang[np.floor(along / ENCLOSE_SLICE) == sl])
-            if len(angles) < 3:
-                continue
-            gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
-            cover.append(360.0 - gaps.max())
-    return float(np.median(cover)) if cover else 0.0
-
-
-def garment_regions(cage, points: np.ndarray, body: Body, candidates: int = 12, limbs: bool = True) -> np.ndarray:
+def garment_regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encircled_deg: float,
+                    smoothing: float, candidates: int = 12, limbs: bool = True) -> np.ndarray:
     """(V,) region of REGIONS per garment vertex (`_regions`)."""
-    return _regions(cage, points, body, candidates, limbs)[0]
+    return _regions(faces, cage, points, body, min_encircled_deg, smoothing, candidates, limbs)[0]
 
 
-def _regions(cage, points: np.ndarray, body: Body, candidates: int = 12, limbs: bool = True
-             ) -> tuple[np.ndarray, np.ndarray | None]:
+def smooth_over_mesh(values: np.ndarray, faces: np.ndarray, radius: float, points: np.ndarray) -> np.ndarray:
+    """values (V,) averaged over the garment's mesh out to about ``radius`` m: (radius / mean edge)^2 steps of
+    v <- (v + mean of the neighbours' v) / 2, a diffusion that reaches that far (V,)."""
+    f = np.asarray(faces)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    n = len(values)
+    w = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
+    w.data[:] = 1.0  # an edge shared by two faces counts once
+    deg = np.maximum(np.asarray(w.sum(1)).ravel(), 1.0)
+    edge = float(np.linalg.norm(points[e[:, 0]] - points[e[:, 1]], axis=1).mean())
+    out = np.asarray(values, np.float64).copy()
+    for _ in range(int(np.ceil((radius / max(edge, 1e-9)) ** 2))):
+        out = 0.5 * (out + (w @ out) / deg)
+    return out
+
+
+def _regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encircled_deg: float, smoothing: float,
+             candidates: int = 12, limbs: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """(V,) region of REGIONS per garment vertex at ``points`` (V, 3) (the garment as placed on the rest body).
 
     pbc's shirt names its sleeve patches (``*sleeve_left*`` / ``*sleeve_right*``): those are on their arm, the
-    rest on the torso. Any other garment is decided per cage patch, so a whole sleeve goes with its arm: the
-    region whose surface the patch's vertices lie closest to, on median (the torso measured on its own
-    triangles, outside every limb; a limb's patch that reaches the other limb, like the seat of trousers, is
-    split between them vertex by vertex), kept for a limb only where the garment's patches on that limb surround it
-    (`encircled_degrees` >= ENCLOSE_DEG: a sleeve or a trouser leg, not a skirt's side beside a leg or a cape
-    over an arm). ``limbs`` False (garment.shrinkwrap.arm_parts: the skirt, the trousers): all torso.
+    rest on the torso. Any other garment: how much nearer each vertex lies to a limb's surface than to the
+    torso's (the torso measured on its own triangles, outside every limb), averaged over the garment out to
+    ``smoothing`` m (`smooth_over_mesh`), so the inner side of a sleeve, a few centimetres from the torso's side
+    under a hanging arm, goes with the rest of its sleeve, and the chest beside a sleeve with the chest; a vertex
+    nearer a limb on that average is on its nearest limb, kept only where the garment on that limb surrounds it
+    (`encircled_degrees` >= ``min_encircled_deg``: a sleeve or a trouser leg, not a skirt's side beside a leg or
+    a cape over an arm). ``limbs`` False (garment.shrinkwrap.arm_parts: the skirt, the trousers): all torso.
 
-    Returns the regions (V,) and, where measured, the region each patch lies nearest (P,), else None."""
+    Returns the regions (V,) and, where measured, the region each cage patch lies nearest on median (P,) (for
+    the stretch check's words), else None."""
     region = np.zeros(len(points), np.int64)
     named = [p for p in cage.patches if "sleeve_left" in p.name or "sleeve_right" in p.name]
     for p in named:
@@ -158,34 +142,35 @@ def _regions(cage, points: np.ndarray, body: Body, candidates: int = 12, limbs: 
     if named or not limbs:
         return region, None
     surface = _RestSurface(body, candidates)
-    faces = body_region_faces(body)
-    reached = [r for r, tri in enumerate(faces) if tri is not None]
+    tris = body_region_faces(body)
+    reached = [r for r, tri in enumerate(tris) if tri is not None]
     if not reached:
         return region, None
-    in_limb = np.zeros(len(surface.tris), bool)
+    # nearness is measured to each limb's core (triangles wholly on it) and to everything else as the torso, so
+    # the seam band (the shoulder, the groin) counts for the torso here; a limb's vertices are then wrapped and
+    # embedded on its triangles with the band (`body_region_faces`)
+    cores = body_region_faces(body, core=True)
+    core = {r: tris[r] if cores[r] is None else cores[r] for r in reached}
+    in_core = np.zeros(len(surface.tris), bool)
     for r in reached:
-        in_limb[faces[r]] = True
-    allowed = {0: np.flatnonzero(~in_limb), **{r: faces[r] for r in reached}}
+        in_core[core[r]] = True
+    allowed = {0: np.flatnonzero(~in_core), **core}
     pts = np.asarray(points, np.float64)
     dist = np.full((len(REGIONS), len(pts)), np.inf)
     for r, tri in allowed.items():
         if len(tri):
             cp, _ = surface.closest(pts, tri)
             dist[r] = np.linalg.norm(cp - pts, axis=1)
-    # a patch on a limb that reaches the other limb (the seat of trousers, over both thighs): each of its
-    # vertices on the limb it lies nearer
     limb = 1 + np.argmin(dist[1:], axis=0)
-    nearest = np.zeros(len(cage.patches), np.int64)
-    for i, p in enumerate(cage.patches):
-        v = np.asarray(p.vertices, np.int64)
-        if len(v):
-            nearest[i] = int(np.argmin(np.median(dist[:, v], axis=1)))
-            on = limb[v] if nearest[i] > 0 else 0
-            region[v] = np.maximum(region[v], on)  # a seam between a limb's patch and the trunk's: limb
+    nearer = np.clip(dist[0] - dist[1:].min(0), -1.0, 1.0)  # m nearer a limb than the torso
+    on_limb = smooth_over_mesh(nearer, faces, smoothing, pts) > 0.0
+    region[on_limb] = limb[on_limb]
     for r in reached:
         on = region == r
-        if on.any() and encircled_degrees(pts[on], _limb_chain(body, LIMB_JOINTS[r])) < ENCLOSE_DEG:
+        if on.any() and encircled_degrees(pts[on], limb_segments(body.skeleton, LIMB_JOINTS[r])) < min_encircled_deg:
             region[on] = 0
+    nearest = np.array([int(np.argmin(np.median(dist[:, p.vertices], axis=1))) if len(p.vertices) else 0
+                        for p in cage.patches], np.int64)
     return region, nearest
 
 
@@ -488,7 +473,8 @@ def _wrap(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, np.ndarr
     t0 = time.perf_counter()
     surface = _RestSurface(body, int(sw.nearest_triangles))
     x0 = garment.vertices.double().cpu().numpy()
-    region, nearest = _regions(cage, x0, body, int(sw.nearest_triangles), bool(sw.get("arm_parts", True)))
+    region, nearest = _regions(garment.faces.cpu().numpy(), cage, x0, body, float(sw.min_encircled_deg),
+                               float(sw.region_smoothing), int(sw.nearest_triangles), bool(sw.get("arm_parts", True)))
     part = vertex_parts(region)  # rays start from the bone under each patch
     faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)

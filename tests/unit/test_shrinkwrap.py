@@ -28,7 +28,9 @@ def wrapped():
     cfg = load_garment_config(conf / "garment" / "tshirt_coarse.yaml", conf / "image" / "default.yaml")
     garment, cage = make_tshirt(cfg)
     x, stats = wrap_positions(garment, cage, body, cfg)
-    emb = embed_points(x, body, vertex_parts(garment_regions(cage, x, body)), int(cfg.shrinkwrap.nearest_triangles))
+    region = garment_regions(garment.faces.numpy(), cage, x, body, cfg.shrinkwrap.min_encircled_deg,
+                             cfg.shrinkwrap.region_smoothing)
+    emb = embed_points(x, body, vertex_parts(region), int(cfg.shrinkwrap.nearest_triangles))
     return body, garment, cage, x, stats, emb
 
 

@@ -192,3 +192,19 @@ def xzy_angles(poses) -> np.ndarray:
     y = np.arctan2(r[..., 0, 2], r[..., 0, 0])
     z = np.arcsin(np.clip(-r[..., 0, 1], -1.0, 1.0))
     return np.degrees(np.stack([x, y, z], -1))
+
+
+def limb_segments(sk: Skeleton, joint: str) -> np.ndarray:
+    """The bone segments (S, 2, 3) (rest heads, m) of the limb starting at ``joint``: joint -> its first child ->
+    ... -> the last joint (l_arm -> l_forearm -> l_hand: 2 segments). A limb of one joint (the mannequin's arm)
+    is one segment along its bone axis, as long as the skeleton is wide."""
+    names, parents = list(sk.names), list(sk.parents)
+    heads = sk.rest_heads.double().cpu().numpy()
+    chain = [names.index(joint)]
+    while (children := [j for j, par in enumerate(parents) if par == chain[-1]]):
+        chain.append(children[0])
+    if len(chain) == 1:
+        axis = sk.frames()[chain[0]][:, 1].double().cpu().numpy()
+        a = heads[chain[0]]
+        return np.asarray([(a, a + float(np.ptp(heads[:, 0])) * axis)])
+    return np.asarray([(heads[a], heads[b]) for a, b in zip(chain[:-1], chain[1:], strict=True)])

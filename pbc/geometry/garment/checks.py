@@ -229,10 +229,11 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
                   patch_nearest: list[str] | None = None, overall: float | None = None) -> None:
     """Refuse a shrink-wrap that stretches a cage patch past ``limit`` x its pattern area, naming the chart,
     the patch, the stretch, the body part it was wrapped on (``patch_regions``), and the likely cause with its
-    fix: a sleeve off the rest arm (the rest pose), a patch wrapped on another body part than the one it lies
-    nearest (``patch_nearest``: it does not surround that limb), or, only when the whole garment is stretched
-    (``overall``, its wrapped over its pattern area, past 3/4 of the limit) or nothing else explains it, the UV
-    unit."""
+    fix, first that applies: a sleeve off the rest arm (the rest pose), the whole garment stretched (the UV unit),
+    a patch wrapped on another body part than the one it lies nearest (``patch_nearest``: it does not surround
+    that limb), else the placement there. The whole garment is
+    stretched when ``overall``, its wrapped over its pattern area, is past 3/4 of the limit; without the regions
+    (an older caller) the UV unit is named."""
     bad = np.flatnonzero(stretch > limit)
     if not len(bad):
         return
@@ -242,12 +243,12 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
     off = {s: a for s, a in (sleeves or {}).items() if a["angle_deg"] > 10.0}  # a sleeve clearly off its arm
     uv_unit = ("the pattern is smaller than the garment: check garment.uv_unit (`pbc garment inspect` names the "
                "one that fits)")
-    if overall is not None and overall > 0.75 * limit:
-        why = f"the whole garment is stretched {overall:.1f}x: {uv_unit}"
-    elif off:
+    if off:
         side, a = max(off.items(), key=lambda kv: kv[1]["angle_deg"])
         why = (f"the {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm: match the rest pose "
                "(rotate the sleeves onto the rest arms)")
+    elif overall is not None and overall > 0.75 * limit:
+        why = f"the whole garment is stretched {overall:.1f}x: {uv_unit}"
     elif patch_regions is not None and patch_nearest is not None and patch_regions[k] != patch_nearest[k]:
         why = (f"the patch lies nearest the {patch_nearest[k]} but the garment there does not surround it, so it "
                f"was wrapped on the {patch_regions[k]}: place the garment so its part round the "

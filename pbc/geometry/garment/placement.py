@@ -33,10 +33,11 @@ from scipy.spatial import cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
+from pbc.geometry.body.skeleton import limb_segments
 from pbc.geometry.garment.checks import sleeve_axes
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
-from pbc.geometry.meshops import boundary_loops, mesh_pieces, push_out
+from pbc.geometry.meshops import boundary_loops, encircled_degrees, mesh_pieces, push_out
 from pbc.geometry.units import UNITS, metres_per_unit
 
 log = logging.getLogger(__name__)
@@ -93,15 +94,21 @@ def openings(points: np.ndarray, faces: np.ndarray) -> list[dict]:
 
 
 def top_or_bottom(points: np.ndarray, faces: np.ndarray, where: str) -> str:
-    """``top`` (the highest opening, the collar, is narrower than the lowest, the hem) or ``bottom`` (the
-    highest opening, the waistband, is the widest: trousers, a skirt). A closed surface is no garment."""
+    """``bottom`` (worn from the waist) or ``top`` (worn from the neck), from the garment's openings: two (a skirt,
+    however flared, or a tube) is a bottom; three or more whose two lowest lie side by side under the highest
+    (trouser legs under the waistband, each within its diameter of the midline) is a bottom; any other
+    (a collar, a hem and sleeves or armholes) is a top. A closed surface is no garment."""
     ops = openings(points, faces)
     if len(ops) < 2:
         raise ValueError(f"{where}: {'a closed surface' if not ops else 'a surface with one opening'} is not a "
                          "garment a body can wear (a garment has openings: a collar and a hem, a waist and legs); "
                          "give the garment's own mesh, not a body or a closed shape")
-    widest = max(ops, key=lambda o: o["perimeter"])
-    return "bottom" if widest is ops[0] else "top"
+    if len(ops) == 2:
+        return "bottom"
+    a, b = ops[-1]["centre"], ops[-2]["centre"]
+    reach = ops[0]["perimeter"] / np.pi  # twice the waistband's radius, were it round: a leg's ankle is within it
+    legs = abs(a[1] - b[1]) < 0.25 * abs(a[0] - b[0]) and a[0] * b[0] < 0 and max(abs(a[0]), abs(b[0])) < reach
+    return "bottom" if legs else "top"
 
 
 def _landmarks(body: Body) -> dict:
@@ -265,9 +272,10 @@ def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kin
     return kind != "top" or _anchor(points, faces, kind)[0][1] >= lm["shoulder_y"]
 
 
-def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None
-         ) -> str | None:
-    """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words."""
+def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None,
+         min_encircled_deg: float | None = None) -> str | None:
+    """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words; with
+    ``min_encircled_deg`` (garment.shrinkwrap's) trouser legs must surround the legs (`legs_inside`)."""
     lm = lm or _landmarks(body)
     d = _sdf(body, points)
     anchor, _ = _anchor(points, faces, kind)
@@ -285,6 +293,33 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
     if median > float(pcfg.max_median_distance):
         return (f"half its cloth is more than {median:.2f} m from the body (garment.placement.max_median_distance "
                 f"= {pcfg.max_median_distance} m)")
+    return None if min_encircled_deg is None else legs_inside(points, faces, body, min_encircled_deg, kind)
+
+
+def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
+    """None unless the garment is trousers (a bottom with three openings or more) on a body with legs and a trouser
+    leg does not surround its leg: then which, in words. Measured with `encircled_degrees` on the face centres of
+    each trouser leg below mid-thigh about the leg's bones: a ring round the leg reaches 360 degrees, cloth
+    beside it (trousers registered a leg's width off) much less. (A top's sleeves are not measured so: a short
+    sleeve round a real shoulder lies off the arm's bone, as `sleeve_axes` says.)"""
+    p = np.asarray(points, np.float64)
+    f = np.asarray(faces)
+    names = list(body.skeleton.names)
+    if kind != "bottom" or len(openings(p, f)) < 3 or not {"l_hip", "r_hip"} <= set(names):
+        return None
+    centre = p[f].mean(1)
+    heads = body.skeleton.rest_heads.double().numpy()
+    for side, sgn in (("left", 1.0), ("right", -1.0)):
+        hip = heads[names.index(f"{side[0]}_hip")]
+        knee = f"{side[0]}_knee"
+        low = hip[1] if knee not in names else 0.5 * (hip[1] + heads[names.index(knee)][1])  # mid-thigh
+        pts = centre[(centre[:, 1] < low) & (sgn * centre[:, 0] > 0.0)]
+        if len(pts) < 8:
+            continue
+        deg = encircled_degrees(pts, limb_segments(body.skeleton, f"{side[0]}_hip"))
+        if deg < min_deg:
+            return (f"its {side} trouser leg does not surround the body's {side} leg (it reaches {deg:.0f} degrees "
+                    f"round it; garment.shrinkwrap.min_encircled_deg = {min_deg:g})")
     return None
 
 
@@ -354,7 +389,7 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
     placement = Placement(unit, name, kind, target - _anchor(p * unit, f, kind)[0], False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"])
-    wrong = sits(x, f, body, pcfg, kind, lm)
+    wrong = sits(x, f, body, pcfg, kind, lm, float(gcfg.shrinkwrap.min_encircled_deg))
     if wrong is not None:
         raise ValueError(f"{where}: placed on the body ({placement.unit_name}, shifted by "
                          f"{np.round(placement.translation, 2).tolist()} m), the garment does not sit on it: {wrong}. "
