@@ -36,7 +36,7 @@ from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_fro
 from pbc.geometry.garment.placement import Placement, placed_mesh
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, uv_islands
-from pbc.geometry.shrinkwrap import wrap_positions
+from pbc.geometry.shrinkwrap import REGIONS, garment_regions, wrap_positions
 from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
 
 # a direction whose share of a chart's summed outward normal is below this faces no one way ("all round")
@@ -55,6 +55,7 @@ class ChartRow:
     distance_max: float  # m, the farthest vertex from the rest body (negative: inside)
     region: str  # the body region at that vertex
     stretch: float | None = None  # the shrink-wrap's largest patch stretch in this chart
+    wrapped_on: str | None = None  # the body part (shrinkwrap.REGIONS) most of its vertices are wrapped on
 
 
 @dataclass
@@ -181,6 +182,9 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
         sw = dict(g.shrinkwrap)
         sw.update(max_start_distance=None, max_sleeve_angle_deg=None, max_patch_stretch=None)
         x, _ = wrap_positions(garment, cage, body, OmegaConf.create(sw))
+        region = garment_regions(garment.faces.cpu().numpy(), cage, garment.vertices.double().cpu().numpy(), body,
+                                 float(sw["min_encircled_deg"]), float(sw["region_smoothing"]),
+                                 int(sw["nearest_triangles"]), bool(sw.get("arm_parts", True)))
     except ValueError as err:
         report.notes.append(f"shrink-wrap stretch not measured: {err}")
         return
@@ -192,9 +196,12 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
     # a patch belongs to the chart of most of its faces (a seam face can sit in the other chart's patch)
     owner = np.array([np.bincount(face_chart[fp == k]).argmax() if (fp == k).any() else -1
                       for k in range(len(cage.patches))])
+    corner = np.repeat(face_chart, 3)
     for r in report.rows:
         mine = np.flatnonzero(owner == r.id)
         r.stretch = float(stretch[mine].max()) if len(mine) else None
+        verts = f.ravel()[corner == r.id]
+        r.wrapped_on = REGIONS[int(np.bincount(region[verts]).argmax())] if len(verts) else None
 
 
 def format_report(report: Report, limits: dict) -> str:
@@ -206,7 +213,8 @@ def format_report(report: Report, limits: dict) -> str:
         c = "[" + ", ".join(f"{v:+.2f}" for v in r.centroid) + "]"
         st = "-" if r.stretch is None else f"{r.stretch:.2f}x"
         lines.append(f"{r.id:>3}  {r.name:<14} {c:<22} {r.facing:<9} {r.area_3d:>8.4f} {r.area_uv:>9.4g} "
-                     f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7}  {r.region}")
+                     f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7}  {r.region}"
+                     + ("" if r.wrapped_on is None else f"; wrapped on the {r.wrapped_on}"))
     sleeve_limit = limits.get("max_sleeve_angle_deg")
     sleeve_limit = "null (no check)" if sleeve_limit is None else sleeve_limit
     for side, a in sorted(report.sleeves.items()):

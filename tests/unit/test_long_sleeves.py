@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from helpers.long_sleeves import long_sleeve_mhclo
 
+from pbc.cli.garment import run
 from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.anny import base_mesh_vertices
@@ -170,3 +171,13 @@ def test_operators_of_charts_too_small_for_the_image_stay_bounded_and_say_so(blo
     assert small["residual"] <= 1.0
     big = build_operators(g, 256, 2)
     assert big["residual"] < 1e-6
+
+
+def test_inspect_says_which_body_part_each_chart_is_wrapped_on(blouse, capsys):
+    _, _, _, gcfg = blouse
+    name = "anny" if "anny_tpose" not in str(gcfg.path) else "anny_tpose"
+    assert run(["inspect", str(gcfg.path), f"body={name}"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if "; wrapped on the " in line]
+    on = sorted(line.split("; wrapped on the ")[1] for line in rows)
+    # the two torso panels and the four sleeve halves (each sleeve's front and back is its own chart)
+    assert on == ["left arm", "left arm", "right arm", "right arm", "torso", "torso"], on
