@@ -167,8 +167,15 @@ def _regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encirc
     region[on_limb] = limb[on_limb]
     for r in reached:
         on = region == r
-        if on.any() and encircled_degrees(pts[on], limb_segments(body.skeleton, LIMB_JOINTS[r])) < min_encircled_deg:
-            region[on] = 0
+        if not on.any():
+            continue
+        deg = encircled_degrees(pts[on], limb_segments(body.skeleton, LIMB_JOINTS[r]))
+        if deg >= min_encircled_deg:
+            continue
+        # cloth along a limb that does not close round it goes on the torso: a skirt beside the legs, and a short
+        # loose sleeve over the shoulder (180-230 degrees round the arm's bone on Anny) alike; a cape's flap along
+        # the arm measures the same (~200), so it is wrapped on the torso too rather than refused
+        region[on] = 0
     nearest = np.array([int(np.argmin(np.median(dist[:, p.vertices], axis=1))) if len(p.vertices) else 0
                         for p in cage.patches], np.int64)
     return region, nearest

@@ -15,6 +15,7 @@ import numpy as np
 from helpers.mhclo_assets import bind_to_tights, write_mhclo_for_obj
 from pbc.core.config import load_config
 from pbc.geometry.body.base import Body
+from pbc.geometry.body.skeleton import limb_segments
 from pbc.geometry.garment.sizing import sized_config
 from pbc.geometry.garment.tshirt import make_tshirt
 
@@ -104,9 +105,35 @@ def obj_text(p: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.ndarr
     return "\n".join(lines) + "\n"
 
 
-def long_sleeve_mhclo(folder, body: Body, base: np.ndarray, garment: str = "tshirt_coarse") -> Path:
+def cape_sleeves(p: np.ndarray, f: np.ndarray, uv: np.ndarray, fuv: np.ndarray, body: Body, min_reach: float = 0.36):
+    """The shirt with each sleeve's back half cut away (the faces beyond ``min_reach`` m from the midplane behind
+    the arm's bones): cloth lying along the arms that closes round neither, a cape's flaps. Unused vertices and
+    uvs dropped; the same tuple."""
+    sk = body.skeleton
+    centre = p[f].mean(1)
+    back = np.zeros(len(f), bool)
+    for side in ("l", "r"):
+        segs = limb_segments(sk, f"{side}_arm")
+        a, b = segs[:, 0], segs[:, 1]
+        t = np.clip(np.einsum("nsk,sk->ns", centre[:, None] - a[None], b - a) / ((b - a) ** 2).sum(1), 0, 1)
+        q = a[None] + t[..., None] * (b - a)[None]
+        k = np.linalg.norm(centre[:, None] - q, axis=2).argmin(1)
+        behind = centre[:, 2] < q[np.arange(len(f)), k, 2]
+        sgn = 1.0 if side == "l" else -1.0
+        back |= (sgn * centre[:, 0] > min_reach) & behind
+    f, fuv = f[~back], fuv[~back]
+    used, remap = np.unique(f, return_inverse=True)
+    tused, tremap = np.unique(fuv, return_inverse=True)
+    return p[used], remap.reshape(-1, 3), uv[tused], tremap.reshape(-1, 3)
+
+
+def long_sleeve_mhclo(folder, body: Body, base: np.ndarray, garment: str = "tshirt_coarse", cape: bool = False
+                      ) -> Path:
     """The long-sleeved shirt as MakeHuman clothes bound to `base` (the MakeHuman base mesh (N, 3) of the body,
-    metres, pbc's frame): `blouse.obj` and `blouse.mhclo` in folder; the .mhclo's path."""
+    metres, pbc's frame): `blouse.obj` and `blouse.mhclo` in folder; the .mhclo's path. ``cape``: its sleeves cut
+    open into flaps (`cape_sleeves`)."""
     p, f, uv, fuv = long_sleeve_shirt(body, garment)
+    if cape:
+        p, f, uv, fuv = cape_sleeves(p, f, uv, fuv, body)
     refs, w, o = bind_to_tights(p, base)
     return write_mhclo_for_obj(folder, obj_text(p, f, uv, fuv), refs, w, o, "blouse")

@@ -181,3 +181,21 @@ def test_inspect_says_which_body_part_each_chart_is_wrapped_on(blouse, capsys):
     on = sorted(line.split("; wrapped on the ")[1] for line in rows)
     # the two torso panels and the four sleeve halves (each sleeve's front and back is its own chart)
     assert on == ["left arm", "left arm", "right arm", "right arm", "torso", "torso"], on
+
+
+def test_a_cape_along_the_arms_is_wrapped_on_the_torso(tmp_path):
+    # its flaps reach about 200 degrees round the arm, as a loose short sleeve over the shoulder does: neither
+    # surrounds the arm, both are wrapped on the torso (a refusal could not tell the two apart)
+    cfg = load_config(["body=anny"])
+    body = body_from_config(cfg.body)
+    path = long_sleeve_mhclo(tmp_path / "cape", body, base_mesh_vertices(cfg.body).numpy(), cape=True)
+    gcfg = load_config(["garment=mhclo", f"garment.path={path}", "body=anny"]).garment
+    g, cage = garment_from_config(gcfg, body)
+    x0 = g.vertices.double().numpy()
+    region = garment_regions(g.faces.numpy(), cage, x0, body, gcfg.shrinkwrap.min_encircled_deg,
+                             gcfg.shrinkwrap.region_smoothing)
+    flaps = np.abs(x0[:, 0]) > SLEEVE_X + 0.1
+    assert flaps.sum() > 20 and (region[flaps] == 0).all()
+    # with the limit lowered below the flaps' reach they go on the arms
+    low = garment_regions(g.faces.numpy(), cage, x0, body, 150.0, gcfg.shrinkwrap.region_smoothing)
+    assert set(np.unique(low[flaps])) == {1, 2}
