@@ -45,17 +45,35 @@ def test_each_garment_lands_within_a_few_centimetres_of_pbcs_shirt(world):
     assert placed_mesh(folder / "pattern_tee.obj", gcfg, body)[1].unit_name == "odd scale"
     assert placed_mesh(folder / "a_pose_shirt.obj", gcfg, body)[1].unit_name == "dm"
     # the long-sleeve top has more vertices: its collar where the shirt's is, 25 cm above SMPL's
-    top, placement = placed_mesh(folder / "smpl_top.obj", gcfg, body)
+    top, placement = placed_mesh(folder / "smpl_top.obj", _any_sleeve(gcfg), body)
     collar = openings(top.vertices, top.faces)[0]["centre"]
     assert np.linalg.norm(collar - openings(ref.vertices, ref.faces)[0]["centre"]) < 0.02
     assert placement.translation[1] > 0.2
+
+
+def _any_sleeve(gcfg):
+    """gcfg without the check that long sleeves surround the forearms (to measure what placement did)."""
+    out = gcfg.copy()
+    out.shrinkwrap.min_encircled_deg = 0
+    return out
+
+
+def test_long_sleeves_that_miss_the_forearms_are_refused_in_one_line(world):
+    # the SMPL top is pbc's mannequin-proportioned shirt: registered by its collar, its long sleeves lie above
+    # Anny's arms (T-pose: the arm along the sleeve's lower edge) or off its bent forearms (A-pose)
+    name, body, gcfg, folder = world
+    with pytest.raises(ValueError) as err:
+        placed_mesh(folder / "smpl_top.obj", gcfg, body)
+    msg = str(err.value)
+    assert "sleeve does not surround the body's" in msg and "forearm (it reaches" in msg and "\n" not in msg
+    assert int(msg.split("it reaches ")[1].split(" degrees")[0]) < int(gcfg.shrinkwrap.min_encircled_deg)
 
 
 def test_sleeves_are_turned_onto_the_rest_arms(world):
     name, body, gcfg, folder = world
     # the T-pose top on the A-posed body, the A-pose shirt on the T-posed one: off by 35-50 degrees as given
     garment = "smpl_top" if name == "anny" else "a_pose_shirt"
-    mesh, placement = placed_mesh(folder / f"{garment}.obj", gcfg, body)
+    mesh, placement = placed_mesh(folder / f"{garment}.obj", _any_sleeve(gcfg), body)
     assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
     axes = sleeve_axes(mesh.vertices, mesh.faces, body)
     assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
@@ -76,11 +94,11 @@ def test_loose_vertices_are_dropped_and_counted_and_a_mesh_without_uvs_gets_fron
 
 def test_inspect_out_writes_fitted_obj_the_placed_garment(world, tmp_path, capsys):
     name, body, gcfg, folder = world
-    assert run(["inspect", str(folder / "smpl_top.obj"), f"body={name}", "--out", str(tmp_path), "--no-wrap"]) == 0
+    assert run(["inspect", str(folder / "no_uv_shirt.obj"), f"body={name}", "--out", str(tmp_path), "--no-wrap"]) == 0
     text = capsys.readouterr().out
     assert "placement (top): unit m" in text and "median distance to the rest body" in text
     fitted = read_obj(tmp_path / "fitted.obj")
-    placed, _ = placed_mesh(folder / "smpl_top.obj", gcfg, body)
+    placed, _ = placed_mesh(folder / "no_uv_shirt.obj", gcfg, body)
     assert np.abs(fitted.vertices - placed.vertices).max() < 1e-5
     assert (tmp_path / "on_body.png").is_file()
 

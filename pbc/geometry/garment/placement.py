@@ -44,6 +44,7 @@ log = logging.getLogger(__name__)
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
 SLEEVE_BAND = 0.05  # m along a sleeve's axis either side of its band's centre: where its radius is measured
+SLEEVE_REACH = 0.15  # m from the forearm's bones: the cloth a long sleeve puts round the forearm
 
 
 # a joint this far below the root (the waist, m) is on a leg: the mannequin's lowest joint is its root
@@ -275,7 +276,8 @@ def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kin
 def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None,
          min_encircled_deg: float | None = None) -> str | None:
     """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words; with
-    ``min_encircled_deg`` (garment.shrinkwrap's) trouser legs must surround the legs (`legs_inside`)."""
+    ``min_encircled_deg`` (garment.shrinkwrap's) long sleeves must surround the forearms (`sleeves_inside`) and
+    trouser legs the legs (`legs_inside`)."""
     lm = lm or _landmarks(body)
     d = _sdf(body, points)
     anchor, _ = _anchor(points, faces, kind)
@@ -293,7 +295,39 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
     if median > float(pcfg.max_median_distance):
         return (f"half its cloth is more than {median:.2f} m from the body (garment.placement.max_median_distance "
                 f"= {pcfg.max_median_distance} m)")
-    return None if min_encircled_deg is None else legs_inside(points, faces, body, min_encircled_deg, kind)
+    if min_encircled_deg is None:
+        return None
+    return (sleeves_inside(points, faces, body, min_encircled_deg, kind)
+            or legs_inside(points, faces, body, min_encircled_deg, kind))
+
+
+def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
+    """None unless the garment is a top with long sleeves (cloth past the elbow, within SLEEVE_REACH of the
+    forearm) on a body with forearms, and a sleeve there does not surround the forearm: then which, in words
+    (`encircled_degrees` of those faces' centres about the forearm's bones). A short sleeve is not measured: round
+    a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and still wraps well."""
+    if kind != "top":
+        return None
+    p = np.asarray(points, np.float64)
+    centre = p[np.asarray(faces)].mean(1)
+    for side, joint in ARM_JOINTS.items():
+        segs = limb_segments(body.skeleton, joint)
+        if len(segs) < 2:
+            continue
+        a, b = segs[:, 0], segs[:, 1]
+        t = np.clip(np.einsum("nsk,sk->ns", centre[:, None] - a[None], b - a) / ((b - a) ** 2).sum(1), 0.0, 1.0)
+        d = np.linalg.norm(centre[:, None] - (a[None] + t[..., None] * (b - a)[None]), axis=2)
+        k = d.argmin(1)
+        rows = np.arange(len(centre))
+        past = (k >= 1) & (t[rows, k] > 0.2) & (d[rows, k] < SLEEVE_REACH)
+        if past.sum() < 8:
+            continue
+        deg = encircled_degrees(centre[past], segs[1:])
+        if deg < min_deg:
+            return (f"its {side} sleeve does not surround the body's {side} forearm (it reaches {deg:.0f} degrees "
+                    f"round it; garment.shrinkwrap.min_encircled_deg = {min_deg:g}): the sleeve was modelled on "
+                    "another arm")
+    return None
 
 
 def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
