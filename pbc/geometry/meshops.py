@@ -220,9 +220,10 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
 def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0.03) -> float:
     """How far round the segments segs (S, 2, 3) (a limb's bones) the points (N, 3) reach, in degrees: each point
     goes to its nearest segment; the median over slices ``slice_len`` m long along each segment of 360 minus
-    the widest empty angle about it (a ring round the limb: 360; cloth on one side of it: ~180)."""
+    the widest empty angle about it (a ring round the limb: 360; cloth on one side of it: ~180). NaN when no
+    slice holds three points (nothing to measure: a comparison with it is False, so nothing is decided on it)."""
     if len(segs) == 0 or len(points) < 3:
-        return 0.0
+        return float("nan")
     a, b = segs[:, 0], segs[:, 1]
     ab = b - a
     t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
@@ -244,4 +245,4 @@ def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0
                 continue
             gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
             cover.append(360.0 - gaps.max())
-    return float(np.median(cover)) if cover else 0.0
+    return float(np.median(cover)) if cover else float("nan")

@@ -23,6 +23,8 @@ asked and the overrides it settled on; an out dir holding another garment's fit 
 from __future__ import annotations
 
 import hashlib
+import json
+import math
 import re
 import shlex
 import sys
@@ -101,6 +103,21 @@ def inspect_file(garment: Path, cfg, body, folder: Path, wrap: bool = True):
     fitted = Path(folder) / "fitted.obj"
     write_text(fitted, obj_mesh_text(mesh, f"{Path(garment).name} fitted to the body by pbc garment"))
     return inspect_garment(fitted, cfg.garment, body, wrap=wrap)
+
+
+def empty_splits(manifest: dict, log: Path) -> str | None:
+    """What to do when the drapes a dataset kept (its manifest) leave a split empty, else None: with nothing to
+    validate or test on, the training would stop on a NaN loss and the preview on an empty split minutes later."""
+    empty = [name for name, ids in manifest.get("splits", {}).items() if not ids]
+    if not empty:
+        return None
+    counts = manifest.get("counts", {})
+    kept, asked = int(counts.get("kept", 0)), int(counts.get("requested", 0))
+    why = ", ".join(f"{k} {v}" for k, v in (counts.get("discarded") or {}).items()) or "none discarded"
+    more = math.ceil(3 * max(asked, 1) / max(kept, 1)) + 1
+    return (f"only {kept} of {asked} drapes were kept ({why}), which leaves split(s) {', '.join(empty)} empty: a "
+            f"fit needs a drape in each of train, val and test. Ask for more (--samples {more}), or see why drapes "
+            f"are discarded in {log}")
 
 
 def default_out(path: Path, root: Path, overrides: list[str] = ()) -> Path:
@@ -238,7 +255,14 @@ class Fit:
         self.command("data", [self.python, "-m", "pbc.generate", *self.overrides,
                               f"hydra.run.dir={_value(self.out / 'logs' / 'generate')}"], "data")
 
+    def check_splits(self) -> None:
+        """One line when the drapes kept leave a split empty (`empty_splits`)."""
+        manifest = json.loads((self.data_dir / "manifest.json").read_text())
+        if (msg := empty_splits(manifest, self.out / "logs" / "data.log")) is not None:
+            raise ValueError(msg)
+
     def whole(self) -> None:
+        self.check_splits()
         run = self.out / "whole"
         if (run / "metrics.json").is_file() and RunRecord.read(run / "metrics.json").status == OK:
             self.say("whole", f"skipped (trained: {run / 'metrics.json'})")

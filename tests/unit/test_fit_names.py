@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pbc.jobs.garment_fit import default_out, garment_overrides
+from pbc.jobs.garment_fit import default_out, empty_splits, garment_overrides
 
 
 def test_each_piece_of_an_outfit_gets_its_own_fit_dir(tmp_path):
@@ -28,3 +28,13 @@ def test_a_garment_file_is_loaded_by_its_suffix(tmp_path):
     assert garment_overrides(mh, ["body=anny_tpose"])[-1] != "body=anny"  # the user's body is kept
     with pytest.raises(ValueError, match=r"an \.obj or a MakeHuman \.mhclo"):
         garment_overrides(tmp_path / "shirt.fbx", [])
+
+
+def test_a_dataset_with_an_empty_split_stops_the_fit_naming_the_samples_to_ask_for(tmp_path):
+    one = {"splits": {"train": [0], "val": [], "test": []},
+           "counts": {"kept": 1, "requested": 6, "discarded": {"area_compressed": 5}}}
+    msg = empty_splits(one, tmp_path / "data.log")
+    assert msg.startswith("only 1 of 6 drapes were kept (area_compressed 5)") and "val, test empty" in msg
+    assert "--samples 19" in msg and str(tmp_path / "data.log") in msg
+    three = {"splits": {"train": [0], "val": [1], "test": [2]}, "counts": {"kept": 3, "requested": 6}}
+    assert empty_splits(three, tmp_path / "data.log") is None
