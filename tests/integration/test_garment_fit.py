@@ -252,7 +252,7 @@ def test_each_ecosystems_garment_is_placed_and_one_is_fitted(tmp_path, capsys):
     garment.write_text(ECOSYSTEMS["smpl_top"](), newline="")
     assert exit_code(main, ["inspect", str(garment), "body=anny", "--out", str(tmp_path / "smpl")]) == 2
     err = capsys.readouterr().err.strip()
-    assert "sleeve does not surround the body's" in err and len(err.splitlines()) == 1
+    assert "sleeve passes the elbow but does not surround the body's" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "smpl" / "fitted.obj").exists()
     garment = tmp_path / "pattern_tee.obj"
     out = tmp_path / "fit" / "pattern_tee"

@@ -44,7 +44,7 @@ log = logging.getLogger(__name__)
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
 SLEEVE_BAND = 0.05  # m along a sleeve's axis either side of its band's centre: where its radius is measured
-SLEEVE_REACH = 0.15  # m from the forearm's bones: the cloth a long sleeve puts round the forearm
+ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's
 
 
 # a joint this far below the root (the waist, m) is on a leg: the mannequin's lowest joint is its root
@@ -302,10 +302,11 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
 
 
 def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
-    """None unless the garment is a top with long sleeves (cloth past the elbow, within SLEEVE_REACH of the
-    forearm) on a body with forearms, and a sleeve there does not surround the forearm: then which, in words
-    (`encircled_degrees` of those faces' centres about the forearm's bones). A short sleeve is not measured: round
-    a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and still wraps well."""
+    """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow) on a body with
+    forearms, and a sleeve there does not surround the forearm: then which, in words (`encircled_degrees` of the
+    centres of the faces past the elbow about the forearm's bones; a sleeve that passes the elbow nowhere near
+    the forearm reaches a few degrees round it, or too few faces to say: refused too). A short sleeve is not
+    measured: round a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and wraps well."""
     if kind != "top":
         return None
     p = np.asarray(points, np.float64)
@@ -314,19 +315,16 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
         segs = limb_segments(body.skeleton, joint)
         if len(segs) < 2:
             continue
-        a, b = segs[:, 0], segs[:, 1]
-        t = np.clip(np.einsum("nsk,sk->ns", centre[:, None] - a[None], b - a) / ((b - a) ** 2).sum(1), 0.0, 1.0)
-        d = np.linalg.norm(centre[:, None] - (a[None] + t[..., None] * (b - a)[None]), axis=2)
-        k = d.argmin(1)
-        rows = np.arange(len(centre))
-        past = (k >= 1) & (t[rows, k] > 0.2) & (d[rows, k] < SLEEVE_REACH)
+        sgn = 1.0 if side == "left" else -1.0
+        past = sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE  # sideways past the elbow
         if past.sum() < 8:
             continue
         deg = encircled_degrees(centre[past], segs[1:])
-        if deg < min_deg:
-            return (f"its {side} sleeve does not surround the body's {side} forearm (it reaches {deg:.0f} degrees "
-                    f"round it; garment.shrinkwrap.min_encircled_deg = {min_deg:g}): the sleeve was modelled on "
-                    "another arm")
+        if not deg >= min_deg:  # NaN: cloth past the elbow in no slice round the forearm
+            reach = ("too little of it lies round it to measure" if np.isnan(deg)
+                     else f"it reaches {deg:.0f} degrees round it")
+            return (f"its {side} sleeve passes the elbow but does not surround the body's {side} forearm ({reach}; "
+                    f"garment.shrinkwrap.min_encircled_deg = {min_deg:g}): the sleeve was modelled on another arm")
     return None
 
 
