@@ -210,7 +210,8 @@ def test_score_logs_the_plain_table_not_lightnings(caplog):
         return [{f"test/{LONG}": 1.5, "test/loss": 0.25}, {f"train_final/{LONG}": 3.0}]
 
     trainer = SimpleNamespace(test=test, is_global_zero=True)
-    with caplog.at_level(logging.INFO, logger="pbc.train"):
+    # score logs on pbc.jobs.train's logger (the level of "pbc.train" only worked after a test had set pbc's)
+    with caplog.at_level(logging.INFO, logger="pbc.jobs.train"):
         scores = score(trainer, None, SimpleNamespace(scoring_dataloaders=lambda: []), "best.ckpt")
     assert calls["verbose"] is False
     assert scores == {"test": {LONG: 1.5, "loss": 0.25}, "train_final": {LONG: 3.0}}
