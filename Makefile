@@ -23,8 +23,11 @@ main: venv
 chromium:
 	@command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium)
 
+# every tier, in TEST_WORKERS processes (pytest-xdist): whole test files, in collection order (integration before
+# unit); tests/conftest.py says how the workers share the session's data and caches
+TEST_WORKERS ?= 2
 test: venv chromium
-	$(BIN)/python -m pytest -x
+	$(BIN)/python -m pytest -x -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # the quick tier: tests/unit (synthetic data, no drape, no subprocess); `test` runs every tier
 test-fast: venv

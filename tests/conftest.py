@@ -8,7 +8,9 @@ Tiers are folders: tests/unit (synthetic data, no drape, no subprocess; `make te
 
 from __future__ import annotations
 
+import json
 import multiprocessing.context
+import os
 import subprocess
 from pathlib import Path
 
@@ -24,6 +26,36 @@ MOVE = "belongs in tests/integration: the unit tier drapes no cloth and starts n
 TINY_SAMPLES = 10  # poses requested; the distortion check discards some (see the manifest)
 
 
+ROOT = Path(__file__).resolve().parents[1]
+# Parallel runs (`make test`: pytest-xdist, TEST_WORKERS processes): the name of this worker, None in a plain run
+XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+# Every drape of the session, here and in the jobs the tests start (they inherit the variable), shares one warp
+# kernel cache: the checkout's .cache/warp, conf/sim/style3d.yaml's default for a run from the repository. A job
+# run under another PBC_ROOT (a tmp folder) would otherwise compile every kernel again, about a minute of CPU.
+# Warp writes each kernel in a folder of its own process and renames it into place: parallel workers are safe.
+os.environ.setdefault("PBC_WARP_CACHE", str(ROOT / ".cache" / "warp"))
+
+
+def once_per_run(tmp_path_factory, name: str, build, encode=str, decode=Path):
+    """`build(folder)` for a session fixture, once per test run. A plain run builds in its tmp folder. In a
+    parallel run the first worker that asks builds in the run's tmp folder shared by the workers, under a file
+    lock, and writes `encode(result)` beside it (JSON); the others wait for the lock and read it (`decode`).
+    The result is shared as sequential runs share it between test files: tests read it, and what jobs write
+    beside it (operator caches) is written atomically."""
+    if not XDIST_WORKER:
+        return build(tmp_path_factory.mktemp(name))
+    from filelock import FileLock
+
+    shared = tmp_path_factory.getbasetemp().parent  # pytest-N/, above each worker's pytest-N/popen-gwK/
+    record = shared / f"{name}.json"
+    with FileLock(str(shared / f"{name}.lock")):
+        if not record.is_file():
+            folder = shared / name
+            folder.mkdir()
+            record.write_text(json.dumps(encode(build(folder))))
+    return decode(json.loads(record.read_text()))
+
+
 def tiny_overrides(data_dir: Path | str, *extra: str) -> list[str]:
     """Config overrides of the session's tiny dataset, rooted at `data_dir`."""
     return ["data=tshirt_tiny", f"paths.data_dir={data_dir}", f"data.num_samples={TINY_SAMPLES}", *extra]
@@ -35,7 +67,7 @@ def tiny_dataset(tmp_path_factory) -> Path:
     from pbc.core.config import load_config
     from pbc.data.generate import generate
 
-    return generate(load_config(tiny_overrides(tmp_path_factory.mktemp("tiny_data"))))
+    return once_per_run(tmp_path_factory, "tiny_data", lambda d: generate(load_config(tiny_overrides(d))))
 
 
 @pytest.fixture(scope="session")
@@ -44,7 +76,9 @@ def foreign(tmp_path_factory):
     (root, its config overrides, the dataset dir)."""
     from helpers.tube_top import tube_top_dataset
 
-    return tube_top_dataset(tmp_path_factory.mktemp("foreign"))
+    return once_per_run(tmp_path_factory, "foreign", tube_top_dataset,
+                        encode=lambda r: [str(r[0]), list(r[1]), str(r[2])],
+                        decode=lambda r: (Path(r[0]), r[1], Path(r[2])))
 
 
 # --- body and skeleton (conf/body/mannequin.yaml), meshed coarsely so the session pays well under a second
@@ -75,6 +109,43 @@ def body(body_cfg):
     from pbc.geometry.body.mannequin import build_mannequin
 
     return build_mannequin(body_cfg)
+
+
+# --- parallel runs (`make test`: pytest-xdist). Each worker has its own tmp folders; the real tiny datasets are
+# made once per run (once_per_run); warp's kernel cache is safe as is (above); Anny's asset cache, written in
+# place and not atomically, is built under a lock (anny_cache_built_once). The Makefile hands the workers whole
+# files (--dist loadfile: a module fixture is built once), in collection order (--no-loadscope-reorder: the long
+# integration files first, the short unit files last, so both workers finish together).
+def pytest_configure(config):
+    """In an xdist worker, torch computes on one thread, and so do the jobs the tests start (OMP_NUM_THREADS,
+    inherited): two workers on two cores, each with a thread per core, would fight over them."""
+    if XDIST_WORKER:
+        import torch
+
+        os.environ["OMP_NUM_THREADS"] = "1"
+        torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def anny_cache_built_once():
+    """Parallel workers share Anny's asset cache, which Anny writes in place: the first worker loads (so builds,
+    on a machine without it) the tests' two Anny topologies under a file lock; the other waits, then reads it.
+    With a built cache this costs a worker about 2 s, and the loaded models are reused (lru_cache)."""
+    if not XDIST_WORKER:
+        yield
+        return
+    from filelock import FileLock
+
+    from pbc.core.config import load_config
+    from pbc.geometry.body.anny import MAKEHUMAN_TOPOLOGY, anny_cache_dir, load_anny_model
+
+    cfg = load_config(["body=anny"]).body
+    cache = anny_cache_dir()
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(str(cache) + ".lock"):
+        for topology in (str(cfg.topology), MAKEHUMAN_TOPOLOGY):
+            load_anny_model(str(cfg.rig), topology)
+    yield
 
 
 def pytest_collection_modifyitems(config, items):
