@@ -36,7 +36,7 @@ from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_fro
 from pbc.geometry.garment.placement import Placement, placed_mesh
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, uv_islands
-from pbc.geometry.shrinkwrap import REGIONS, garment_regions, wrap_positions
+from pbc.geometry.shrinkwrap import REGIONS, wrap_with_regions
 from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
 
 # a direction whose share of a chart's summed outward normal is below this faces no one way ("all round")
@@ -181,10 +181,7 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
                          **dict(g.get("autocage") or {}))
         sw = dict(g.shrinkwrap)
         sw.update(max_start_distance=None, max_sleeve_angle_deg=None, max_patch_stretch=None)
-        x, _ = wrap_positions(garment, cage, body, OmegaConf.create(sw))
-        region = garment_regions(garment.faces.cpu().numpy(), cage, garment.vertices.double().cpu().numpy(), body,
-                                 float(sw["min_encircled_deg"]), float(sw["region_smoothing"]),
-                                 int(sw["nearest_triangles"]), bool(sw.get("arm_parts", True)))
+        x, region, _ = wrap_with_regions(garment, cage, body, OmegaConf.create(sw))
     except ValueError as err:
         report.notes.append(f"shrink-wrap stretch not measured: {err}")
         return

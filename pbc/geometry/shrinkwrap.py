@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from torch import Tensor
 
 from pbc.geometry.body.base import Body, body_sdf
-from pbc.geometry.body.skeleton import MIDPLANE_TOL, limb_segments
+from pbc.geometry.body.skeleton import MIDPLANE_TOL, descendants, limb_segments
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
     chart_names_from_cage,
@@ -64,7 +64,7 @@ def body_region_masks(body: Body) -> list[np.ndarray | None]:
     the body lacks (the mannequin has no legs). Arms: the body's arm part masks (``body.parts``); legs: the
     vertices the hip's chain carries at least LIMB_WEIGHT of."""
     sk = body.skeleton
-    names, parents = list(sk.names), list(sk.parents)
+    names = list(sk.names)
     weights = body.weights.cpu().numpy()
     out: list[np.ndarray | None] = [None]
     for r, joint in LIMB_JOINTS.items():
@@ -74,11 +74,7 @@ def body_region_masks(body: Body) -> list[np.ndarray | None]:
         if r in (1, 2) and body.parts.shape[0] > r:
             mask = body.parts[r].cpu().numpy().astype(bool)
         else:
-            chain = {names.index(joint)}
-            for j, par in enumerate(parents):  # parents precede children
-                if par in chain:
-                    chain.add(j)
-            mask = weights[:, [1 + j for j in sorted(chain)]].sum(1) >= LIMB_WEIGHT
+            mask = weights[:, [1 + j for j in sorted(descendants(sk, joint))]].sum(1) >= LIMB_WEIGHT
         out.append(mask if mask.any() else None)
     return out
 
@@ -101,7 +97,7 @@ def body_region_faces(body: Body, core: bool = False) -> list[np.ndarray | None]
 def garment_regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encircled_deg: float,
                     smoothing: float, candidates: int = 12, limbs: bool = True) -> np.ndarray:
     """(V,) region of REGIONS per garment vertex (`_regions`)."""
-    return _regions(faces, cage, points, body, min_encircled_deg, smoothing, candidates, limbs)[0]
+    return _regions(faces, cage, points, _RestSurface(body, candidates), min_encircled_deg, smoothing, limbs)[0]
 
 
 def smooth_over_mesh(values: np.ndarray, faces: np.ndarray, radius: float, points: np.ndarray) -> np.ndarray:
@@ -120,9 +116,10 @@ def smooth_over_mesh(values: np.ndarray, faces: np.ndarray, radius: float, point
     return out
 
 
-def _regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encircled_deg: float, smoothing: float,
-             candidates: int = 12, limbs: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-    """(V,) region of REGIONS per garment vertex at ``points`` (V, 3) (the garment as placed on the rest body).
+def _regions(faces: np.ndarray, cage, points: np.ndarray, surface: _RestSurface, min_encircled_deg: float,
+             smoothing: float, limbs: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """(V,) region of REGIONS per garment vertex at ``points`` (V, 3) (the garment as placed on ``surface``'s
+    rest body).
 
     pbc's shirt names its sleeve patches (``*sleeve_left*`` / ``*sleeve_right*``): those are on their arm, the
     rest on the torso. Any other garment: how much nearer each vertex lies to a limb's surface than to the
@@ -141,8 +138,8 @@ def _regions(faces: np.ndarray, cage, points: np.ndarray, body: Body, min_encirc
         region[np.asarray(p.vertices, np.int64)] = 1 if "sleeve_left" in p.name else 2
     if named or not limbs:
         return region, None
-    surface = _RestSurface(body, candidates)
-    tris = body_region_faces(body)
+    body = surface.body
+    tris = surface.region_faces
     reached = [r for r, tri in enumerate(tris) if tri is not None]
     if not reached:
         return region, None
@@ -276,7 +273,7 @@ class _RestSurface:
             return body_sdf(self.body, self.rot, p, part=part)[0].double().numpy()
 
     def _tree(self, allowed: np.ndarray) -> cKDTree:
-        key = (len(allowed), int(allowed[0]), int(allowed[-1]), int(allowed.sum()))
+        key = np.asarray(allowed, np.int64).tobytes()
         if key not in self._trees:
             self._trees[key] = cKDTree(self.tris[allowed].mean(axis=1))
         return self._trees[key]
@@ -470,18 +467,18 @@ def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, ite
 
 def wrap_positions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, dict]:
     """Steps (a)-(c): the garment shrink-wrapped onto the rest body, (V, 3) float64, and stats."""
-    x, _, stats = _wrap(garment, cage, body, cfg)
+    x, _, stats = wrap_with_regions(garment, cage, body, cfg)
     return x, stats
 
 
-def _wrap(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, np.ndarray, dict]:
-    """`wrap_positions` and the garment regions (V,) it wrapped each vertex on."""
+def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarray, np.ndarray, dict]:
+    """`wrap_positions` and the garment regions (V,) of REGIONS it wrapped each vertex on."""
     sw = _sw_cfg(cfg)
     t0 = time.perf_counter()
     surface = _RestSurface(body, int(sw.nearest_triangles))
     x0 = garment.vertices.double().cpu().numpy()
-    region, nearest = _regions(garment.faces.cpu().numpy(), cage, x0, body, float(sw.min_encircled_deg),
-                               float(sw.region_smoothing), int(sw.nearest_triangles), bool(sw.get("arm_parts", True)))
+    region, nearest = _regions(garment.faces.cpu().numpy(), cage, x0, surface, float(sw.min_encircled_deg),
+                               float(sw.region_smoothing), bool(sw.get("arm_parts", True)))
     part = vertex_parts(region)  # rays start from the bone under each patch
     faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)
@@ -555,7 +552,7 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     many vertices each body region took.
     """
     t0 = time.perf_counter()
-    x, region, stats = _wrap(garment, cage, body, cfg)
+    x, region, stats = wrap_with_regions(garment, cage, body, cfg)
     # a garment that covers no arm (the skirt, the trousers: garment.shrinkwrap.arm_parts false) collides
     # with the torso part only, though its hips reach past the arm joints' x
     arms = bool(_sw_cfg(cfg).get("arm_parts", True))

@@ -194,6 +194,15 @@ def xzy_angles(poses) -> np.ndarray:
     return np.degrees(np.stack([x, y, z], -1))
 
 
+def descendants(sk: Skeleton, joint: str) -> set[int]:
+    """The joint (model-input index) named ``joint`` and every joint below it."""
+    chain = {sk.index(joint)}
+    for j, parent in enumerate(sk.parents):  # parents precede children
+        if parent in chain:
+            chain.add(j)
+    return chain
+
+
 def limb_segments(sk: Skeleton, joint: str) -> np.ndarray:
     """The bone segments (S, 2, 3) (rest heads, m) of the limb starting at ``joint``: joint -> its first child ->
     ... -> the last joint (l_arm -> l_forearm -> l_hand: 2 segments). A limb of one joint (the mannequin's arm)

@@ -231,9 +231,8 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
     the patch, the stretch, the body part it was wrapped on (``patch_regions``), and the likely cause with its
     fix, first that applies: a sleeve off the rest arm (the rest pose), the whole garment stretched (the UV unit),
     a patch wrapped on another body part than the one it lies nearest (``patch_nearest``: it does not surround
-    that limb), else the placement there. The whole garment is
-    stretched when ``overall``, its wrapped over its pattern area, is past 3/4 of the limit; without the regions
-    (an older caller) the UV unit is named."""
+    that limb), else the placement there. The whole garment is stretched when ``overall``, its wrapped over its
+    pattern area, is past 3/4 of the limit; without the regions (an older caller) the UV unit is named."""
     bad = np.flatnonzero(stretch > limit)
     if not len(bad):
         return

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
-from pbc.geometry.body.skeleton import limb_segments
+from pbc.geometry.body.skeleton import descendants, limb_segments
 from pbc.geometry.garment.checks import sleeve_axes
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
@@ -179,12 +179,7 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def arm_chain(body: Body, side: str) -> set[int]:
     """The joints (model-input indices) of one side's arm: its arm joint and every joint below it."""
-    sk = body.skeleton
-    chain = {sk.index(ARM_JOINTS[side])}
-    for j, parent in enumerate(sk.parents):  # parents precede children
-        if parent in chain:
-            chain.add(j)
-    return chain
+    return descendants(body.skeleton, ARM_JOINTS[side])
 
 
 def _arm_transforms(body: Body, turns: dict) -> torch.Tensor:
