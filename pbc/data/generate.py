@@ -61,8 +61,6 @@ from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
-from pbc.sim.batched import batched_drape_for_garment
-from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
 
 log = logging.getLogger(__name__)
@@ -206,6 +204,8 @@ def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
     body_v = pose_body(body, rot)  # (1, Vb, 3)
     start = embedded_points(body_v, body.faces, scene.embedding)[0]
     t1 = time.perf_counter()
+    from pbc.sim.drape import drape_garment  # noqa: PLC0415 - the simulator only to drape: pbc.train imports this module
+
     res = drape_garment(scene.garment, start, body_v[0], body, scene.embedding, scene.sim)
     t2 = time.perf_counter()
     return _drape_record(scene, res, t1 - t0, t2 - t1)
@@ -213,6 +213,8 @@ def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
 
 def _drape_record(scene: Scene, res, t_skin: float, t_drape: float) -> dict:
     """What a worker reports of one drape: the positions, the keep/discard decision and the costs."""
+    from pbc.sim.drape import check_garment_result  # noqa: PLC0415 - see drape_pose
+
     ok, reason = check_garment_result(res, scene.garment, scene.sim)
     return {
         "positions": res.positions.astype(np.float32),
@@ -240,6 +242,8 @@ def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
     if scene.batched is None:
+
+        from pbc.sim.batched import batched_drape_for_garment  # noqa: PLC0415 - the simulator only to drape
 
         scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
                                                   batch_worlds(scene.sim), starts[0], bodies[0])
