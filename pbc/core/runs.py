@@ -57,7 +57,8 @@ METRICS_FILE = "metrics.json"
 EVENTS_PREFIX = "events.out.tfevents."
 
 # Folders inside a run dir that never hold another run: skipping them keeps the walk cheap.
-_SKIP_DIRS = {".hydra", "checkpoints", "__pycache__", "meshes", "figures"}
+# .timing: `pbc sweeps paper`'s short runs that measure a model's step (no experiment)
+_SKIP_DIRS = {".hydra", "checkpoints", "__pycache__", "meshes", "figures", ".timing"}
 
 OK, FAILED, INCOMPLETE = "ok", "failed", "incomplete"
 # Jobs that leave a run dir but are no experiment (the runner's data step).

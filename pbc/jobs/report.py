@@ -86,6 +86,11 @@ HELD, NOT_HELD, NOT_MEASURED = "held", "did not hold", "not measured"
 TIE = "tie (within 1%)"
 
 
+# With two or more seeds per setting a difference no larger than the seeds' own range (max - min, the larger
+# of the two settings') neither supports nor refutes an ordering.
+WITHIN_NOISE = "within noise"
+
+
 # Two numbers closer than this (relative) neither support nor refute an ordering: with one run per
 # setting, differences this small are below the run-to-run noise of a short CPU schedule.
 TIE_RELATIVE = 0.01
@@ -103,9 +108,14 @@ class Row:
     values: dict[str, float] = field(default_factory=dict)
     paper: dict[str, float] = field(default_factory=dict)
     sourced: list[str] = field(default_factory=list)  # keys read from TensorBoard, not metrics.json
+    spread: dict[str, float] = field(default_factory=dict)  # max - min over the runs (seeds), where >= 2 have it
 
     def value(self, key: str) -> float | None:
         return self.values.get(key)
+
+    def noise(self, key: str) -> float | None:
+        """The seeds' range of `key` (max - min), or None with fewer than two runs."""
+        return self.spread.get(key)
 
 
 def _matches(run: Run, select: dict[str, str]) -> bool:
@@ -124,6 +134,8 @@ def make_row(label: str, runs: list[Run], select: dict[str, str], keys, paper=No
             vals = [r.metrics[k] for r in good if k in r.metrics]
             if vals:
                 row.values[k] = statistics.fmean(vals)
+            if len(vals) >= 2:
+                row.spread[k] = max(vals) - min(vals)
             if any(k in r.sources for r in good):
                 row.sourced.append(k)
     elif hits:
@@ -146,6 +158,8 @@ def cell(row: Row, key: str, paper_key: str | None = None) -> str:
     if row.status != OK:
         return row.status
     ours = fmt(row.value(key)) + ("*" if key in row.sourced else "")
+    if row.noise(key) is not None:  # several seeds: their mean ± half their range
+        ours += f" ±{fmt(row.noise(key) / 2)}"
     if paper_key and paper_key in row.paper:
         return f"{ours} ({fmt(row.paper[paper_key])})"
     return ours
@@ -227,7 +241,8 @@ def _entry_label(name: str) -> str:
 
 
 def hierarchy_rows(runs: list[Run]) -> list[Row]:
-    """Whole vs. stitched per seam method, from the newest `pbc.evaluate` run in the sweep.
+    """Whole vs. stitched per seam method, from the sweep's `pbc.evaluate` runs: the newest one, or with one
+    evaluation per seed (`pbc sweeps paper`: `evaluate_s<seed>`) the mean over the seeds and their range.
 
     pbc.evaluate's metrics.json holds "entries": {name: {vertex_error_cm, normal_distance, seam_jump_cm,
     interior_jump_cm}} for "whole", "patches_<method>", "gt_crops_<method>" and "floor_<res>".
@@ -235,21 +250,26 @@ def hierarchy_rows(runs: list[Run]) -> list[Row]:
     evals = [r for r in runs if _is_eval(r)]
     if not evals:
         return []
-    ev = evals[-1]
-    if ev.status != OK:
+    seeded = [r for r in evals if Path(r.name).name.startswith("evaluate_s") and r.status == OK]
+    chosen = seeded or [evals[-1]]
+    if chosen[0].status != OK:
+        ev = chosen[0]
         return [Row(label=ev.name, select={}, runs=[ev.name], status=ev.status, error=ev.error)]
-    entries: dict[str, dict[str, float]] = {}
-    for k, v in ev.metrics.items():
-        parts = k.split("/")
-        if len(parts) == 3 and parts[0] == "entries":
-            entries.setdefault(parts[1], {})[parts[2]] = v
+    entries: dict[str, dict[str, list[float]]] = {}
+    for ev in chosen:
+        for k, v in ev.metrics.items():
+            parts = k.split("/")
+            if len(parts) == 3 and parts[0] == "entries":
+                entries.setdefault(parts[1], {}).setdefault(parts[2], []).append(v)
 
     def order(name):
         kinds = ("whole", "patches_", "train_mean", "gt_crops_", "floor_")
         return next(i for i, p in enumerate((*kinds, "")) if name.startswith(p)), name
 
     return [
-        Row(label=_entry_label(n), select={"method": n}, runs=[ev.name], status=OK, values=vals)
+        Row(label=_entry_label(n), select={"method": n}, runs=[ev.name for ev in chosen], status=OK,
+            values={k: statistics.fmean(x) for k, x in vals.items()},
+            spread={k: max(x) - min(x) for k, x in vals.items() if len(x) >= 2})
         for n, vals in sorted(entries.items(), key=lambda t: order(t[0]))
     ]
 
@@ -264,15 +284,26 @@ class Claim:
 
 
 def _compare(pairs, what: str) -> tuple[str, str]:
-    """pairs: [(label, a, b)] each claiming a < b. -> (ours text, verdict)."""
-    missing = [lbl for lbl, a, b in pairs if a is None or b is None]
+    """pairs: [(label, a, b)] or [(label, a, b, noise)] each claiming a < b; noise: the seeds' range (None: one
+    run a side). A pair is close when |a - b| <= noise, or <= TIE_RELATIVE without seeds. -> (ours text, verdict):
+    did not hold when a pair is the wrong way round and not close; else within noise / tie when one is close."""
+    pairs = [(*p, None) if len(p) == 3 else tuple(p) for p in pairs]
+    missing = [lbl for lbl, a, b, _ in pairs if a is None or b is None]
     if missing:
         return "missing: " + ", ".join(missing), NOT_MEASURED
-    parts = [f"{lbl}: {fmt(a)} {'<' if a < b else '≥'} {fmt(b)}" for lbl, a, b in pairs]
-    close = [abs(a - b) <= TIE_RELATIVE * max(abs(a), abs(b)) for _, a, b in pairs]
-    if any(a >= b and not c for (_, a, b), c in zip(pairs, close, strict=True)):
+    parts = [f"{lbl}: {fmt(a)} {'<' if a < b else '≥'} {fmt(b)}" + (f" (seeds' range {fmt(n)})" if n else "")
+             for lbl, a, b, n in pairs]
+    close = [abs(a - b) <= (n if n is not None else TIE_RELATIVE * max(abs(a), abs(b))) for _, a, b, n in pairs]
+    if any(a >= b and not c for (_, a, b, _), c in zip(pairs, close, strict=True)):
         return "; ".join(parts), NOT_HELD
-    return "; ".join(parts), TIE if any(close) else HELD
+    seeded = any(n is not None for *_, n in pairs)
+    return "; ".join(parts), (WITHIN_NOISE if seeded else TIE) if any(close) else HELD
+
+
+def _noise(*rows_keys) -> float | None:
+    """The larger seeds' range of (row, key) pairs, or None unless every row has one."""
+    vals = [r.noise(k) if r is not None and r.status == OK else None for r, k in rows_keys]
+    return None if any(v is None for v in vals) else max(vals)
 
 
 def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[Claim]:
@@ -288,7 +319,8 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
         return paper.get("table1", {}).get(loss, {}).get(key)
 
     # 1. L1 < L2 on vertex error, on the training and the test set.
-    pairs = [(s, v(by["l1"], f"{s}/{VERTEX}"), v(by["l2"], f"{s}/{VERTEX}")) for s in ("train", "test")]
+    pairs = [(s, v(by["l1"], f"{s}/{VERTEX}"), v(by["l2"], f"{s}/{VERTEX}"),
+              _noise((by["l1"], f"{s}/{VERTEX}"), (by["l2"], f"{s}/{VERTEX}"))) for s in ("train", "test")]
     ours, verdict = _compare(pairs, VERTEX)
     out.append(
         Claim(
@@ -301,7 +333,8 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
     )
     # 2. The normal loss lowers the normal error: the paper shows it on the training set (its test
     # normals are 0.029 vs 0.028, i.e. it did not hold there), so the claim is judged on train.
-    pairs = [("L2+N vs L2, train", v(by["l2_normal"], f"train/{NORMAL}"), v(by["l2"], f"train/{NORMAL}"))]
+    pairs = [("L2+N vs L2, train", v(by["l2_normal"], f"train/{NORMAL}"), v(by["l2"], f"train/{NORMAL}"),
+              _noise((by["l2_normal"], f"train/{NORMAL}"), (by["l2"], f"train/{NORMAL}")))]
     ours, verdict = _compare(pairs, NORMAL)
     out.append(
         Claim(
@@ -312,20 +345,17 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
             verdict,
         )
     )
-    pairs = [("L1+N vs L1, train", v(by["l1_normal"], f"train/{NORMAL}"), v(by["l1"], f"train/{NORMAL}"))]
+    pairs = [("L1+N vs L1, train", v(by["l1_normal"], f"train/{NORMAL}"), v(by["l1"], f"train/{NORMAL}"),
+              _noise((by["l1_normal"], f"train/{NORMAL}"), (by["l1"], f"train/{NORMAL}")))]
     ours, verdict = _compare(pairs, NORMAL)
     out.append(Claim("normal loss lowers normal error (L1+N < L1, train; beyond the paper)", "—", ours, verdict))
     # 3. PCA beats direct prediction in every space, train and test.
     pairs = []
     for space, label in FC_SPACES:
         for s in ("train", "test"):
-            pairs.append(
-                (
-                    f"{label} {s}",
-                    v(fc.get(f"fc_pca_{space}"), f"{s}/{VERTEX}"),
-                    v(fc.get(f"fc_direct_{space}"), f"{s}/{VERTEX}"),
-                )
-            )
+            pca, direct = fc.get(f"fc_pca_{space}"), fc.get(f"fc_direct_{space}")
+            pairs.append((f"{label} {s}", v(pca, f"{s}/{VERTEX}"), v(direct, f"{s}/{VERTEX}"),
+                          _noise((pca, f"{s}/{VERTEX}"), (direct, f"{s}/{VERTEX}"))))
     ours, verdict = _compare(pairs, VERTEX)
     t2p = paper.get("table2", {})
     ptxt = "; ".join(
@@ -335,9 +365,10 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
     )
     out.append(Claim("PCA beats direct (FC, every space, train and test vertex error)", ptxt, ours, verdict))
     # 4. The CNN beats every FC network on test vertex error.
-    fc_test = [v(r, f"test/{VERTEX}") for r in fc.values()]
-    best_fc = min((x for x in fc_test if x is not None), default=None)
-    ours, verdict = _compare([("CNN vs best FC, test", v(cnn, f"test/{VERTEX}"), best_fc)], VERTEX)
+    fc_test = [(v(r, f"test/{VERTEX}"), r) for r in fc.values() if v(r, f"test/{VERTEX}") is not None]
+    best_fc, best_row = min(fc_test, key=lambda t: t[0], default=(None, None))
+    ours, verdict = _compare([("CNN vs best FC, test", v(cnn, f"test/{VERTEX}"), best_fc,
+                               _noise((cnn, f"test/{VERTEX}"), (best_row, f"test/{VERTEX}")))], VERTEX)
     paper_fc = min((x["test_vertex"] for x in t2p.values() if isinstance(x, dict) and "test_vertex" in x), default=None)
     out.append(Claim("CNN beats FC (test vertex error)", f"{p('l1', 'test_vertex')} < {paper_fc}", ours, verdict))
     # 5. Patches beat the whole-shirt model: the best seam method against the whole model.
@@ -347,15 +378,20 @@ def claims(t1: list[Row], t2: list[Row], hier: list[Row], paper: dict) -> list[C
         (r.label, r.value(VERTEX)) for m, r in h.items() if m.startswith("patches_") and r.value(VERTEX) is not None
     ]
     best = min(stitched, key=lambda t: t[1]) if stitched else ("stitched", None)
-    ours, verdict = _compare([(f"{best[0]} vs whole, test", best[1], whole.value(VERTEX) if whole else None)], VERTEX)
+    best_row = next((r for r in h.values() if r.label == best[0]), None)
+    ours, verdict = _compare([(f"{best[0]} vs whole, test", best[1], whole.value(VERTEX) if whole else None,
+                               _noise((best_row, VERTEX), (whole, VERTEX)))], VERTEX)
     out.append(Claim("patches beat whole (test vertex error)", "sec. 4.1 / 8.3 (qualitative here)", ours, verdict))
     return out
 
 
 # ---------------------------------------------------------------------------------------------- figures
-def _bars(ax, labels, ours, theirs, ylabel, title):
+def _bars(ax, labels, ours, theirs, ylabel, title, ranges=None):
+    """ranges: each bar's seeds' range (max - min, None for one run), drawn as an error bar of that span."""
     x = np.arange(len(labels))
-    ax.bar(x - 0.2, [o if o is not None else 0 for o in ours], 0.4, label="ours")
+    yerr = [(r or 0) / 2 for r in ranges] if ranges and any(r for r in ranges) else None
+    ax.bar(x - 0.2, [o if o is not None else 0 for o in ours], 0.4, yerr=yerr, capsize=3,
+           label="ours" + (" (mean, seeds' range)" if yerr else ""))
     if any(t is not None for t in theirs):
         ax.bar(x + 0.2, [t if t is not None else 0 for t in theirs], 0.4, label="paper", alpha=0.6)
     for i, o in enumerate(ours):
@@ -437,6 +473,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
                 [r.paper.get(f"test_{m.split('_')[0]}") for r in t1],
                 unit,
                 f"Table 1: test {m}",
+                [r.noise(f"test/{m}") for r in t1],
             )
         fig.tight_layout()
         save_figure(fig, out / "table1.png")
@@ -451,6 +488,7 @@ def figures(out: Path, runs, t1, t2, patches, hier) -> dict[str, str]:
             [r.paper.get("test_vertex") for r in t2],
             "cm",
             "Table 2: test vertex error",
+            [r.noise(f"test/{VERTEX}") for r in t2],
         )
         fig.tight_layout()
         save_figure(fig, out / "table2.png")
@@ -655,7 +693,9 @@ def render(sweep_dir: Path, runs, t1, t2, patches, hier, cl, figs) -> str:
     md += ["## The paper's claims on our data", ""]
     md.append(_md_table(["claim", "paper", "ours", "verdict"], [[c.text, c.paper, c.ours, c.verdict] for c in cl]))
     md += ["", f"A claim is *{TIE}* when some compared pair differs by at most {TIE_RELATIVE:.0%}: with one run "
-           "per setting that is within run-to-run noise, so it neither supports nor refutes the ordering."]
+           "per setting that is within run-to-run noise, so it neither supports nor refutes the ordering. With "
+           f"several seeds a setting shows their mean ± half their range, and a pair no further apart than the "
+           f"larger range is *{WITHIN_NOISE}*."]
 
     md += ["", "## Table 1: loss functions (whole-shirt CNN)", ""]
     md += _paper_table(t1, any(r.runs for r in t1), "loss", TABLE1_COLUMNS, figs.get("table1"),

@@ -208,6 +208,51 @@ def test_claim_verdict_from_l1_vs_l2(tmp_path, l1, l2, verdict):
     assert claims[0]["verdict"] == verdict
 
 
+def seeded(seed: int, *values) -> dict:
+    m = ok_metrics(*values)
+    m["config"] = {"seed": seed}
+    return m
+
+
+@pytest.mark.parametrize(
+    ("l1", "l2", "verdict"),
+    [(((0.50, 1.40), (0.52, 1.50)), ((0.40, 0.97), (0.41, 0.98)), report.NOT_HELD),  # apart by 4x L1's range
+     (((0.50, 1.40), (0.52, 1.50)), ((0.49, 1.43), (0.51, 1.47)), report.WITHIN_NOISE),  # inside the range
+     (((0.40, 0.90), (0.41, 0.91)), ((0.50, 1.40), (0.52, 1.50)), report.HELD)],
+)
+def test_seeds_give_each_row_a_range_and_the_claims_a_noise_level(tmp_path, l1, l2, verdict):
+    """Two seeds a setting: the row is their mean with half their range beside it; an ordering whose gap is
+    inside the larger range is within noise, a wider gap the wrong way round did not hold."""
+    for seed in (0, 1):
+        make_run(tmp_path, f"l1_s{seed}", {"experiment": "whole", "loss": "l1"}, seeded(seed, l1[seed][0], 0.02,
+                                                                                       l1[seed][1], 0.03))
+        make_run(tmp_path, f"l2_s{seed}", {"experiment": "whole", "loss": "l2"}, seeded(seed, l2[seed][0], 0.02,
+                                                                                       l2[seed][1], 0.03))
+    report.build_report(tmp_path, plots=False)
+    data = json.loads((tmp_path / "report.json").read_text())
+    row = next(r for r in data["table1"] if r["select"]["loss"] == "l1")
+    assert row["values"]["test/vertex_error_cm"] == pytest.approx((l1[0][1] + l1[1][1]) / 2)
+    assert row["spread"]["test/vertex_error_cm"] == pytest.approx(abs(l1[1][1] - l1[0][1]))
+    assert data["claims"][0]["verdict"] == verdict
+    assert "seeds' range" in data["claims"][0]["ours"]
+    md = (tmp_path / "report.md").read_text()
+    assert f"{report.fmt((l1[0][1] + l1[1][1]) / 2)} ±{report.fmt(abs(l1[1][1] - l1[0][1]) / 2)}" in md
+
+
+def test_hierarchy_averages_one_evaluation_per_seed(tmp_path):
+    """`pbc sweeps paper` evaluates the stitched patches once per seed (evaluate_s<seed>): the rows are the
+    means over those evaluations, with their range."""
+    for seed, (whole, stitched) in enumerate(((2.0, 1.8), (2.2, 1.9))):
+        entries = {"whole": {"vertex_error_cm": whole}, "patches_pca": {"vertex_error_cm": stitched}}
+        make_run(tmp_path / "hierarchy", f"evaluate_s{seed}", {"stitch": "pca"}, job="evaluate", overrides=[],
+                 metrics={"split": "test", "num_samples": 3, "entries": entries, "seconds": 2.0})
+    rows = {r.select["method"]: r for r in report.hierarchy_rows(load_runs(tmp_path, events=False))}
+    assert rows["whole"].value("vertex_error_cm") == pytest.approx(2.1)
+    assert rows["whole"].noise("vertex_error_cm") == pytest.approx(0.2)
+    assert rows["patches_pca"].value("vertex_error_cm") == pytest.approx(1.85)
+    assert len(rows["whole"].runs) == 2
+
+
 def test_train_error_falls_back_to_tensorboard(tmp_path):
     m = ok_metrics(0, 0, 0.4, 0.03)
     del m["train"]

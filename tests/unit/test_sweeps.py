@@ -27,8 +27,9 @@ def _hydra():
 
 
 def test_sweep_names_and_scales():
-    assert set(sweeps.SWEEP_NAMES) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
-    assert SCALES == ["cpu", "gpu", "paper", "smoke"]
+    assert set(sweeps.TRAIN_SWEEPS) == {"losses", "architectures", "patches", "hierarchy", "robustness"}
+    assert set(sweeps.SWEEP_NAMES) == {*sweeps.TRAIN_SWEEPS, "paper"}
+    assert SCALES == ["cpu", "cpu_1k", "gpu", "paper", "smoke"]
     assert sweep_values("experiment", "glob(patch_*)") == [f"patch_{i:02d}" for i in range(28)]
     assert len(sweep_values("experiment", "glob([whole,patch_*])")) == 29
 
@@ -42,7 +43,7 @@ def test_scales_compose_in_sweeps_and_single_runs(scale):
         assert c.hydra.runtime.choices["scale"] == scale
         assert c.data.num_samples > 0 and c.trainer.max_epochs > 0 and c.datamodule.batch_size > 0
     assert cfg.data.name == {"smoke": "tshirt_tiny", "cpu": "tshirt_small", "paper": "tshirt_paper",
-                             "gpu": "tshirt_gpu"}[scale]
+                             "gpu": "tshirt_gpu", "cpu_1k": "tshirt_1k"}[scale]
 
 
 @pytest.mark.usefixtures("_hydra")
@@ -148,3 +149,51 @@ def tiny_data(tiny_dataset: Path) -> Path:
     return tiny_dataset.parent
 
 
+
+
+@pytest.mark.usefixtures("_hydra")
+def test_cpu_1k_scale_is_the_converged_schedule_on_over_1000_rows():
+    """`pbc sweeps paper`'s default scale: the shirt's 1,200 poses with mirror images, batch 32, a cosine decay
+    over 41 epochs and early stopping (docs/results/converged_gpu's schedule)."""
+    cfg = _compose([*SEARCH, "+sweep=losses", "scale=cpu_1k"])
+    assert cfg.data.num_samples == 1200 and cfg.data.mirror is True and cfg.data.name == "tshirt_1k"
+    assert cfg.trainer.accelerator == "cpu" and cfg.trainer.max_epochs == 41 and cfg.datamodule.batch_size == 32
+    assert cfg.model.scheduler.T_max == 41 and "early_stopping" in cfg.callbacks
+    assert sweeps.scale_data("cpu_1k") == "tshirt_1k"
+
+
+def test_paper_comparison_settings_and_tables():
+    comp = sweeps.comparison_settings([])
+    assert comp["tables"] == ["losses", "architectures", "hierarchy"] and comp["seeds"] == [0, 1]
+    assert comp["scale"] == "cpu_1k"
+    comp = sweeps.comparison_settings(["comparison.tables=losses", "comparison.seeds=0,1,2"])
+    assert comp["tables"] == ["losses"] and comp["seeds"] == [0, 1, 2]
+    for bad, match in (("comparison.tables=lossses", "each must be one of"), ("comparison.seeds=1,1", "distinct"),
+                       ("comparison.seed=1", "unknown")):
+        with pytest.raises(ValueError, match=match):
+            sweeps.comparison_settings([bad])
+    assert sweeps.table_grid("losses", []) == ("loss", ["l1", "l2", "l2_normal", "l1_normal"])
+    assert sweeps.table_grid("losses", ["loss=l1,l2"]) == ("loss", ["l1", "l2"])
+    key, values = sweeps.table_grid("architectures", [])
+    assert key == "experiment" and values[0] == "whole" and len(values) == 7
+    key, values = sweeps.table_grid("hierarchy", [])
+    assert key == "experiment" and len(values) == 29
+
+
+def test_paper_train_command_gives_each_table_its_own_settings(tmp_path):
+    """A narrowing of one table's key stays out of the tables that vary another; the training seed never
+    reaches the data step (it is not data.seed)."""
+    ovr = ["comparison.seeds=0,1", "loss=l1,l2", "hydra.launcher.n_jobs=2", "seed=5", "scale=smoke"]
+    argv = sweeps.paper_train_command("architectures", 1, "experiment", ["fc_pca_local"], "smoke", ovr,
+                                      {"loss", "experiment"}, tmp_path / "a", python="py")
+    assert argv[:5] == ["py", "-m", "pbc.train", "-m", "+sweep=architectures"]
+    assert "seed=1" in argv and "seed=5" not in argv and "experiment=fc_pca_local" in argv
+    assert not any(a.startswith(("loss=", "comparison.")) for a in argv) and "hydra.launcher.n_jobs=2" in argv
+    data = dict(sweeps.sweep_commands("losses", ["seed=0,1", "data.seed=3", "scale=smoke"], tmp_path, "py"))["data"]
+    assert "data.seed=3" in data and not any(a.startswith("seed=") for a in data)
+
+
+def test_table_estimate_is_runs_times_epochs_times_steps():
+    est = sweeps.estimate_table({"whole": 2.0, "fc": 0.1}, {"whole": 30.0, "fc": 10.0}, {"whole": 4, "fc": 2},
+                                {"whole": 41, "fc": 41}, {"whole": 47, "fc": 47})
+    assert est == pytest.approx(4 * (30 + 41 * 47 * 2.0) + 2 * (10 + 41 * 47 * 0.1))

@@ -28,7 +28,8 @@ def row(name: str, rs: list[dict], mean_shape: float) -> str:
     nd = [r["test"]["normal_distance"] for r in rs]
     real = [r["mocap"]["model_cm"] for r in rs if "mocap" in r]
     real_txt = " / ".join(f"{x:.3f}" for x in real) if real else "not scored"
-    return (f"| {name} | {' / '.join(f'{e:.3f}' for e in err)} | {np.mean(err):.3f} | {np.mean(err) / mean_shape:.2f}x | "
+    per_seed = " / ".join(f"{e:.3f}" for e in err)
+    return (f"| {name} | {per_seed} | {np.mean(err):.3f} | {np.mean(err) / mean_shape:.2f}x | "
             f"{np.mean(nd):.4f} | {real_txt} | {PAPER.get(name, '-')} |")
 
 
@@ -36,8 +37,8 @@ def main() -> None:
     runs = json.loads((HERE / "results.json").read_text())["runs"]
     base = runs["table1_l1_s0"]
     ms, ms_real = base["sampled"]["mean_shape_cm"], base["mocap"]["mean_shape_cm"]
-    head = ("| setting | test error per seed (cm) | mean | vs mean shape | normal distance | real frames (cm, per seed) "
-            "| paper (cm) |\n| --- | --- | --- | --- | --- | --- | --- |")
+    head = ("| setting | test error per seed (cm) | mean | vs mean shape | normal distance "
+            "| real frames (cm, per seed) | paper (cm) |\n| --- | --- | --- | --- | --- | --- | --- |")
     lines = [f"Training mean shape on the same rows: {ms:.3f} cm on the 92 sampled test poses, {ms_real:.3f} cm on "
              "the 18 motion-capture frames.", "", "### Table 1: the whole-shirt CNN under each loss", "", head]
     lines += [row(loss, seeds(runs, f"table1_{loss}"), ms) for loss in ("l1", "l2", "l2_normal", "l1_normal")]
@@ -51,9 +52,10 @@ def main() -> None:
               "its mean shape there | ratio |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     curve = sorted((r for k, r in runs.items() if k.startswith("curve_")), key=lambda r: r["train_rows"])
     for r in curve:
+        sampled, real = r["sampled"], r["mocap"]
         lines.append(f"| {r['train_rows']} | {r['epochs']} | {int(r['best_checkpoint'][6:9])} | "
-                     f"{r['sampled']['model_cm']:.3f} | {r['sampled']['mean_shape_cm']:.3f} | {r['sampled']['ratio']:.2f} | "
-                     f"{r['mocap']['model_cm']:.3f} | {r['mocap']['mean_shape_cm']:.3f} | {r['mocap']['ratio']:.2f} |")
+                     f"{sampled['model_cm']:.3f} | {sampled['mean_shape_cm']:.3f} | {sampled['ratio']:.2f} | "
+                     f"{real['model_cm']:.3f} | {real['mean_shape_cm']:.3f} | {real['ratio']:.2f} |")
     (HERE / "tables.md").write_text("\n".join(lines) + "\n")
 
     fig, ax = plt.subplots(1, 3, figsize=(16, 4.6))
@@ -79,7 +81,7 @@ def main() -> None:
                              [(e.replace("fc_", ""), f"table2_{e}") for e in
                               ("fc_direct_local", "fc_pca_local", "fc_direct_root", "fc_pca_root",
                                "fc_direct_position", "fc_pca_position")], "Table 2: FC baselines vs CNN")):
-        for i, (label, prefix) in enumerate(names):
+        for i, (_label, prefix) in enumerate(names):
             err = [r["test"]["vertex_error_cm"] for r in seeds(runs, prefix)]
             a.bar(i, np.mean(err), color="C0", alpha=0.5)
             a.plot([i] * len(err), err, "k.", ms=8)
