@@ -131,7 +131,8 @@ def evaluate_command(sweep_dir: Path, python: str = sys.executable, seed: int | 
     -> (argv, None) or (None, why). out: its run dir (default <sweep dir>/evaluate)."""
     runs = [r for r in load_runs(sweep_dir, events=False) if r.status == OK and r.job == "train"
             and (seed is None or run_seed(r) == seed)]
-    whole = [r for r in runs if r.get("experiment") == "whole"]
+    # the whole-shirt model under the paper's loss (a `pbc sweeps paper` dir also holds Table 1's other losses)
+    whole = [r for r in runs if r.get("experiment") == "whole" and r.get("loss") in (None, "l1")]
     # by model kind, not experiment name: the T-shirt's patch_NN, `+experiment=patch model.patch_id=N` on any
     # garment, or a stacked `+experiment=patches` run (pbc.evaluate reads the single-patch runs it exported)
     patches = [r for r in runs if r.kind in (ModelKind.PATCH, ModelKind.PATCHES)]
@@ -264,9 +265,9 @@ def comparison_settings(overrides: list[str], conf_dir: Path = CONF_DIR) -> dict
         key, _, value = o.partition("=")
         if key.startswith(COMPARISON_PREFIX):
             name = key[len(COMPARISON_PREFIX):]
-            if name not in ("tables", "seeds", "scale", "timing_batches"):
-                raise ValueError(f"{key}: unknown; set comparison.tables, comparison.seeds, comparison.scale or "
-                                 "comparison.timing_batches")
+            if name not in ("tables", "seeds", "scale", "timing_batches", "plan"):
+                raise ValueError(f"{key}: unknown; set comparison.tables, comparison.seeds, comparison.scale, "
+                                 "comparison.timing_batches or comparison.plan")
             comp[name] = [v for v in value.strip("[]").split(",") if v] if name in ("tables", "seeds") else value
     tables = [str(t) for t in comp.get("tables") or []]
     unknown = [t for t in tables if t not in TRAIN_SWEEPS]
@@ -276,7 +277,8 @@ def comparison_settings(overrides: list[str], conf_dir: Path = CONF_DIR) -> dict
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"comparison.seeds={comp.get('seeds')}: give distinct integers, e.g. comparison.seeds=0,1")
     return {"tables": tables, "seeds": seeds, "scale": str(comp.get("scale") or DEFAULT_SCALE),
-            "timing_batches": int(comp.get("timing_batches") or 3)}
+            "timing_batches": int(comp.get("timing_batches") or 3),
+            "plan": str(comp.get("plan", False)).lower() in ("true", "1", "yes")}
 
 
 def table_grid(table: str, overrides: list[str], conf_dir: Path = CONF_DIR) -> tuple[str, list[str]]:
@@ -291,6 +293,31 @@ def table_grid(table: str, overrides: list[str], conf_dir: Path = CONF_DIR) -> t
         if sep and k.lstrip("+") == key:
             return key, sweep_values(key, v, conf_dir)
     return key, values[key]
+
+
+def table_jobs(table: str, key: str, values: list[str], conf_dir: Path = CONF_DIR) -> dict[str, tuple[str, str]]:
+    """Each value's job as (experiment, loss): the table's fixed parameters, else the sweep's and the root
+    config's defaults (whole, l1). Two tables' jobs with the same pair are one training."""
+    params = ((read_yaml(conf_dir / "sweep" / f"{table}.yaml") or {}).get("hydra") or {}).get("sweeper", {})
+    fixed = {k.lstrip("+"): str(v) for k, v in dict(params.get("params") or {}).items() if k.lstrip("+") != key}
+    out = {}
+    for v in values:
+        job = {"experiment": "whole", "loss": "l1", **fixed, key: v}
+        out[v] = (job["experiment"], job["loss"])
+    return out
+
+
+def paper_grids(tables: list[str], overrides: list[str], conf_dir: Path = CONF_DIR) -> dict[str, tuple[str, list[str]]]:
+    """{table: (key, values)} with every job trained once: a job an earlier table trains is left out of the
+    later ones (Table 2's CNN and the hierarchy's whole model are Table 1's L1 runs; the report reads them
+    from there and the hierarchy's evaluation finds them in the sweep dir)."""
+    grids, seen = {}, set()
+    for t in tables:
+        key, values = table_grid(t, overrides, conf_dir)
+        jobs = table_jobs(t, key, values, conf_dir)
+        grids[t] = (key, [v for v in values if jobs[v] not in seen])
+        seen |= set(jobs.values())
+    return grids
 
 
 def missing_settings(table_dir: Path, key: str, values: list[str], seed: int) -> list[str]:
@@ -386,7 +413,7 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
     scale = _scale_of(overrides) if any(o.lstrip("+").startswith("scale=") for o in overrides) else comp["scale"]
     sweep_dir = Path(sweep_dir or default_sweep_dir(PAPER, scale)).resolve()
     sweep_dir.mkdir(parents=True, exist_ok=True)
-    grids = {t: table_grid(t, overrides) for t in comp["tables"]}
+    grids = paper_grids(comp["tables"], overrides)
     varied = {k for k, _ in grids.values()}
     base = _table_overrides(overrides, varied)
     record = {"name": PAPER, "argv": ["python", "-m", "pbc.sweeps", PAPER, *overrides], "scale": scale,
@@ -411,7 +438,7 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
             key, values = grids[table]
             table_dir = sweep_dir / table
             table_dir.mkdir(exist_ok=True)
-            todo = {s: missing_settings(table_dir, key, values, s) for s in comp["seeds"]}
+            todo = {s: missing_settings(table_dir, key, values, s) for s in comp["seeds"]} if values else {}
             n_left = sum(len(v) for v in todo.values())
             if not n_left:
                 print(f"[pbc.sweeps] {table}: every setting done under every seed", flush=True)
@@ -438,6 +465,8 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
                                   f"steps x {timing[k]['step_s']:.3g} s" for k, n in runs.items())
                       + f"): at most {_hours(est)} on this machine, one run after another", flush=True)
                 step(f"{table}: timing", None, 0, None, ts, estimate_s=round(est, 1), timing=timing)
+                if comp["plan"]:  # comparison.plan=true: the estimates alone
+                    continue
                 ts = time.time()
                 for seed, vals in todo.items():
                     if not vals:
@@ -449,14 +478,14 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
                     step(f"{table}: train seed {seed}", argv, code, error, ts, estimate_s=round(est, 1))
                     rc = rc or code
                     ts = time.time()
-            if table == "hierarchy":
+            if table == "hierarchy" and not comp["plan"]:
                 for seed in comp["seeds"]:
                     out = table_dir / f"evaluate_s{seed}"
                     if (out / "metrics.json").is_file() and json.loads((out / "metrics.json").read_text()).get(
                             "status") == OK:
                         continue
                     ts = time.time()
-                    argv, error = evaluate_command(table_dir, python, seed=seed, out=out)
+                    argv, error = evaluate_command(sweep_dir, python, seed=seed, out=out)
                     code = 1 if argv is None else run_logged(argv, table_dir / f"evaluate_s{seed}.log")[0]
                     step(f"hierarchy: evaluate seed {seed}", argv, code, error, ts)
                     rc = rc or code

@@ -197,3 +197,14 @@ def test_table_estimate_is_runs_times_epochs_times_steps():
     est = sweeps.estimate_table({"whole": 2.0, "fc": 0.1}, {"whole": 30.0, "fc": 10.0}, {"whole": 4, "fc": 2},
                                 {"whole": 41, "fc": 41}, {"whole": 47, "fc": 47})
     assert est == pytest.approx(4 * (30 + 41 * 47 * 2.0) + 2 * (10 + 41 * 47 * 0.1))
+
+
+def test_paper_trains_each_job_once():
+    """Table 2's CNN and the hierarchy's whole model are Table 1's L1 runs: trained there only; without
+    Table 1 (or with it narrowed away from L1) the later tables keep their own."""
+    grids = sweeps.paper_grids(["losses", "architectures", "hierarchy"], [])
+    assert grids["losses"][1] == ["l1", "l2", "l2_normal", "l1_normal"]
+    assert "whole" not in grids["architectures"][1] and len(grids["architectures"][1]) == 6
+    assert "whole" not in grids["hierarchy"][1] and len(grids["hierarchy"][1]) == 28
+    assert "whole" in sweeps.paper_grids(["architectures", "hierarchy"], [])["architectures"][1]
+    assert "whole" in sweeps.paper_grids(["losses", "hierarchy"], ["loss=l2"])["hierarchy"][1]
