@@ -131,13 +131,14 @@ def evaluate_command(sweep_dir: Path, python: str = sys.executable, seed: int | 
     -> (argv, None) or (None, why). out: its run dir (default <sweep dir>/evaluate)."""
     runs = [r for r in load_runs(sweep_dir, events=False) if r.status == OK and r.job == "train"
             and (seed is None or run_seed(r) == seed)]
-    # the whole-shirt model under the paper's loss (a `pbc sweeps paper` dir also holds Table 1's other losses)
-    whole = [r for r in runs if r.get("experiment") == "whole" and r.get("loss") in (None, "l1")]
+    whole = [r for r in runs if r.get("experiment") == "whole"]
     # by model kind, not experiment name: the T-shirt's patch_NN, `+experiment=patch model.patch_id=N` on any
     # garment, or a stacked `+experiment=patches` run (pbc.evaluate reads the single-patch runs it exported)
     patches = [r for r in runs if r.kind in (ModelKind.PATCH, ModelKind.PATCHES)]
     if not whole or not patches:
         return None, f"nothing to evaluate: {len(whole)} successful whole runs, {len(patches)} patch runs"
+    # the whole model trained under the patches' loss (a `pbc sweeps paper` dir also holds Table 1's others)
+    whole = [r for r in whole if r.get("loss") in {p.get("loss") for p in patches}] or whole
     argv = [
         python,
         "-m",

@@ -287,10 +287,11 @@ def test_hierarchy_rows_and_evaluate_command(sweep, built):
     patches = {r["label"]: r for r in json.loads((built / "report.json").read_text())["patches"]}
     assert patches["patch_07"]["values"]["test/patch_vertex_error_cm"] == pytest.approx(0.35)
     assert patches["patch_07"]["values"]["test/patch_vertex_error_cm_std"] == pytest.approx(0.05)
-    # The runner's evaluation step: the newest whole run and every successful patch run, quoted.
+    # The runner's evaluation step: the newest whole run trained under the patches' loss (l1 here, though an
+    # l2 whole run is newer) and every successful patch run, quoted.
     argv, why = sweeps.evaluate_command(sweep, python="py")
     assert why is None and argv[:3] == ["py", "-m", "pbc.evaluate"]
-    assert argv[3] == f"whole_run='{sweep / '1_loss=l2'}'"
+    assert argv[3] == f"whole_run='{sweep / '0_loss=l1'}'"
     assert argv[4].startswith("patch_runs=[") and argv[4].count("patch_0") == 2
 
 
