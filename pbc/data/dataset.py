@@ -96,16 +96,19 @@ def person_kw(data, rows) -> dict:
 def save_embedding(emb: Embedding, path: str | Path) -> None:
     """Write the embedding to .npz, atomically."""
     with atomic_path(path, suffix=".npz") as tmp:
-        np.savez(tmp, face=emb.face.numpy(), bary=emb.bary.numpy(), part=emb.part.numpy())
+        lift = {} if emb.lift is None else {"lift": emb.lift.numpy()}  # only layered garments have one
+        np.savez(tmp, face=emb.face.numpy(), bary=emb.bary.numpy(), part=emb.part.numpy(), **lift)
 
 
 def load_embedding(path: str | Path) -> Embedding:
     """Read an embedding written by `save_embedding`, with a clear error when missing or corrupt."""
     z = load_npz(path, ("face", "bary", "part"), "embedding", "regenerate the dataset")
+    z["lift"] = load_npz(path, None, "embedding", "regenerate the dataset").get("lift")  # a layered garment's
     return Embedding(
         face=torch.from_numpy(z["face"]).long(),
         bary=torch.from_numpy(z["bary"]).float(),
         part=torch.from_numpy(z["part"]).long(),
+        lift=torch.from_numpy(z["lift"]).float() if z["lift"] is not None else None,
     )
 
 

@@ -60,7 +60,7 @@ from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
-from pbc.geometry.shrinkwrap import Embedding, embedded_points, shrinkwrap
+from pbc.geometry.shrinkwrap import Embedding, shrinkwrap, start_points
 from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
 
 log = logging.getLogger(__name__)
@@ -94,7 +94,8 @@ def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
         **_cheap_fingerprint(cfg, scene.garment),
         "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights, scene.body.parts),
         # the rest-pose embedding and collision parts: a change to the shrink-wrap changes the data
-        "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part),
+        "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part,
+                                      *([] if scene.embedding.lift is None else [scene.embedding.lift])),
     }
     if _shapes(scene) is not None:  # only then: a single-body manifest keeps its bytes
         fp["shapes_hash"] = shapes_hash(scene.shapes)
@@ -202,7 +203,7 @@ def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
     body = scene.body_for(index)
     rot = torch.from_numpy(pose)[None].float()
     body_v = pose_body(body, rot)  # (1, Vb, 3)
-    start = embedded_points(body_v, body.faces, scene.embedding)[0]
+    start = start_points(body_v, body.faces, scene.embedding)[0]
     t1 = time.perf_counter()
     from pbc.sim.drape import drape_garment  # noqa: PLC0415 - the simulator only to drape: pbc.train imports this module
 
@@ -238,7 +239,7 @@ def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
     for pose, i in zip(poses, indices, strict=True):  # one at a time: the same skinning, bit for bit, as drape_pose
         body = scene.body_for(i)
         body_v = pose_body(body, torch.from_numpy(pose)[None].float())
-        starts.append(embedded_points(body_v, body.faces, scene.embedding)[0].numpy())
+        starts.append(start_points(body_v, body.faces, scene.embedding)[0].numpy())
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
     if scene.batched is None:

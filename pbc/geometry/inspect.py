@@ -35,7 +35,7 @@ from pbc.geometry.garment.checks import (
 from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_from_mesh
 from pbc.geometry.garment.placement import Placement, placed_mesh
 from pbc.geometry.meshio import ObjMesh, read_obj
-from pbc.geometry.meshops import face_areas, uv_islands
+from pbc.geometry.meshops import face_areas, surface_distance, uv_islands
 from pbc.geometry.shrinkwrap import REGIONS, wrap_with_regions
 from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
 
@@ -194,11 +194,16 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
     owner = np.array([np.bincount(face_chart[fp == k]).argmax() if (fp == k).any() else -1
                       for k in range(len(cage.patches))])
     corner = np.repeat(face_chart, 3)
+    # a part lying on the garment's own cloth is wrapped on top of it, off the skin (garment_layers)
+    off_skin = surface_distance(x, body.vertices.double().cpu().numpy(), body.faces.cpu().numpy())[0] > 0.5 * float(
+        g.shrinkwrap.layer_min_gap)
     for r in report.rows:
         mine = np.flatnonzero(owner == r.id)
         r.stretch = float(stretch[mine].max()) if len(mine) else None
         verts = f.ravel()[corner == r.id]
         r.wrapped_on = REGIONS[int(np.bincount(region[verts]).argmax())] if len(verts) else None
+        if len(verts) and off_skin[verts].mean() > 0.5:
+            r.wrapped_on += ", on top of the garment's cloth there (a layer: collar, cuff, pocket)"
 
 
 def format_report(report: Report, limits: dict) -> str:

@@ -152,6 +152,24 @@ def vertex_normals(vertices, faces):
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
+def closest_on_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, candidates: int = 12
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point of a mesh (vertices (N, 3), faces (F, 3)) to points (P, 3), searched among the `candidates`
+    triangles with the nearest centroids: closest points (P, 3), their triangle (P,) and barycentric weights (P, 3)."""
+    pts = np.asarray(points, np.float64)
+    tris = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+    k = min(int(candidates), len(tris))
+    _, cand = cKDTree(tris.mean(1)).query(pts, k=k)
+    cand = np.asarray(cand).reshape(len(pts), k)
+    cp = trimesh.triangles.closest_point(tris[cand.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
+    best = np.linalg.norm(cp - pts[:, None], axis=2).argmin(1)
+    rows = np.arange(len(pts))
+    closest, face = cp[rows, best], cand[rows, best]
+    bary = np.clip(trimesh.triangles.points_to_barycentric(tris[face], closest), 0.0, None)
+    bary /= bary.sum(1, keepdims=True)
+    return closest, face, bary
+
+
 def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, candidates: int = 12
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed distance of points (P, 3) to a mesh (vertices (N, 3), faces (F, 3)), negative inside.
@@ -164,16 +182,7 @@ def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
     pts = np.asarray(points, np.float64)
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
-    tris = vertices[faces]
-    k = min(int(candidates), len(tris))
-    _, cand = cKDTree(tris.mean(1)).query(pts, k=k)
-    cand = np.asarray(cand).reshape(len(pts), k)
-    cp = trimesh.triangles.closest_point(tris[cand.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
-    best = np.linalg.norm(cp - pts[:, None], axis=2).argmin(1)
-    rows = np.arange(len(pts))
-    closest, face = cp[rows, best], cand[rows, best]
-    bary = np.clip(trimesh.triangles.points_to_barycentric(tris[face], closest), 0.0, None)
-    bary /= bary.sum(1, keepdims=True)
+    closest, face, bary = closest_on_mesh(pts, vertices, faces, candidates)
     normal = np.einsum("pk,pkc->pc", bary, vertex_normals(vertices, faces)[faces[face]])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-20)
     delta = pts - closest
@@ -246,3 +255,57 @@ def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0
             gaps = np.diff(np.concatenate([angles, angles[:1] + 360.0]))
             cover.append(360.0 - gaps.max())
     return float(np.median(cover)) if cover else float("nan")
+
+
+def segment_hits(starts: np.ndarray, ends: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                 skip: sp.spmatrix | None = None, min_t: float = 1e-3, margin: float = 0.0
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first triangle each segment crosses (Moller-Trumbore on the triangles near the segment).
+
+    starts, ends (N, 3); vertices (V, 3), faces (F, 3); skip: (N, F) sparse, nonzero where a segment may not hit a
+    triangle (its own neighbourhood); min_t: hits closer to the start than this (m) are ignored (the start's own
+    surface); margin: a segment passing this far outside a triangle (in barycentric weight) still hits it, at its
+    nearest point (cloth lying over another sheet's edge). Returns face (N,) int64 (-1: no hit), distance from the
+    start (N,) (inf: none) and barycentric weights of the hit point in its triangle (N, 3)."""
+    s, e = np.asarray(starts, np.float64), np.asarray(ends, np.float64)
+    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+    seg = e - s
+    length = np.linalg.norm(seg, axis=1)
+    d = seg / np.maximum(length, 1e-12)[:, None]
+    centroid = tri.mean(1)
+    reach = np.linalg.norm(tri - centroid[:, None], axis=2).max()
+    # a triangle the segment crosses has its centroid within `reach` of a point of the segment, so within
+    # half the segment plus reach of its midpoint
+    near = cKDTree(centroid).query_ball_point(0.5 * (s + e), 0.5 * length + reach)
+    rows = np.repeat(np.arange(len(s)), [len(x) for x in near])
+    cols = np.fromiter((c for x in near for c in x), np.int64, count=len(rows))
+    face = np.full(len(s), -1, np.int64)
+    dist = np.full(len(s), np.inf)
+    bary = np.zeros((len(s), 3))
+    if not len(rows):
+        return face, dist, bary
+    r, c = rows, cols
+    a, b, cc = tri[c, 0], tri[c, 1], tri[c, 2]
+    e1, e2 = b - a, cc - a
+    pvec = np.cross(d[r], e2)
+    det = np.einsum("ij,ij->i", e1, pvec)
+    ok = np.abs(det) > 1e-14
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    tvec = s[r] - a
+    u = np.einsum("ij,ij->i", tvec, pvec) * inv
+    qvec = np.cross(tvec, e1)
+    v = np.einsum("ij,ij->i", d[r], qvec) * inv
+    t = np.einsum("ij,ij->i", e2, qvec) * inv
+    w0 = 1 - u - v
+    hit = ok & (u >= -margin) & (v >= -margin) & (w0 >= -margin) & (t > min_t) & (t <= length[r])
+    if skip is not None and hit.any():  # checked on the hits alone: far fewer than the pairs tested
+        idx = np.flatnonzero(hit)
+        hit[idx[np.asarray(skip[r[idx], c[idx]]).ravel() != 0]] = False
+    inside = (u >= 0) & (v >= 0) & (w0 >= 0)
+    order = np.lexsort((t, ~inside))  # a hit inside a triangle first, then the nearest
+    ks = order[hit[order]]
+    rows_hit, first = np.unique(r[ks], return_index=True)
+    k = ks[first]
+    w = np.clip(np.stack([w0[k], u[k], v[k]], 1), 0.0, None)
+    face[rows_hit], dist[rows_hit], bary[rows_hit] = c[k], t[k], w / w.sum(1, keepdims=True)
+    return face, dist, bary

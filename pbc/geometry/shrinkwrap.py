@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 import trimesh
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from torch import Tensor
 
@@ -36,7 +37,14 @@ from pbc.geometry.garment.checks import (
     patch_stretch,
     sleeve_axes,
 )
-from pbc.geometry.meshops import encircled_degrees, face_areas, face_charts, solve_dirichlet
+from pbc.geometry.meshops import (
+    closest_on_mesh,
+    encircled_degrees,
+    face_areas,
+    face_charts,
+    segment_hits,
+    solve_dirichlet,
+)
 
 
 @dataclass
@@ -44,6 +52,18 @@ class Embedding:
     face: Tensor  # (V,) long, body triangle of each garment vertex
     bary: Tensor  # (V, 3) barycentric weights, rows sum to 1
     part: Tensor  # (V,) long, primary collision part (0 torso, 1 left arm, 2 right arm)
+    # (V,) float, metres along the body triangle's normal where a drape starts: a part lying on the garment's own
+    # cloth (a collar, a cuff, a pocket) starts above the cloth under it; None: every vertex starts on the skin
+    lift: Tensor | None = None
+
+
+# m: a wrapped vertex farther than this from its embedded point lies on a layer (the wrap itself is on the skin)
+LIFT_TOL = 1e-4
+# barycentric weight by which a layer's way to the body may pass outside the cloth's triangle under it: the edge of
+# a collar or cuff copied out from the cloth's own edge lies just beyond it
+LAYER_EDGE_MARGIN = 0.25
+# a layer's normal and the cloth's under it, both turned away from the body, are at most 60 degrees apart
+LAYER_MIN_COS = 0.5
 
 
 def _sw_cfg(cfg):
@@ -426,6 +446,94 @@ def cage_targets(garment: Garment, cage, body: Body, surface: _RestSurface, part
 
 
 # --------------------------------------------------------------------------------------------------
+# layers: parts that lie on the garment's own cloth
+
+def garment_layers(points: np.ndarray, faces: np.ndarray, body_points: np.ndarray, max_gap: float,
+                   min_area: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which vertices lie on top of the garment's own cloth (a folded collar, a turned-back cuff, a pocket).
+
+    points (V, 3) the garment as modelled; body_points (V, 3) each vertex's closest body point (on its region). A
+    vertex is on a layer when the way from it towards the body crosses a garment triangle within ``max_gap`` (m),
+    not in its own neighbourhood (the faces of its one-ring), facing the same way (LAYER_MIN_COS), and the layer
+    it belongs to (the connected faces of such vertices) covers at least ``min_area`` (m^2): a few vertices where
+    a modelled garment folds at the armpit are no collar. Returns the triangle under each vertex (V,) int64 (-1:
+    none), the barycentric weights of the crossing (V, 3) and the gap (V,) m.
+    """
+    pts = np.asarray(points, np.float64)
+    f = np.asarray(faces, np.int64)
+    n = len(pts)
+    inc = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
+    skip = ((inc @ inc.T) @ inc).tocsr()  # (V, F): faces touching a vertex of the vertex's one-ring
+    way = np.asarray(body_points, np.float64) - pts
+    dist = np.linalg.norm(way, axis=1)
+    ends = pts + way / np.maximum(dist, 1e-12)[:, None] * np.minimum(dist, max_gap)[:, None]
+    face, dist, bary = segment_hits(pts, ends, pts, f, skip, margin=LAYER_EDGE_MARGIN)
+    # a layer lies on the cloth under it facing the same way (both away from the body): cloth facing it across a
+    # gap (a torso's side under a hanging sleeve's inner side) is another sheet, not the one it lies on
+    hit = np.flatnonzero(face >= 0)
+    vn = trimesh.Trimesh(pts, f, process=False).vertex_normals[hit]
+    vn *= np.sign(np.einsum("nd,nd->n", vn, -way[hit]))[:, None]
+    tri = pts[f[face[hit]]]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1), 1e-12)[:, None]
+    below = np.asarray(body_points, np.float64)[f[face[hit]]].mean(1)
+    fn *= np.sign(np.einsum("nd,nd->n", fn, tri.mean(1) - below))[:, None]
+    other = hit[np.einsum("nd,nd->n", vn, fn) < LAYER_MIN_COS]
+    face[other], dist[other], bary[other] = -1, np.inf, 0.0
+    # each layer: the faces whose three vertices lie on cloth, joined through shared vertices; a small one is not
+    on = face >= 0
+    full = np.flatnonzero(on[f].all(1))
+    keep = np.zeros(n, bool)
+    if len(full):
+        adj = sp.csr_matrix((np.ones(3 * len(full)), (f[full].ravel(), np.repeat(np.arange(len(full)), 3))),
+                            shape=(n, len(full)))
+        _, comp = connected_components(adj.T @ adj, directed=False)
+        area = np.bincount(comp, face_areas(pts, f[full]))
+        big = np.flatnonzero(area >= min_area)
+        keep[np.unique(f[full][np.isin(comp, big)])] = True
+    drop = on & ~keep
+    face[drop], dist[drop], bary[drop] = -1, np.inf, 0.0
+    # a layer's border (its edge copied out from the cloth's own edge, or where it is sewn on) lies on the cloth
+    # nearest to it, whichever way the body is
+    if keep.any():
+        border = np.zeros(n, bool)
+        border[f[keep[f].any(1)].ravel()] = True
+        border &= ~keep
+        cloth = np.flatnonzero(~(keep | border)[f].any(1))
+        if border.any() and len(cloth):
+            cp, tri, w = closest_on_mesh(pts[border], pts, f[cloth])
+            gap_b = np.linalg.norm(cp - pts[border], axis=1)
+            near = gap_b <= max_gap
+            ids = np.flatnonzero(border)[near]
+            face[ids], dist[ids], bary[ids] = cloth[tri[near]], gap_b[near], w[near]
+    return face, bary, dist
+
+
+def place_layers(x: np.ndarray, faces: np.ndarray, under: np.ndarray, bary: np.ndarray, gap: np.ndarray,
+                 surface: _RestSurface) -> np.ndarray:
+    """Put each layer vertex (under >= 0) at `gap` (V,) above its point of the wrapped cloth under it, along that
+    triangle's normal turned away from the body; a layer on a layer after the one under it. x (V, 3) -> (V, 3)."""
+    x = x.copy()
+    layered = under >= 0
+    placed = ~layered
+    for _ in range(8):
+        ready = layered & ~placed & placed[faces[np.maximum(under, 0)]].all(1)
+        if not ready.any():
+            ready = layered & ~placed  # a cycle of layers: put the rest on what is there
+        if not ready.any():
+            break
+        tri = x[faces[under[ready]]]
+        p = np.einsum("nk,nkd->nd", bary[ready], tri)
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        out = surface.sdf(p + 1e-3 * normal) >= surface.sdf(p - 1e-3 * normal)
+        normal[~out] *= -1
+        x[ready] = p + gap[ready, None] * normal
+        placed |= ready
+    return x
+
+
+# --------------------------------------------------------------------------------------------------
 # the shrink-wrap
 
 
@@ -479,6 +587,14 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     x0 = garment.vertices.double().cpu().numpy()
     region, nearest = _regions(garment.faces.cpu().numpy(), cage, x0, surface, float(sw.min_encircled_deg),
                                float(sw.region_smoothing), bool(sw.get("arm_parts", True)))
+    # parts lying on the garment's own cloth go on the body part under that cloth, and back on top of it after (c)
+    under, under_bary, gap = garment_layers(x0, garment.faces.cpu().numpy(), surface.closest_in_regions(x0, region)[0],
+                                            float(sw.layer_max_gap), float(sw.layer_min_area))
+    layered = under >= 0
+    for _ in range(3):  # a layer on a layer takes its region from the cloth under it
+        if layered.any():
+            below = region[garment.faces.cpu().numpy()[under[layered]]]
+            region[layered] = [np.bincount(r, minlength=len(REGIONS)).argmax() for r in below]
     part = vertex_parts(region)  # rays start from the bone under each patch
     faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)
@@ -503,12 +619,14 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     # (c) relaxation on the surface
     x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
                                 float(sw.relax_tol), region)
+    if layered.any():
+        x = place_layers(x, faces, under, under_bary, np.maximum(gap, float(sw.layer_min_gap)), surface)
     after = area_ratio(garment, x)
     pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
     wrapped_area, pattern_area = face_areas(x, faces), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3))
     stretch = patch_stretch(wrapped_area, pattern_area, face_patches(cage, faces), len(cage.patches))
     stats = {"cage_vertices": int(len(ids)), "morph_inside": morph_inside, "relax_iterations": int(iters),
-             "max_abs_sdf": float(np.abs(surface.sdf(x)).max())}
+             "max_abs_sdf": float(np.abs(surface.sdf(x[~layered])).max()), "layer_vertices": int(layered.sum())}
     stats.update(_ratio_stats(before, "area_before"))
     stats.update(_ratio_stats(after, "area_after"))
     worst = int(stretch.argmax())
@@ -559,11 +677,32 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     part = vertex_parts(region, x if arms else None, body if arms else None)
     emb = embed_points(x, body, part, int(_sw_cfg(cfg).nearest_triangles), region)
     rest = embedded_points(body.vertices[None].double(), body.faces, emb)[0].numpy()
-    stats["embed_max_distance"] = float(np.linalg.norm(rest - x, axis=1).max())
+    off = np.linalg.norm(rest - x, axis=1)
+    if stats["layer_vertices"]:
+        # a layer's start is lifted off the skin by its height over the body triangle (signed along its normal)
+        tri = body.vertices.double().numpy()[body.faces.numpy()[emb.face.numpy()]]
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        lift = np.where(off > LIFT_TOL, np.einsum("nd,nd->n", x - rest, normal), 0.0)
+        emb.lift = torch.tensor(lift, dtype=torch.float32)
+        stats["layer_lift_max"] = float(np.abs(lift).max())
+    stats["embed_max_distance"] = float(off[off <= LIFT_TOL].max(initial=0.0))
     stats.update({f"region_{name.replace(' ', '_')}_vertices": int((region == r).sum())
                   for r, name in enumerate(REGIONS)})
     stats["seconds"] = time.perf_counter() - t0
     return emb, stats
+
+
+def start_points(body_vertices: Tensor, body_faces: Tensor, emb: Embedding) -> Tensor:
+    """Where a drape starts: the embedded points (B, V, 3), each lifted by ``emb.lift`` along its posed body
+    triangle's unit normal (a layer starts above the cloth under it). (B, Vb, 3) body vertices -> (B, V, 3)."""
+    p = embedded_points(body_vertices, body_faces, emb)
+    if emb.lift is None:
+        return p
+    tri = body_vertices[:, body_faces[emb.face.to(body_faces.device)]]  # (B, V, 3, 3)
+    normal = torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1)
+    normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    return p + emb.lift.to(device=p.device, dtype=p.dtype)[None, :, None] * normal
 
 
 def embedded_points(body_vertices: Tensor, body_faces: Tensor, emb: Embedding) -> Tensor:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from helpers.mhclo_assets import bind_to_tights, write_mhclo_for_obj
 from pbc.core.config import load_config
@@ -127,13 +128,50 @@ def cape_sleeves(p: np.ndarray, f: np.ndarray, uv: np.ndarray, fuv: np.ndarray, 
     return p[used], remap.reshape(-1, 3), uv[tused], tremap.reshape(-1, 3)
 
 
-def long_sleeve_mhclo(folder, body: Body, base: np.ndarray, garment: str = "tshirt_coarse", cape: bool = False
-                      ) -> Path:
+COLLAR_REACH = 0.06  # m from the neckline the folded collar covers
+CUFF_REACH = 0.06  # m from each sleeve's hem the turned-back cuff covers
+
+
+def collar_and_cuffs(p: np.ndarray, f: np.ndarray, uv: np.ndarray, fuv: np.ndarray, body: Body, gap: float = 0.006):
+    """The shirt with a folded collar and two turned-back cuffs lying on it, as a modeller makes them: pieces of
+    their own (the shirt's faces reaching within COLLAR_REACH of the neckline and CUFF_REACH of each sleeve's hem,
+    copied `gap` m out along the shirt's normals, away from the body), each in charts of its own. The atlas is scaled by
+    one half (the shirt's aspect and relative size kept) and the pieces' charts packed beside it.
+    -> the same tuple with the pieces appended, and a (V',) mask of the pieces' vertices."""
+    from pbc.data.mirror import surface_points  # noqa: PLC0415 - a test helper's one closest-point query
+    from pbc.geometry.meshops import boundary_loops  # noqa: PLC0415
+
+    loops = boundary_loops(f)
+    neck = max(loops, key=lambda lp: p[lp, 1].mean())
+    hems = [max(loops, key=lambda lp: p[lp, 0].mean()), min(loops, key=lambda lp: p[lp, 0].mean())]
+    near = np.zeros(len(p), bool)
+    for loop, reach in ((neck, COLLAR_REACH), *((h, CUFF_REACH) for h in hems)):
+        near |= np.linalg.norm(p[:, None] - p[loop][None], axis=2).min(1) < reach
+    sel = near[f].any(1)
+    used, remap = np.unique(f[sel], return_inverse=True)
+    normals = trimesh.Trimesh(p, f, process=False).vertex_normals[used]
+    _, tri, w = surface_points(p[used], body.vertices.double().numpy(), body.faces.numpy())
+    on_body = np.einsum("nk,nkd->nd", w, body.vertices.double().numpy()[body.faces.numpy()[tri]])
+    normals *= np.sign(np.einsum("nd,nd->n", normals, p[used] - on_body))[:, None]  # away from the body
+    piece = p[used] + gap * normals
+    tused, tremap = np.unique(fuv[sel], return_inverse=True)
+    atlas = 0.5 * uv
+    piece_uv = 0.5 * uv[tused] + np.array([0.5, 0.0])  # the pieces' charts beside the shirt's, same scale
+    faces = np.concatenate([f, len(p) + remap.reshape(-1, 3)])
+    face_uv = np.concatenate([fuv, len(uv) + tremap.reshape(-1, 3)])
+    mask = np.concatenate([np.zeros(len(p), bool), np.ones(len(used), bool)])
+    return np.concatenate([p, piece]), faces, np.concatenate([atlas, piece_uv]), face_uv, mask
+
+
+def long_sleeve_mhclo(folder, body: Body, base: np.ndarray, garment: str = "tshirt_coarse", cape: bool = False,
+                      layers: bool = False) -> Path:
     """The long-sleeved shirt as MakeHuman clothes bound to `base` (the MakeHuman base mesh (N, 3) of the body,
     metres, pbc's frame): `blouse.obj` and `blouse.mhclo` in folder; the .mhclo's path. ``cape``: its sleeves cut
-    open into flaps (`cape_sleeves`)."""
+    open into flaps (`cape_sleeves`); ``layers``: a folded collar and turned-back cuffs on it (`collar_and_cuffs`)."""
     p, f, uv, fuv = long_sleeve_shirt(body, garment)
     if cape:
         p, f, uv, fuv = cape_sleeves(p, f, uv, fuv, body)
+    if layers:
+        p, f, uv, fuv, _ = collar_and_cuffs(p, f, uv, fuv, body)
     refs, w, o = bind_to_tights(p, base)
     return write_mhclo_for_obj(folder, obj_text(p, f, uv, fuv), refs, w, o, "blouse")

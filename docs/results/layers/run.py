@@ -1,0 +1,106 @@
+"""A long-sleeved shirt with a folded collar and turned-back cuffs lying on it, fitted on Anny (A-pose), with the
+layers wrapped on top of the cloth under them (garment.shrinkwrap.layer_*) and without (every vertex wrapped onto
+the skin, the behaviour before): drapes kept, and how much of the collar and cuffs ends up inside the shirt.
+
+    python docs/results/layers/run.py [WORK_DIR] [--samples 16]
+
+The garment is made as tests/helpers/long_sleeves.py makes it (pbc's coarse shirt sized to Anny, sleeves to the
+wrists, a collar and cuffs as pieces of their own 6 mm over the shirt, MakeClothes' .obj + .mhclo). Writes
+results.json and contact_sheet.png here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parents[2]
+sys.path.insert(0, str(REPO / "tests"))
+
+from helpers.long_sleeves import long_sleeve_mhclo  # noqa: E402
+
+from pbc.core.config import load_config  # noqa: E402
+from pbc.data.dataset import load_dataset  # noqa: E402
+from pbc.geometry.body import body_from_config  # noqa: E402
+from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
+from pbc.geometry.meshops import surface_distance  # noqa: E402
+
+SETTINGS = {"layers": [], "no layers (all on the skin)": ["garment.shrinkwrap.layer_min_area=100"]}
+
+
+def pieces(ds) -> np.ndarray:
+    """(V,) bool: the collar's and cuffs' vertices (their charts lie right of u = 0.5)."""
+    g = ds.garment
+    uv = g.uv.numpy()[g.face_uv.numpy()].mean(1)
+    mask = np.zeros(len(g.vertices), bool)
+    mask[g.faces.numpy()[uv[:, 0] > 0.5].ravel()] = True
+    return mask
+
+
+def inside_shirt(ds, verts: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per drape, the fraction of the pieces' vertices more than 2 mm inside the shirt under them (signed distance to
+    the shirt's own faces, outward from the body)."""
+    f = ds.garment.faces.numpy()
+    shirt = f[~mask[f].any(1)]
+    out = []
+    for v in verts:
+        d, cp, n = surface_distance(v[mask], v, shirt)
+        body_side = np.sign(np.einsum("nd,nd->n", n, cp - v[~mask].mean(0)))  # the shirt's normals away from it
+        out.append(float(((d * body_side) < -0.002).mean()))
+    return np.array(out)
+
+
+def main(argv: list[str]) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("work", nargs="?", default="/tmp/pbc_layers", type=Path)
+    ap.add_argument("--samples", type=int, default=16)
+    args = ap.parse_args(argv)
+    cfg = load_config(["body=anny"])
+    path = long_sleeve_mhclo(args.work / "mh", body_from_config(cfg.body), base_mesh_vertices(cfg.body).numpy(),
+                             layers=True)
+    env = dict(os.environ, PBC_ROOT=str(args.work))
+    results, sheets = {}, []
+    for k, (name, extra) in enumerate(SETTINGS.items()):
+        out = args.work / f"fit{k}"
+        if not (out / "whole" / "metrics.json").is_file():
+            subprocess.run([sys.executable, "-m", "pbc", "garment", "fit", str(path), "body=anny", *extra,
+                            "--samples", str(args.samples), "--epochs", "1", "--out", str(out)], check=True, env=env)
+        ds = load_dataset(out / "data")
+        mask = pieces(ds)
+        inside = inside_shirt(ds, np.asarray(ds.verts), mask)
+        counts = ds.manifest["counts"]
+        results[name] = {"requested": counts["requested"], "kept": counts["kept"],
+                         "discarded": counts.get("discarded"), "piece_vertices": int(mask.sum()),
+                         "pieces_inside_shirt_mean": round(float(inside.mean()), 4),
+                         "pieces_inside_shirt_max": round(float(inside.max()), 4),
+                         "wrap": {k2: ds.manifest.get("shrinkwrap", {}).get(k2) for k2 in
+                                  ("layer_vertices", "layer_lift_max", "patch_stretch_max")}}
+        print(name, json.dumps(results[name]), flush=True)
+        sheets.append((name, out / "preview" / "contact_sheet.png"))
+    (HERE / "results.json").write_text(json.dumps({"machine": "2-core CPU, no GPU", "samples": args.samples,
+                                                   "settings": results}, indent=1) + "\n")
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, axes = plt.subplots(1, len(sheets), figsize=(8 * len(sheets), 6))
+    for ax, (name, png) in zip(axes, sheets, strict=True):
+        if png.is_file():
+            ax.imshow(plt.imread(png))
+        ax.set_title(f"{name}: {results[name]['kept']}/{results[name]['requested']} kept, "
+                     f"{100 * results[name]['pieces_inside_shirt_mean']:.0f}% of collar/cuff vertices inside the shirt")
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(HERE / "contact_sheet.png", dpi=90)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
