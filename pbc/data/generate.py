@@ -203,7 +203,7 @@ def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
     body = scene.body_for(index)
     rot = torch.from_numpy(pose)[None].float()
     body_v = pose_body(body, rot)  # (1, Vb, 3)
-    start = start_points(body_v, body.faces, scene.embedding)[0]
+    start = start_points(body_v, body.faces, scene.embedding, float(scene.sim.thickness))[0]
     t1 = time.perf_counter()
     from pbc.sim.drape import drape_garment  # noqa: PLC0415 - the simulator only to drape: pbc.train imports this module
 
@@ -239,7 +239,7 @@ def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
     for pose, i in zip(poses, indices, strict=True):  # one at a time: the same skinning, bit for bit, as drape_pose
         body = scene.body_for(i)
         body_v = pose_body(body, torch.from_numpy(pose)[None].float())
-        starts.append(start_points(body_v, body.faces, scene.embedding)[0].numpy())
+        starts.append(start_points(body_v, body.faces, scene.embedding, float(scene.sim.thickness))[0].numpy())
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
     if scene.batched is None:

@@ -30,6 +30,7 @@ from pbc.geometry.body.skeleton import MIDPLANE_TOL, descendants, limb_segments
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
     chart_names_from_cage,
+    check_arm_flaps,
     check_far,
     check_sleeves,
     check_stretch,
@@ -604,6 +605,10 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     far = sw.get("max_start_distance")
     if far is not None:
         check_far(surface.sdf(x0), x0, faces, body, float(far), chart_names, face_chart)
+    if bool(sw.get("arm_parts", True)) and far is not None:
+        # cloth along a forearm that closes round no arm (a cape's flap) would be wrapped on the torso and caught by
+        # the arm in every drape
+        check_arm_flaps(x0, region == REGIONS.index("torso"), body, float(sw.min_encircled_deg))
     max_angle = sw.get("max_sleeve_angle_deg")
     sleeves = (sleeve_axes(x0, faces, body) if max_angle is None
                else check_sleeves(x0, faces, body, float(max_angle)))
@@ -693,16 +698,20 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     return emb, stats
 
 
-def start_points(body_vertices: Tensor, body_faces: Tensor, emb: Embedding) -> Tensor:
+def start_points(body_vertices: Tensor, body_faces: Tensor, emb: Embedding, under: float = 0.0) -> Tensor:
     """Where a drape starts: the embedded points (B, V, 3), each lifted by ``emb.lift`` along its posed body
-    triangle's unit normal (a layer starts above the cloth under it). (B, Vb, 3) body vertices -> (B, V, 3)."""
+    triangle's unit normal (a layer starts above the cloth under it), a lifted one by ``under`` (m) more: the
+    cloth under a layer starts on the skin and settles that far out (the simulator's cloth thickness).
+    (B, Vb, 3) body vertices -> (B, V, 3)."""
     p = embedded_points(body_vertices, body_faces, emb)
     if emb.lift is None:
         return p
     tri = body_vertices[:, body_faces[emb.face.to(body_faces.device)]]  # (B, V, 3, 3)
     normal = torch.linalg.cross(tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], dim=-1)
     normal = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    return p + emb.lift.to(device=p.device, dtype=p.dtype)[None, :, None] * normal
+    lift = emb.lift.to(device=p.device, dtype=p.dtype)
+    lift = lift + under * torch.sign(lift)
+    return p + lift[None, :, None] * normal
 
 
 def embedded_points(body_vertices: Tensor, body_faces: Tensor, emb: Embedding) -> Tensor:

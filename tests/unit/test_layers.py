@@ -17,7 +17,7 @@ from pbc.data.mirror import surface_points
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.anny import base_mesh_vertices
 from pbc.geometry.garment import garment_from_config
-from pbc.geometry.meshops import segment_hits
+from pbc.geometry.meshops import mesh_pieces, segment_hits
 from pbc.geometry.shrinkwrap import (
     REGIONS,
     Embedding,
@@ -88,11 +88,9 @@ def collared_mhclo(request, tmp_path_factory):
 
 
 def _piece_mask(g) -> np.ndarray:
-    """The pieces' vertices: those of faces charted right of u = 0.5 (collar_and_cuffs packs them there)."""
-    uv = g.uv.numpy()[g.face_uv.numpy()].mean(1)
-    mask = np.zeros(len(g.vertices), bool)
-    mask[g.faces.numpy()[uv[:, 0] > 0.5].ravel()] = True
-    return mask
+    """The collar's and cuffs' vertices: every mesh piece but the shirt (the largest)."""
+    comp = mesh_pieces(g.faces.numpy(), len(g.vertices))
+    return comp != np.bincount(comp).argmax()
 
 
 def test_layers_wrap_on_top_of_the_cloth_under_them_and_their_drape_starts_there(collared_mhclo):
@@ -143,4 +141,9 @@ def test_start_points_lift_along_the_posed_triangle_normal(tmp_path):
     emb.lift = None
     save_embedding(emb, tmp_path / "plain.npz")
     assert load_embedding(tmp_path / "plain.npz").lift is None
-    assert torch.equal(start_points(body_v, faces, emb), embedded_points(body_v, faces, emb))
+    emb.lift = torch.tensor([0.01, 0.0])
+    # the cloth under a layer settles `under` out from the skin: a lifted start goes that much further
+    lifted = start_points(body_v, faces, emb, under=0.005)[0]
+    assert float(lifted[0, 2]) == pytest.approx(0.015) and torch.equal(lifted[1], body_v[0, 0])
+    emb.lift = None
+    assert torch.equal(start_points(body_v, faces, emb, under=0.005), embedded_points(body_v, faces, emb))

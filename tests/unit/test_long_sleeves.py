@@ -199,3 +199,26 @@ def test_a_cape_along_the_arms_is_wrapped_on_the_torso(tmp_path):
     # with the limit lowered below the flaps' reach they go on the arms
     low = garment_regions(g.faces.numpy(), cage, x0, body, 150.0, gcfg.shrinkwrap.region_smoothing)
     assert set(np.unique(low[flaps])) == {1, 2}
+
+
+@pytest.mark.parametrize("pose", ["anny", "anny_tpose"])
+def test_a_cape_along_the_forearms_is_refused_naming_the_arm_and_the_setting(tmp_path, pose):
+    """Wrapped on the torso, a cape's flaps along the forearms would be caught by the arms in every drape: the wrap
+    refuses in one line naming the forearm and what to set; with that setting lowered the flaps go on the arms and
+    the wrap goes through. The long-sleeved shirt itself is not refused."""
+    cfg = load_config([f"body={pose}"])
+    body = body_from_config(cfg.body)
+    base = base_mesh_vertices(cfg.body).numpy()
+    path = long_sleeve_mhclo(tmp_path / "cape", body, base, cape=True)
+    gcfg = load_config(["garment=mhclo", f"garment.path={path}", f"body={pose}"]).garment
+    g, cage = garment_from_config(gcfg, body)
+    with pytest.raises(ValueError, match=r"along the body's (left|right) forearm.*min_encircled_deg") as err:
+        shrinkwrap(g, cage, body, gcfg)
+    assert "\n" not in str(err.value)
+    gcfg.shrinkwrap.min_encircled_deg = 120
+    g, cage = garment_from_config(gcfg, body)
+    _, stats = shrinkwrap(g, cage, body, gcfg)
+    assert stats["region_left_arm_vertices"] > 0
+    shirt = long_sleeve_mhclo(tmp_path / "shirt", body, base)
+    gcfg = load_config(["garment=mhclo", f"garment.path={shirt}", f"body={pose}"]).garment
+    shrinkwrap(*garment_from_config(gcfg, body), body, gcfg)

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[2]
@@ -30,30 +31,31 @@ from pbc.core.config import load_config  # noqa: E402
 from pbc.data.dataset import load_dataset  # noqa: E402
 from pbc.geometry.body import body_from_config  # noqa: E402
 from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
-from pbc.geometry.meshops import surface_distance  # noqa: E402
+from pbc.geometry.body.base import pose_body  # noqa: E402
+from pbc.geometry.meshops import mesh_pieces, surface_distance  # noqa: E402
 
 SETTINGS = {"layers": [], "no layers (all on the skin)": ["garment.shrinkwrap.layer_min_area=100"]}
 
 
 def pieces(ds) -> np.ndarray:
-    """(V,) bool: the collar's and cuffs' vertices (their charts lie right of u = 0.5)."""
-    g = ds.garment
-    uv = g.uv.numpy()[g.face_uv.numpy()].mean(1)
-    mask = np.zeros(len(g.vertices), bool)
-    mask[g.faces.numpy()[uv[:, 0] > 0.5].ravel()] = True
-    return mask
+    """(V,) bool: the collar's and cuffs' vertices (every mesh piece but the shirt, the largest)."""
+    comp = mesh_pieces(ds.garment.faces.numpy(), len(ds.garment.vertices))
+    return comp != np.bincount(comp).argmax()
 
 
-def inside_shirt(ds, verts: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per drape, the fraction of the pieces' vertices more than 2 mm inside the shirt under them (signed distance to
-    the shirt's own faces, outward from the body)."""
+def inside_shirt(ds, verts: np.ndarray, poses: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per drape, the fraction of the pieces' vertices more than 2 mm nearer the body than the shirt is under them
+    (the shirt's nearest point's distance to the posed body): collar or cuff cloth pushed in under the shirt."""
     f = ds.garment.faces.numpy()
     shirt = f[~mask[f].any(1)]
+    bf = ds.body.faces.numpy()
     out = []
-    for v in verts:
-        d, cp, n = surface_distance(v[mask], v, shirt)
-        body_side = np.sign(np.einsum("nd,nd->n", n, cp - v[~mask].mean(0)))  # the shirt's normals away from it
-        out.append(float(((d * body_side) < -0.002).mean()))
+    for v, pose in zip(verts, poses, strict=True):
+        bv = pose_body(ds.body, torch.from_numpy(np.asarray(pose, np.float32))[None])[0].double().numpy()
+        d_piece = surface_distance(v[mask], bv, bf)[0]
+        _, on_shirt, _ = surface_distance(v[mask], v, shirt)
+        d_shirt = surface_distance(on_shirt, bv, bf)[0]
+        out.append(float((d_piece < d_shirt - 0.002).mean()))
     return np.array(out)
 
 
@@ -74,7 +76,7 @@ def main(argv: list[str]) -> None:
                             "--samples", str(args.samples), "--epochs", "1", "--out", str(out)], check=True, env=env)
         ds = load_dataset(out / "data")
         mask = pieces(ds)
-        inside = inside_shirt(ds, np.asarray(ds.verts), mask)
+        inside = inside_shirt(ds, np.asarray(ds.verts), np.asarray(ds.poses), mask)
         counts = ds.manifest["counts"]
         results[name] = {"requested": counts["requested"], "kept": counts["kept"],
                          "discarded": counts.get("discarded"), "piece_vertices": int(mask.sum()),

@@ -15,8 +15,9 @@ import re
 
 import numpy as np
 
-from pbc.geometry.body.skeleton import MIDPLANE_TOL
-from pbc.geometry.meshops import mesh_pieces
+from pbc.geometry.body.base import Body
+from pbc.geometry.body.skeleton import MIDPLANE_TOL, limb_segments
+from pbc.geometry.meshops import encircled_degrees, mesh_pieces
 
 # the mannequin's part rows (pbc.geometry.body.Body.parts): 0 torso, 1 left arm, 2 right arm
 PART_NAMES = ("torso", "left arm", "right arm")
@@ -263,3 +264,60 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
         f"would all be discarded (area_stretched). Likely cause: {why}")
 
 
+ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
+ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's
+
+
+def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
+    """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow) on a body with
+    forearms, and a sleeve there does not surround the forearm: then which, in words (`encircled_degrees` of the
+    centres of the faces past the elbow about the forearm's bones; a sleeve that passes the elbow nowhere near
+    the forearm reaches a few degrees round it, or too few faces to say: refused too). A short sleeve is not
+    measured: round a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and wraps well."""
+    if kind != "top":
+        return None
+    p = np.asarray(points, np.float64)
+    centre = p[np.asarray(faces)].mean(1)
+    for side, joint in ARM_JOINTS.items():
+        segs = limb_segments(body.skeleton, joint)
+        if len(segs) < 2:
+            continue
+        sgn = 1.0 if side == "left" else -1.0
+        past = sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE  # sideways past the elbow
+        if past.sum() < 8:
+            continue
+        deg = encircled_degrees(centre[past], segs[1:])
+        if not deg >= min_deg:  # NaN: cloth past the elbow in no slice round the forearm
+            reach = ("too little of it lies round it to measure" if np.isnan(deg)
+                     else f"it reaches {deg:.0f} degrees round it")
+            return (f"its {side} sleeve passes the elbow but does not surround the body's {side} forearm ({reach}; "
+                    f"garment.shrinkwrap.min_encircled_deg = {min_deg:g}): a sleeve modelled on another arm, or a "
+                    "cape's or poncho's flap")
+    return None
+
+
+FLAP_REACH = 0.12  # m from a forearm's bones: cloth this near it past the elbow lies along the forearm
+
+
+def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_deg: float) -> None:
+    """Refuse cloth wrapped on the torso (on_torso (V,) bool: it closes round no arm) that lies along a forearm:
+    within FLAP_REACH of the forearm's bones and past the elbow by ELBOW_CLEARANCE along them (a cape's or a
+    poncho's flap, a sleeve cut open). In every drape the arm would catch it. One ValueError naming the side, how
+    much cloth, and what to set; a body whose arm is one bone (no forearm) is not checked."""
+    p = np.asarray(points, np.float64)
+    for side, joint in ARM_JOINTS.items():
+        segs = limb_segments(body.skeleton, joint)
+        if len(segs) < 2:
+            continue
+        a, b = segs[1, 0], segs[-1, 1]  # elbow -> the limb's end
+        ab = b - a
+        t = (p - a) @ ab / max(float(ab @ ab), 1e-12)
+        q = a + np.clip(t, 0.0, 1.0)[:, None] * ab
+        along = on_torso & (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (np.linalg.norm(p - q, axis=1) < FLAP_REACH)
+        if along.sum() >= 8:
+            raise ValueError(
+                f"the garment cannot be wrapped: {int(along.sum())} of its vertices lie along the body's {side} "
+                f"forearm, past the elbow, but close round no arm (less than garment.shrinkwrap.min_encircled_deg = "
+                f"{min_deg:g} degrees round it): a cape's or poncho's flap, or a sleeve cut open, would be wrapped on "
+                "the torso and caught by the arm in every drape. Give it sleeves that close round the arms, cut what "
+                "passes the elbow, or lower garment.shrinkwrap.min_encircled_deg (e.g. to 150) to wrap it on the arms")

@@ -34,7 +34,7 @@ from scipy.spatial import cKDTree
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
 from pbc.geometry.body.skeleton import descendants, limb_segments
-from pbc.geometry.garment.checks import sleeve_axes
+from pbc.geometry.garment.checks import ARM_JOINTS, sleeve_axes, sleeves_inside
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import boundary_loops, encircled_degrees, mesh_pieces, push_out
@@ -42,9 +42,7 @@ from pbc.geometry.units import UNITS, metres_per_unit
 
 log = logging.getLogger(__name__)
 
-ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
 SLEEVE_BAND = 0.05  # m along a sleeve's axis either side of its band's centre: where its radius is measured
-ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's
 
 
 # a joint this far below the root (the waist, m) is on a leg: the mannequin's lowest joint is its root
@@ -294,33 +292,6 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
         return None
     return (sleeves_inside(points, faces, body, min_encircled_deg, kind)
             or legs_inside(points, faces, body, min_encircled_deg, kind))
-
-
-def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
-    """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow) on a body with
-    forearms, and a sleeve there does not surround the forearm: then which, in words (`encircled_degrees` of the
-    centres of the faces past the elbow about the forearm's bones; a sleeve that passes the elbow nowhere near
-    the forearm reaches a few degrees round it, or too few faces to say: refused too). A short sleeve is not
-    measured: round a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and wraps well."""
-    if kind != "top":
-        return None
-    p = np.asarray(points, np.float64)
-    centre = p[np.asarray(faces)].mean(1)
-    for side, joint in ARM_JOINTS.items():
-        segs = limb_segments(body.skeleton, joint)
-        if len(segs) < 2:
-            continue
-        sgn = 1.0 if side == "left" else -1.0
-        past = sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE  # sideways past the elbow
-        if past.sum() < 8:
-            continue
-        deg = encircled_degrees(centre[past], segs[1:])
-        if not deg >= min_deg:  # NaN: cloth past the elbow in no slice round the forearm
-            reach = ("too little of it lies round it to measure" if np.isnan(deg)
-                     else f"it reaches {deg:.0f} degrees round it")
-            return (f"its {side} sleeve passes the elbow but does not surround the body's {side} forearm ({reach}; "
-                    f"garment.shrinkwrap.min_encircled_deg = {min_deg:g}): the sleeve was modelled on another arm")
-    return None
 
 
 def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
