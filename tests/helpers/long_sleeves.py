@@ -17,6 +17,7 @@ from helpers.mhclo_assets import bind_to_tights, write_mhclo_for_obj
 from pbc.core.config import load_config
 from pbc.geometry.body.base import Body
 from pbc.geometry.body.skeleton import limb_segments
+from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.sizing import sized_config
 from pbc.geometry.garment.tshirt import make_tshirt
 
@@ -175,3 +176,19 @@ def long_sleeve_mhclo(folder, body: Body, base: np.ndarray, garment: str = "tshi
         p, f, uv, fuv, _ = collar_and_cuffs(p, f, uv, fuv, body)
     refs, w, o = bind_to_tights(p, base)
     return write_mhclo_for_obj(folder, obj_text(p, f, uv, fuv), refs, w, o, "blouse")
+
+
+def trousers_mhclo(folder, body: Body, base: np.ndarray) -> Path:
+    """pbc's trousers sized to `body` as MakeHuman clothes (`trousers.obj` in decimetres with its atlas scaled into
+    [0, 1], `trousers.mhclo` bound to `base`); the .mhclo's path."""
+    gcfg = load_config(["garment=trousers"]).garment
+    g, _ = garment_from_config(gcfg, body)
+    uv, fuv, side = g.uv.double().numpy(), g.face_uv.numpy(), g.face_side.numpy()
+    keys = side[:, None] * len(uv) + fuv  # front and back: charts of their own, side by side in one atlas
+    uniq, new_fuv = np.unique(keys.ravel(), return_inverse=True)
+    atlas = uv[uniq % len(uv)] + np.array([1.05, 0.0]) * (uniq // len(uv))[:, None]
+    atlas = (atlas - atlas.min(0)) / float((atlas.max(0) - atlas.min(0)).max()) * 0.98 + 0.01  # one scale
+    p = g.vertices.double().numpy()
+    refs, w, o = bind_to_tights(p, base)
+    return write_mhclo_for_obj(folder, obj_text(p, g.faces.numpy(), atlas, new_fuv.reshape(-1, 3)), refs, w, o,
+                               "trousers")

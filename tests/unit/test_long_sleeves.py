@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers.long_sleeves import long_sleeve_mhclo
+from helpers.long_sleeves import long_sleeve_mhclo, trousers_mhclo
 
 from pbc.cli.garment import run
 from pbc.core.config import load_config
@@ -222,3 +222,23 @@ def test_a_cape_along_the_forearms_is_refused_naming_the_arm_and_the_setting(tmp
     shirt = long_sleeve_mhclo(tmp_path / "shirt", body, base)
     gcfg = load_config(["garment=mhclo", f"garment.path={shirt}", f"body={pose}"]).garment
     shrinkwrap(*garment_from_config(gcfg, body), body, gcfg)
+
+
+@pytest.mark.parametrize("pose", ["anny", "anny_tpose"])
+def test_trousers_as_makehuman_clothes_wrap_their_legs_on_the_legs(tmp_path, pose):
+    """pbc's trousers written as MakeClothes writes clothes: each trouser leg is wrapped on its own leg (not the
+    other's, not the trunk), the waistband on the trunk, nothing found lying on the garment's own cloth."""
+    cfg = load_config([f"body={pose}"])
+    body = body_from_config(cfg.body)
+    path = trousers_mhclo(tmp_path, body, base_mesh_vertices(cfg.body).numpy())
+    gcfg = load_config(["garment=mhclo", f"garment.path={path}", f"body={pose}"]).garment
+    g, cage = garment_from_config(gcfg, body)
+    x0 = g.vertices.double().numpy()
+    emb, stats = shrinkwrap(g, cage, body, gcfg)
+    assert stats["patch_stretch_max"] < 1.5 and stats["layer_vertices"] == 0 and emb.lift is None
+    region = garment_regions(g.faces.numpy(), cage, x0, body, gcfg.shrinkwrap.min_encircled_deg,
+                             gcfg.shrinkwrap.region_smoothing)
+    low = x0[:, 1] < np.percentile(x0[:, 1], 40)  # the lower legs of the trousers
+    left, right = REGIONS.index("left leg"), REGIONS.index("right leg")
+    assert (region[low & (x0[:, 0] > 0.05)] == left).all() and (region[low & (x0[:, 0] < -0.05)] == right).all()
+    assert stats["region_torso_vertices"] > 0
