@@ -214,7 +214,7 @@ def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
 
 def _drape_record(scene: Scene, res, t_skin: float, t_drape: float) -> dict:
     """What a worker reports of one drape: the positions, the keep/discard decision and the costs."""
-    from pbc.sim.drape import check_garment_result  # noqa: PLC0415 - see drape_pose
+    from pbc.sim.drape import check_garment_result  # noqa: PLC0415 - the simulator only to judge a drape
 
     ok, reason = check_garment_result(res, scene.garment, scene.sim)
     return {

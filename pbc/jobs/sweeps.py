@@ -20,9 +20,11 @@ import time
 import traceback
 from pathlib import Path
 
+from pbc.core.config import load_config
 from pbc.core.io import write_text
 from pbc.core.paths import CONF_DIR
 from pbc.core.runs import OK, SWEEP_RECORD, ModelKind, default_sweep_dir, load_runs, read_yaml, sweep_values
+from pbc.data.dataset import load_dataset
 from pbc.jobs.report import build_report
 from pbc.jobs.robustness import build_report as robustness_report
 from pbc.jobs.robustness import prepare_bodies
@@ -367,9 +369,6 @@ def measure_kind(experiment: str, scale: str, overrides: list[str], out: Path, b
                  python: str = sys.executable) -> dict:
     """Time a model kind on this machine: `pbc.train` for two epochs of `batches` batches (one validation batch
     each); -> {"step_s", "overhead_s", "epochs", "steps_per_epoch"}, kept in out/timing.json and reused."""
-    from pbc.core.config import load_config  # noqa: PLC0415 - composing a config pulls in the whole config stack
-    from pbc.data.dataset import load_dataset  # noqa: PLC0415
-
     cached = out / "timing.json"
     if cached.is_file():
         return json.loads(cached.read_text())
