@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 
 from pbc.core.runs import RunRecord, monitor
 from pbc.data.dataset import ClothDataset
+from pbc.geometry.shrinkwrap import Embedding
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -52,10 +53,8 @@ def fake_dataset(d: Path) -> ClothDataset:
     for f, tri in enumerate(garment.faces.numpy()):
         for k, v in enumerate(tri):
             first.setdefault(int(v), (f, k))
-    emb = type("Emb", (), {})()
-    emb.face = torch.tensor([first[v][0] for v in range(V)])
-    emb.bary = torch.eye(3)[[first[v][1] for v in range(V)]]
-    emb.part = torch.zeros(V, dtype=torch.long)
+    emb = Embedding(face=torch.tensor([first[v][0] for v in range(V)]),
+                    bary=torch.eye(3)[[first[v][1] for v in range(V)]], part=torch.zeros(V, dtype=torch.long))
     poses = _rotations(N, J)
     anchors, frames = Skinner(body, garment, emb)(torch.from_numpy(poses))
     # smooth offsets (a low-order field over the rest shape), so PCA and inpainting see cloth-like data

@@ -1,8 +1,8 @@
 """Parts lying on the garment's own cloth (a second layer within one garment): a folded collar and turned-back
-cuffs, made as a modeller makes them (tests/helpers/long_sleeves.py: pieces of their own, charts of their own, 6 mm over the
-shirt), are found, wrapped on the body part under the cloth they lie on, put back on top of it at their gap, and
-their drapes start there; a garment without such parts wraps and embeds exactly as before. No drapes here
-(tests/integration/test_long_sleeves_fit.py fits the collared shirt)."""
+cuffs, made as a modeller makes them (tests/helpers/long_sleeves.py: pieces of their own, charts of their own,
+6 mm over the shirt), are found, wrapped on the body part under the cloth they lie on, put back on top of it at
+their gap, and their drapes start there; a garment without such parts wraps and embeds exactly as before. No
+drapes here (tests/integration/test_long_sleeves_fit.py fits the collared shirt)."""
 
 from __future__ import annotations
 
