@@ -152,6 +152,12 @@ def vertex_normals(vertices, faces):
     return n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
+def face_normals(tri: np.ndarray) -> np.ndarray:
+    """Unit normals (N, 3) of triangles tri (N, 3, 3), by their winding (a degenerate one: zero)."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return n / np.maximum(np.linalg.norm(n, axis=1), 1e-12)[:, None]
+
+
 def closest_on_mesh(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, candidates: int = 12
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest point of a mesh (vertices (N, 3), faces (F, 3)) to points (P, 3), searched among the `candidates`

@@ -43,6 +43,7 @@ from pbc.geometry.meshops import (
     encircled_degrees,
     face_areas,
     face_charts,
+    face_normals,
     segment_hits,
     solve_dirichlet,
 )
@@ -466,8 +467,8 @@ def garment_layers(points: np.ndarray, faces: np.ndarray, body_points: np.ndarra
     inc = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(n, len(f)))
     skip = ((inc @ inc.T) @ inc).tocsr()  # (V, F): faces touching a vertex of the vertex's one-ring
     way = np.asarray(body_points, np.float64) - pts
-    dist = np.linalg.norm(way, axis=1)
-    ends = pts + way / np.maximum(dist, 1e-12)[:, None] * np.minimum(dist, max_gap)[:, None]
+    to_body = np.linalg.norm(way, axis=1)
+    ends = pts + way / np.maximum(to_body, 1e-12)[:, None] * np.minimum(to_body, max_gap)[:, None]
     face, dist, bary = segment_hits(pts, ends, pts, f, skip, margin=LAYER_EDGE_MARGIN)
     # a layer lies on the cloth under it facing the same way (both away from the body): cloth facing it across a
     # gap (a torso's side under a hanging sleeve's inner side) is another sheet, not the one it lies on
@@ -475,8 +476,7 @@ def garment_layers(points: np.ndarray, faces: np.ndarray, body_points: np.ndarra
     vn = trimesh.Trimesh(pts, f, process=False).vertex_normals[hit]
     vn *= np.sign(np.einsum("nd,nd->n", vn, -way[hit]))[:, None]
     tri = pts[f[face[hit]]]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1), 1e-12)[:, None]
+    fn = face_normals(tri)
     below = np.asarray(body_points, np.float64)[f[face[hit]]].mean(1)
     fn *= np.sign(np.einsum("nd,nd->n", fn, tri.mean(1) - below))[:, None]
     other = hit[np.einsum("nd,nd->n", vn, fn) < LAYER_MIN_COS]
@@ -525,8 +525,7 @@ def place_layers(x: np.ndarray, faces: np.ndarray, under: np.ndarray, bary: np.n
             break
         tri = x[faces[under[ready]]]
         p = np.einsum("nk,nkd->nd", bary[ready], tri)
-        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        normal = face_normals(tri)
         out = surface.sdf(p + 1e-3 * normal) >= surface.sdf(p - 1e-3 * normal)
         normal[~out] *= -1
         x[ready] = p + gap[ready, None] * normal
@@ -586,18 +585,18 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     t0 = time.perf_counter()
     surface = _RestSurface(body, int(sw.nearest_triangles))
     x0 = garment.vertices.double().cpu().numpy()
-    region, nearest = _regions(garment.faces.cpu().numpy(), cage, x0, surface, float(sw.min_encircled_deg),
-                               float(sw.region_smoothing), bool(sw.get("arm_parts", True)))
+    faces = garment.faces.cpu().numpy()
+    region, nearest = _regions(faces, cage, x0, surface, float(sw.min_encircled_deg), float(sw.region_smoothing),
+                               bool(sw.get("arm_parts", True)))
     # parts lying on the garment's own cloth go on the body part under that cloth, and back on top of it after (c)
-    under, under_bary, gap = garment_layers(x0, garment.faces.cpu().numpy(), surface.closest_in_regions(x0, region)[0],
+    under, under_bary, gap = garment_layers(x0, faces, surface.closest_in_regions(x0, region)[0],
                                             float(sw.layer_max_gap), float(sw.layer_min_area))
     layered = under >= 0
-    for _ in range(3):  # a layer on a layer takes its region from the cloth under it
-        if layered.any():
-            below = region[garment.faces.cpu().numpy()[under[layered]]]
+    if layered.any():
+        for _ in range(3):  # a layer on a layer takes its region from the cloth under it
+            below = region[faces[under[layered]]]
             region[layered] = [np.bincount(r, minlength=len(REGIONS)).argmax() for r in below]
     part = vertex_parts(region)  # rays start from the bone under each patch
-    faces = garment.faces.cpu().numpy()
     face_chart = face_charts(garment)
     chart_names = chart_names_from_cage(cage, face_chart, faces)
     # the checks before any drape (pbc.geometry.garment.checks): each names the part, the number and the fix, where a
@@ -685,9 +684,7 @@ def shrinkwrap(garment: Garment, cage, body: Body, cfg) -> tuple[Embedding, dict
     off = np.linalg.norm(rest - x, axis=1)
     if stats["layer_vertices"]:
         # a layer's start is lifted off the skin by its height over the body triangle (signed along its normal)
-        tri = body.vertices.double().numpy()[body.faces.numpy()[emb.face.numpy()]]
-        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-12)[:, None]
+        normal = face_normals(body.vertices.double().numpy()[body.faces.numpy()[emb.face.numpy()]])
         lift = np.where(off > LIFT_TOL, np.einsum("nd,nd->n", x - rest, normal), 0.0)
         emb.lift = torch.tensor(lift, dtype=torch.float32)
         stats["layer_lift_max"] = float(np.abs(lift).max())
