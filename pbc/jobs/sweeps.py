@@ -75,6 +75,12 @@ def data_overrides(overrides: list[str]) -> list[str]:
     return [o for o in overrides if o.lstrip("+").split("=", 1)[0].split(".")[0] in _DATA_KEYS]
 
 
+def data_command(scale: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable) -> list[str]:
+    """`pbc.generate` of the scale's data set with the overrides that decide the data (`data_overrides`)."""
+    return [python, "-m", "pbc.generate", f"data={scale_data(scale)}", *data_overrides(overrides),
+            f"hydra.run.dir={sweep_dir}/.generate"]
+
+
 def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str = sys.executable):
     """The commands of one sweep, in order: [(step, argv)]; argv None: a step made or run at its turn
     (`evaluate`: its argv names the trained runs; an `IN_PROCESS_STEPS` step: a library call)."""
@@ -82,20 +88,9 @@ def sweep_commands(name: str, overrides: list[str], sweep_dir: Path, python: str
         raise ValueError(f"unknown sweep {name!r}; choose one of {', '.join(SWEEP_NAMES)}"
                          + (" (`paper` runs several: run_paper)" if name == PAPER else ""))
     scale = _scale_of(overrides)
-    data_ovr = data_overrides(overrides)
     cmds = [
         # Made once before the parallel jobs, which would otherwise all generate the same data at once.
-        (
-            "data",
-            [
-                python,
-                "-m",
-                "pbc.generate",
-                f"data={scale_data(scale)}",
-                *data_ovr,
-                f"hydra.run.dir={sweep_dir}/.generate",
-            ],
-        ),
+        ("data", data_command(scale, overrides, sweep_dir, python)),
         (
             "train",
             [
@@ -427,8 +422,7 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
         write_text(sweep_dir / SWEEP_RECORD, json.dumps({**record, "seconds": round(time.time() - t0, 1)}, indent=1))
 
     ts = time.time()
-    data = [python, "-m", "pbc.generate", f"data={scale_data(scale)}", *data_overrides(base),
-            f"hydra.run.dir={sweep_dir}/.generate"]
+    data = data_command(scale, base, sweep_dir, python)
     print(f"[pbc.sweeps] data: {shlex.join(data)}", flush=True)
     code, error = run_logged(data, sweep_dir / "data.log")
     step("data", data, code, error, ts)
