@@ -47,6 +47,11 @@ GPU_LAYER_MODES = ("grouped", "grouped", "grouped", "grouped", "grouped")
 PRECISIONS = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 
 
+# what a predictor's whole-garment model can be: a whole-shirt image CNN, or a fully connected run (the
+# baselines of appendix E.3, per-vertex values; on a 2-core CPU the one that trains to convergence)
+WHOLE_KINDS = (ModelKind.WHOLE.value, ModelKind.FC.value)
+
+
 # what `ClothPredictor(pose, model=...)` answers with: the P patch models stitched, or the whole-shirt model
 MODELS = ("patches", "whole")
 
@@ -98,8 +103,9 @@ def predictor_precision(precision: str, device: str | torch.device) -> str:
     return precision
 
 
-def load_decoder(checkpoint: str | Path) -> tuple[ConvDecoder, dict]:
-    """The network of a ClothModule checkpoint, in eval mode, and the checkpoint's hparams."""
+def load_decoder(checkpoint: str | Path) -> tuple[nn.Module, dict]:
+    """The network of a ClothModule checkpoint (a ConvDecoder, or an FCNet of a `model.kind=fc` run), in eval
+    mode, and the checkpoint's hparams."""
 
     shipped = shipped_model_of(checkpoint)  # a shipped model has no other checkpoint to fall back on
     ck = load_checkpoint(checkpoint, fix=repair_advice(shipped) if shipped else "")  # a corrupt file is named
@@ -316,10 +322,10 @@ class ClothPredictor:
     meshes come back on it. layer_modes: None = the device's default layout (`default_layer_modes`).
     """
 
-    def __init__(self, dataset, image_cfg, whole_net: ConvDecoder | None, patch_nets: Sequence[ConvDecoder],
+    def __init__(self, dataset, image_cfg, whole_net: nn.Module | None, patch_nets: Sequence[ConvDecoder],
                  stitch_cfg, space: str = "local", pca=None, cache_dir=None, backend: str = "stacked",
                  layer_modes: Sequence[str] | None = None, threads: int | None = None,
-                 precision: str = "float32", device: str | torch.device = "cpu"):
+                 precision: str = "float32", device: str | torch.device = "cpu", whole_kind: str = "whole"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         if precision != "float32" and backend != "stacked":
@@ -339,11 +345,20 @@ class ClothPredictor:
             raise ValueError("no model to predict with: give a whole-shirt run and/or one patch run per cage patch")
         # whole-only (no patch nets): no patch operators, stitcher or patch net; model="whole" throughout
         patches = bool(patch_nets)
-        # what the whole model predicts and how it goes back to offsets: the run's own cloth target
+        # what the whole model predicts and how it goes back to offsets: the run's own cloth target, the
+        # garment's image ("whole") or its per-vertex values (a fully connected run, "fc")
+        if whole_kind not in WHOLE_KINDS:
+            raise ValueError(f"whole_kind must be one of {WHOLE_KINDS} (what the whole-garment model predicts), "
+                             f"got {whole_kind!r}")
+        self.whole_kind = whole_kind
         check_net_sizes(image_cfg, whole_net, patch_nets)  # before any operator is built
-        self.whole_target = make_target(dataset, image_cfg, "whole", space=space, skinner=self.skinner,
+        self.whole_target = make_target(dataset, image_cfg, whole_kind, space=space, skinner=self.skinner,
                                         cache_dir=cache_dir)
-        if whole_net is not None and tuple(whole_net.output_size) != tuple(self.whole_target.image_size):
+        if whole_kind == "fc" and whole_net is not None and int(whole_net.num_vertices) != len(dataset.garment.vertices):
+            raise ValueError(f"the fully connected model predicts {int(whole_net.num_vertices)} vertices, the "
+                             f"dataset's garment has {len(dataset.garment.vertices)}: give the run's own dataset")
+        if whole_kind == "whole" and whole_net is not None and \
+                tuple(whole_net.output_size) != tuple(self.whole_target.image_size):
             raise ValueError(f"the whole-shirt model predicts {tuple(whole_net.output_size)} images, the image "
                              f"config gives {tuple(self.whole_target.image_size)} (image.whole_resolution / "
                              "whole_sides / whole_rows): build the predictor with the image config the model "
@@ -381,7 +396,7 @@ class ClothPredictor:
     @classmethod
     def from_runs(cls, whole_run, patch_runs=None, stitch_cfg=None, pca=None, data_dir=None,
                   **kw) -> ClothPredictor:
-        """whole_run: run dir (or None); patch_runs: run dirs and/or a sweep dir (or a stacked
+        """whole_run: a whole-shirt CNN run dir or a fully connected (`model.kind=fc`) run dir (or None); patch_runs: run dirs and/or a sweep dir (or a stacked
         `+experiment=patches` run dir), one run per patch of the dataset's cage, or
         None / [] for the whole-shirt model alone; stitch_cfg: the seam method's node (conf/stitch; None =
         conf/stitch/average.yaml), used with patch runs only; data_dir: where the runs' dataset is when it
@@ -393,8 +408,9 @@ class ClothPredictor:
                              "their sweep dir")
         whole_run = resolve_run(whole_run)  # "pretrained:NAME": a shipped model (pbc.pretrained)
         whole = read_run(whole_run) if whole_run else None
-        if whole is not None and whole.kind is not ModelKind.WHOLE:
-            raise ValueError(f"{whole.path}: a {whole.kind.value!r} run, not a whole-shirt run")
+        if whole is not None and whole.kind.value not in WHOLE_KINDS:
+            raise ValueError(f"{whole.path}: a {whole.kind.value!r} run, not a whole-garment run (a whole-shirt "
+                             "CNN or a fully connected run)")
         first = whole or read_run(find_runs(patch_runs)[0])
         cfg = OmegaConf.create(first.config)
         dataset = open_run_dataset(first, data_dir)
@@ -419,6 +435,8 @@ class ClothPredictor:
             spaces.add(whole_hp.get("space", "local"))
         if len(spaces) > 1:
             raise ValueError(f"the runs use different offset spaces {sorted(spaces)}")
+        if whole is not None:
+            kw.setdefault("whole_kind", whole.kind.value)
         predictor = cls(dataset, cfg.image, whole_net, nets, stitch_cfg, space=spaces.pop(), pca=pca, **kw)
         predictor.pose_range_record, predictor.pose_range_run = first.record.pose_range, Path(first.path)
         return predictor

@@ -27,7 +27,7 @@ from pbc.core.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
 from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
 from pbc.inference.poses import training_pose_range
-from pbc.inference.predictor import ClothPredictor
+from pbc.inference.predictor import WHOLE_KINDS, ClothPredictor
 from pbc.motion.ranges import range_from_record, range_table_record
 from pbc.pixels.frames import from_offsets
 from pbc.pretrained import SHIPPED_DIR
@@ -60,6 +60,18 @@ def save_deflated(obj, path: Path) -> None:
             info.compress_type, info.external_attr = zipfile.ZIP_DEFLATED, entry.external_attr
             zo.writestr(info, zi.read(entry.filename), compresslevel=9)
     tmp.unlink()
+
+
+def network_words(hparams: dict) -> str:
+    """What the packed network is, in words for the card: the whole-garment image CNN, or the fully connected
+    net and what it outputs (PCA coefficients or every vertex) in which offset space."""
+    net, space = hparams.get("net") or {}, hparams.get("space", "local")
+    if hparams.get("kind") == ModelKind.FC.value:
+        hidden = " x ".join(str(int(h)) for h in net.get("hidden", ()))
+        out = (f"{int(net.get('num_components', 0))} PCA coefficients" if net.get("mode") == "pca"
+               else "every vertex's 3 values")
+        return f"a fully connected net (hidden {hidden}) predicting {out} of the {space} offsets"
+    return f"the whole-garment CNN (its {space} offsets as a cloth image)"
 
 
 def mean_training_offsets(pred: ClothPredictor, batch: int = 64) -> torch.Tensor:
@@ -144,8 +156,9 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     if not name or not name.replace("_", "").replace("-", "").isalnum():
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
     run = read_run(run_dir)
-    if run.kind is not ModelKind.WHOLE:
-        raise ValueError(f"{run.path}: a {run.kind.value!r} run; only a whole-shirt run packs as a shipped model")
+    if run.kind.value not in WHOLE_KINDS:
+        raise ValueError(f"{run.path}: a {run.kind.value!r} run; only a whole-garment run (a whole-shirt CNN or a "
+                         "fully connected run) packs as a shipped model")
     out = Path(out) if out is not None else SHIPPED_DIR / name
     full = ClothPredictor.from_runs(run.path, data_dir=data_dir)
     ds = full.dataset
@@ -163,7 +176,8 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     shipped = load_dataset(out / DATA)
     record = run.record
     info = {
-        "name": name, "source_run": str(Path(run.path).resolve()), "source_checkpoint": run.checkpoint.name,
+        "name": name, "kind": run.kind.value, "network": network_words(ck["hyper_parameters"]),
+        "source_run": str(Path(run.path).resolve()), "source_checkpoint": run.checkpoint.name,
         "dataset": {"dir": str(Path(ds.dir).resolve()), "name": Path(ds.dir).name,
                     "fingerprint": dataset_fingerprint(ds), "kept": int(len(ds)),
                     "discarded": discarded_count(ds.manifest),
@@ -181,7 +195,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         "recorded_fp32_test_vertex_error_cm": record.metric("test", VERTEX_ERROR),
         "pose_range_source": range_source,
     }
-    RunRecord(kind=ModelKind.WHOLE, optimized_metric=monitor(ModelKind.WHOLE), best_checkpoint=WEIGHTS,
+    RunRecord(kind=run.kind, optimized_metric=monitor(run.kind), best_checkpoint=WEIGHTS,
               identity=dict(run.identity), config=dict(run.config), epochs=record.epochs, seconds=record.seconds,
               data={"dir": DATA, "fingerprint": dataset_fingerprint(shipped)}, pose_range=pose_range,
               extra={"pretrained": info}).write(out)
@@ -221,6 +235,7 @@ def model_card(i: dict, pose_range: dict | None = None) -> str:
     d, sch, n = i["dataset"], i["schedule"], i["test_poses"]
     sched = "none" if not sch["model.scheduler"] else "yes (metrics.json config)"
     rows = [
+        ("network", i.get("network") or "the whole-garment CNN"),
         ("data", f"`{d['name']}`: {d['kept']} poses kept ({d['discarded']} discarded by the distortion check), "
                  f"the {d['num_vertices']:,}-vertex shirt; splits train {d['splits']['train']} / val "
                  f"{d['splits']['val']} / test {d['splits']['test']}"),
@@ -243,7 +258,7 @@ def model_card(i: dict, pose_range: dict | None = None) -> str:
     ]
     table = "\n".join(f"| {k} | {v} |" for k, v in rows)
     made = i["command"] or "python -m pbc.main   # the README's main job: data, whole model, patch 7"
-    return f"""# Shipped model `{i['name']}`: the whole-shirt CNN
+    return f"""# Shipped model `{i['name']}`: {i.get('network') or 'the whole-garment CNN'}
 
 Load it with `pbc predict --pretrained {i['name']} --poses test`, `pbc view --pretrained {i['name']}`,
 `pbc evaluate whole_run=pretrained:{i['name']} patch_runs=null` or

@@ -73,8 +73,10 @@ def fake_dataset(d: Path) -> ClothDataset:
 
 
 def save_run(run: Path, data_dir: Path, kind: str, patch_id: int | None, garment_hash: str = GARMENT_HASH,
-             seed: int = 0) -> Path:
-    """A run dir as `pbc.train` leaves it (metrics.json + checkpoints/epoch_000.ckpt), untrained weights."""
+             seed: int = 0, num_vertices: int | None = None) -> Path:
+    """A run dir as `pbc.train` leaves it (metrics.json + checkpoints/epoch_000.ckpt), untrained weights.
+    kind "fc": a fully connected PCA net of `num_vertices` vertices with a random orthonormal 8-component
+    basis (as if fitted: outputs of about a centimetre)."""
     from pbc.models.module import ClothModule
 
     torch.manual_seed(seed)
@@ -82,14 +84,21 @@ def save_run(run: Path, data_dir: Path, kind: str, patch_id: int | None, garment
     net = {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": out,
            "output_size": list(size), "start_size": list(start), "start_channels": 32,
            "first_layer": "linear" if kind == "patch" else "conv_transpose"}
+    if kind == "fc":
+        net = {"_target_": "pbc.models.fc.FCNet", "in_features": 90, "num_vertices": int(num_vertices),
+               "hidden": [32, 32], "mode": "pca", "num_components": 8}
     identity = {"garment_hash": garment_hash, "kind": kind, "patch_id": patch_id, "space": "local",
                 "resolution": 512 if kind == "patch" else 256}
     m = ClothModule(net=net, kind=kind, space="local", loss={"norm": "l1", "normal_weight": 0.0,
                                                               "edge_weight": 0.0},
                     lr=1e-3, identity=identity, patch_id=patch_id).eval()
     with torch.no_grad():  # small outputs: untrained decoders give offsets of a few mm
-        m.net.head.weight.mul_(0.01)
-        m.net.head.bias.zero_()
+        if kind == "fc":
+            q, _ = torch.linalg.qr(torch.randn(3 * int(num_vertices), 8))
+            m.net.set_pca(torch.zeros(3 * int(num_vertices)), q.T.contiguous(), torch.full((8,), 1.0))
+        else:
+            m.net.head.weight.mul_(0.01)
+            m.net.head.bias.zero_()
     ck = run / "checkpoints" / "epoch_000.ckpt"
     ck.parent.mkdir(parents=True, exist_ok=True)
     torch.save({"hyper_parameters": dict(m.hparams), "state_dict": m.state_dict()}, ck)

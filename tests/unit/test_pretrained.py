@@ -188,10 +188,40 @@ def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
 def test_pack_refuses_a_patch_run_and_a_bad_name(shipped, tmp_path):
     full = shipped[2]
     patch = save_run(tmp_path / "patch", full.dir, "patch", 3)
-    with pytest.raises(ValueError, match="only a whole-shirt run packs"):
+    with pytest.raises(ValueError, match="only a whole-garment run"):
         pack.pack_run(patch, "p", tmp_path / "out")
     with pytest.raises(ValueError, match="plain name"):
         pack.pack_run(shipped[1], "../x", tmp_path / "out")
+
+
+def test_a_fully_connected_run_predicts_and_packs(shipped, tmp_path, monkeypatch):
+    """A `model.kind=fc` run is a whole-garment model too: the predictor turns its per-vertex offsets into the
+    garment by the same skinning (checked against the net's own output), and it packs as a shipped model whose
+    fp16 weights (the PCA basis among them) predict what the fp32 run does."""
+    full = shipped[2]
+    V = len(full.garment.vertices)
+    fc = save_run(tmp_path / "fc", full.dir, "fc", None, num_vertices=V)
+    pred = ClothPredictor.from_runs(fc)
+    assert pred.whole_kind == "fc"
+    poses = torch.from_numpy(_rotations(4, full.poses.shape[1], seed=3))
+    x = pred(poses, model="whole")
+    net = pack.load_checkpoint(fc / "checkpoints" / "epoch_000.ckpt")
+    with torch.no_grad():
+        offsets = pred.whole_net(poses.reshape(4, -1))  # (B, V, 3) local offsets
+    anchors, frames = pred.skinner(poses)
+    want = anchors + torch.einsum("bvij,bvi->bvj", frames, offsets)
+    assert x.shape == (4, V, 3) and float(offsets.norm(dim=-1).mean()) > 1e-3 and "state_dict" in net
+    torch.testing.assert_close(x, want, atol=1e-6, rtol=0)
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    info = pack.pack_run(fc, "fcstandin", tmp_path / "shipped" / "fcstandin", command="(fc stand-in)")
+    assert info["kind"] == "fc" and "fully connected" in info["network"] and "8 PCA coefficients" in info["network"]
+    rec = json.loads((tmp_path / "shipped" / "fcstandin" / "metrics.json").read_text())
+    assert rec["kind"] == "fc"
+    card = (tmp_path / "shipped" / "fcstandin" / "MODEL_CARD.md").read_text()
+    assert card.startswith("# Shipped model `fcstandin`: a fully connected net (hidden 32 x 32)")
+    packed = ClothPredictor.from_runs(tmp_path / "shipped" / "fcstandin")
+    diff_cm = float((packed(poses, model="whole") - x).norm(dim=-1).max()) * 100
+    assert packed.whole_kind == "fc" and 0 < diff_cm < FP16_TOL_CM
 
 
 def test_the_shipped_tshirt_loads_and_predicts(tmp_path, monkeypatch):
