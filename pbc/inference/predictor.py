@@ -354,9 +354,10 @@ class ClothPredictor:
         check_net_sizes(image_cfg, whole_net, patch_nets)  # before any operator is built
         self.whole_target = make_target(dataset, image_cfg, whole_kind, space=space, skinner=self.skinner,
                                         cache_dir=cache_dir)
-        if whole_kind == "fc" and whole_net is not None and int(whole_net.num_vertices) != len(dataset.garment.vertices):
+        nv = len(dataset.garment.vertices)
+        if whole_kind == "fc" and whole_net is not None and int(whole_net.num_vertices) != nv:
             raise ValueError(f"the fully connected model predicts {int(whole_net.num_vertices)} vertices, the "
-                             f"dataset's garment has {len(dataset.garment.vertices)}: give the run's own dataset")
+                             f"dataset's garment has {nv}: give the run's own dataset")
         if whole_kind == "whole" and whole_net is not None and \
                 tuple(whole_net.output_size) != tuple(self.whole_target.image_size):
             raise ValueError(f"the whole-shirt model predicts {tuple(whole_net.output_size)} images, the image "
@@ -396,8 +397,9 @@ class ClothPredictor:
     @classmethod
     def from_runs(cls, whole_run, patch_runs=None, stitch_cfg=None, pca=None, data_dir=None,
                   **kw) -> ClothPredictor:
-        """whole_run: a whole-shirt CNN run dir or a fully connected (`model.kind=fc`) run dir (or None); patch_runs: run dirs and/or a sweep dir (or a stacked
-        `+experiment=patches` run dir), one run per patch of the dataset's cage, or
+        """whole_run: a whole-shirt CNN run dir or a fully connected (`model.kind=fc`) run dir (or None);
+        patch_runs: run dirs and/or a sweep dir (or a stacked `+experiment=patches` run dir), one run per patch
+        of the dataset's cage, or
         None / [] for the whole-shirt model alone; stitch_cfg: the seam method's node (conf/stitch; None =
         conf/stitch/average.yaml), used with patch runs only; data_dir: where the runs' dataset is when it
         moved (default: where the runs recorded it)."""
