@@ -61,6 +61,7 @@ from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, shrinkwrap, start_points
+from pbc.motion.retarget import motion_settings
 from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
 
 log = logging.getLogger(__name__)
@@ -120,7 +121,8 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
         fp["pose_source"] = {"files": source_files_hash(data.poses),
                              "sampled_fraction": float(data.get("poses_sampled_fraction") or 0.0),
                              "joint_map": str(data.get("poses_joint_map") or "auto"),
-                             "allow_rest": bool(data.get("poses_allow_rest"))}
+                             "allow_rest": bool(data.get("poses_allow_rest")),
+                             "clear_arms": OmegaConf.to_container(motion_settings().clear_arms)}
     if data.get("mirror"):
         fp["mirror"] = {"tolerance": float(data.mirror_tolerance)}
     modes = modes_record(sampling_settings_from_config(cfg.body.sampling))

@@ -22,7 +22,8 @@ import torch
 
 from pbc.core.validate import as_poses, moving_joints
 from pbc.geometry.body.skeleton import Skeleton, xzy_angles
-from pbc.motion.retarget import poses_from_clip
+from pbc.motion.fit import clear_clip_arms
+from pbc.motion.retarget import motion_settings, poses_from_clip
 from pbc.sim.poses import SamplingSettings, sample_poses
 
 CLIP_SUFFIXES = (".bvh", ".npy")
@@ -145,8 +146,9 @@ def farthest_pose_selection(poses: np.ndarray, n: int, seed: int) -> np.ndarray:
 def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed: int, skeleton: Skeleton,
                          body, settings: SamplingSettings, joint_map: str = "auto", allow_rest: bool = False
                          ) -> tuple[np.ndarray, np.ndarray, dict, dict]:
-    """n dataset poses: round(n * (1 - sampled_fraction)) clip frames by farthest-point selection, then the
-    rest from the D.3 sampler (`sample_poses`, the same seed).
+    """n dataset poses: round(n * (1 - sampled_fraction)) clip frames by farthest-point selection (arms inside
+    the torso raised out of it: `pbc.motion.fit`), then the rest from the D.3 sampler (`sample_poses`, the same
+    seed).
 
     Returns poses (n, J, 3, 3) float32, their Euler angles (n, J, 3) float32 degrees, the pose stats (as
     `sample_poses`'s, plus the clip counts) and the per-pose source {"clips": names, "clip": (n,) clip index
@@ -164,10 +166,13 @@ def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed
                          f"{sampled_fraction})); lower data.num_samples, raise data.poses_sampled_fraction or add "
                          "clips")
     pick = farthest_pose_selection(src.poses, n_clip, seed)
-    poses = [torch.from_numpy(src.poses[pick]).float()]
+    chosen, turned = clear_clip_arms(src.poses[pick], body, motion_settings().clear_arms)
+    poses = [torch.from_numpy(chosen).float()]
     clip, frame = src.clip[pick].tolist(), src.frame[pick].tolist()
     stats = {"requested": n, "source": "motion capture", "clips": len(src.clips), "frames": int(len(src.poses)),
-             "selected": n_clip, "sampled": n_sampled}
+             "selected": n_clip, "sampled": n_sampled,
+             "arms_raised": {"poses": int((turned > 0).any(1).sum()) if len(turned) else 0,
+                             "max_deg": float(turned.max()) if turned.size else 0.0}}
     if n_sampled:
         sampled, sampler_stats = sample_poses(skeleton, n_sampled, seed, body, settings)
         sampler_stats.pop("angles_deg")

@@ -16,8 +16,9 @@ from pbc.core.validate import as_poses
 from pbc.data.trimmed import recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
+from pbc.motion.fit import clear_clip_arms, cleared_note
 from pbc.motion.ranges import angle_range, range_from_record
-from pbc.motion.retarget import Motion, poses_from_clip
+from pbc.motion.retarget import Motion, motion_settings, poses_from_clip
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +107,14 @@ def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frame
     file; "auto": a shipped table knowing every joint, else by name and structure), `frames` a START:STOP:STEP
     slice of its frames, resampled at `fps` (None: as selected); the body's arms, legs or spine left undriven
     refused unless `allow_rest`; more than `max_frames` poses refused (None: conf/motion/sequence.yaml's).
+    Arms the retarget hangs inside the torso are raised out of it (`pbc.motion.fit`; a note says so).
     Bad files: one ValueError naming the line and the fix (pbc.motion.bvh)."""
-    return poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames)
+    motion = poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames)
+    motion.poses, turned = clear_clip_arms(motion.poses, dataset.body, motion_settings().clear_arms)
+    note = cleared_note(turned)
+    if note:
+        motion.notes.append(note)
+    return motion
 
 
 def training_pose_range(dataset) -> np.ndarray:

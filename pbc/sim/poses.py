@@ -395,3 +395,47 @@ __all__ = [
     "sample_poses",
     "sampling_settings_from_config",
 ]
+
+
+def arm_depth_in_torso(body: Body, rotations: Tensor, probes: Tensor) -> Tensor:
+    """(B, 2) how deep (m, >= 0) each arm's probes (left, right: `arm_probe_indices`) reach inside the posed
+    torso. rotations (B, J, 3, 3)."""
+    transforms = forward_kinematics(body.skeleton, rotations)
+    posed = linear_blend_skinning(body.vertices[probes], body.weights[probes], transforms)  # (B, 2P, 3)
+    sdf = body_sdf(body, rotations, posed, part=TORSO).view(len(rotations), 2, -1)
+    return (-sdf.min(dim=2).values).clamp_min(0.0)
+
+
+def clear_arms(body: Body, rotations: Tensor, settings: SamplingSettings, step_deg: float = 2.0,
+               max_deg: float = 40.0) -> tuple[Tensor, Tensor]:
+    """Poses with each arm that lies inside the torso raised sideways, about its rest frame's z axis (the axis
+    the sampler's limits call raising), by the smallest multiple of `step_deg` that takes its probes out of the
+    torso (the sampler's prune test, made corrective); at most `max_deg`.
+
+    Why: a clip recorded on one person and retargeted onto a broader body (Anny is broader than most mocap
+    actors) hangs the arms through the torso: every frame of the CMU walk in tests/data/bvh has an arm probe
+    38-60 mm inside Anny's torso. The sampler never draws such a pose; the drape of one pulls the cloth
+    between the overlapping arm and torso apart (faces 2-4x their pattern at the shoulder), so it is
+    discarded. A retargeting tool would keep the arm on the body's surface; this does that with one turn.
+
+    rotations (B, J, 3, 3) -> (cleared (B, J, 3, 3), turned (B, 2) degrees per arm, left then right; an arm
+    still inside after `max_deg` keeps that turn, so `turned == max_deg` marks it).
+    """
+    skel = body.skeleton
+    probes = arm_probe_indices(body, settings)
+    out = rotations.clone()
+    turned = torch.zeros(len(rotations), 2, dtype=rotations.dtype)
+    joints = [skel.index("l_arm"), skel.index("r_arm")]
+    inside = arm_depth_in_torso(body, out, probes) > settings.prune_tolerance
+    steps = int(round(max_deg / step_deg))
+    for _ in range(steps):
+        if not inside.any():
+            break
+        for side, j in enumerate(joints):
+            rows = inside[:, side]
+            if rows.any():
+                turned[rows, side] += step_deg
+                raise_by = _axis_rotation(torch.deg2rad(torch.tensor(step_deg, dtype=out.dtype)), Z)
+                out[rows, j] = raise_by @ out[rows, j]
+        inside &= arm_depth_in_torso(body, out, probes) > settings.prune_tolerance
+    return out, turned

@@ -13,7 +13,9 @@ from omegaconf import OmegaConf
 
 from pbc.geometry.body.skeleton import forward_kinematics, skeleton_from_config
 from pbc.motion.bvh import read_bvh
+from pbc.motion.fit import clear_clip_arms, cleared_note
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, parse_frames
+from pbc.sim.poses import SamplingSettings, arm_depth_in_torso, arm_probe_indices
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "bvh"
@@ -100,3 +102,22 @@ def test_a_walk_has_a_walks_arms_and_they_follow_the_file():
         body = bone_directions(m.poses, arm)
         cos = np.einsum("na,na->n", in_file / np.linalg.norm(in_file, axis=1, keepdims=True), body)
         assert np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max() < 1e-4
+
+
+def test_a_walk_on_a_broader_body_gets_its_arms_out_of_the_torso(body):
+    """The CMU walk retargeted onto the mannequin hangs an arm inside its torso in some frames: every door that
+    takes a clip (read_motion: pbc predict and view; data.poses) raises those arms just out of it and says so;
+    frames already clear keep their exact rotations; max_deg 0 keeps the clip as retargeted."""
+    _, motion = mapped_clip("cmu_mb_02_01_walk.bvh", "1:")
+    probes = arm_probe_indices(body, SamplingSettings())
+    before = arm_depth_in_torso(body, torch.from_numpy(motion.poses).float(), probes).numpy()
+    assert (before > 0).any()  # the premise: this clip on this body has an arm in the torso
+    cleared, turned = clear_clip_arms(motion.poses, body, OmegaConf.create({"step_deg": 2.0, "max_deg": 40.0}))
+    after = arm_depth_in_torso(body, torch.from_numpy(cleared).float(), probes).numpy()
+    assert (after == 0).all() and ((turned > 0) == (before > 0)).all() and turned.max() < 40
+    still = ~(turned > 0).any(1)
+    assert np.array_equal(cleared[still], motion.poses[still]) and cleared.dtype == motion.poses.dtype
+    note = cleared_note(turned)
+    assert note.startswith(f"arms raised out of the torso in {int((~still).sum())} of {len(turned)} frames")
+    same, none = clear_clip_arms(motion.poses, body, OmegaConf.create({"step_deg": 2.0, "max_deg": 0.0}))
+    assert same is motion.poses and not none.any() and cleared_note(none) is None

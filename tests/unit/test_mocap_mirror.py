@@ -23,6 +23,8 @@ from pbc.geometry.body.base import pose_body
 from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.shrinkwrap import embedded_points
 from pbc.inference.poses import training_pose_range
+from pbc.motion.fit import clear_clip_arms
+from pbc.motion.retarget import motion_settings
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 
@@ -87,14 +89,18 @@ def test_poses_from_a_folder_of_clips_mixed_with_the_sampler_record_their_clip_a
     assert src["clips"] == ["clip0.bvh", "clip1.bvh"]
     assert len(src["clip"]) == len(src["frame"]) == len(ds) == 10
     assert sorted(src["clip"]).count(SAMPLED) == 3
-    # each clip row is its clip's frame, retargeted; each sampler row is the D.3 sampler's pose of that index
-    frames = {k: clip_poses(clips / name, no_drape.body.skeleton)[0] for k, name in enumerate(src["clips"])}
+    # each clip row is its clip's frame, retargeted and its arms fitted to the body (pbc.motion.fit); each
+    # sampler row is the D.3 sampler's pose of that index
+    fit = motion_settings().clear_arms
+    frames = {k: clear_clip_arms(clip_poses(clips / name, no_drape.body.skeleton)[0], no_drape.body, fit)[0]
+              for k, name in enumerate(src["clips"])}
     settings = sampling_settings_from_config(tiny_cfg(tmp_path, "body.sampling.block_size=64").body.sampling)
     sampled = sample_poses(no_drape.body.skeleton, 3, 0, no_drape.body, settings)[0].numpy()
     for row, (c, f) in enumerate(zip(src["clip"], src["frame"], strict=True)):
         want = sampled[f] if c == SAMPLED else frames[c][f]
         np.testing.assert_allclose(ds.poses[row], want, atol=1e-6)
     assert ds.manifest["poses"]["selected"] == 7 and ds.manifest["poses"]["frames"] == 16
+    assert 0 <= ds.manifest["poses"]["arms_raised"]["poses"] <= 7
     # the recorded training range is the range of what was trained on
     train = np.asarray(ds.poses)[ds.split("train")]
     np.testing.assert_allclose(training_pose_range(ds)[..., 0], xzy_angles(train).min(0), atol=1e-9)

@@ -12,7 +12,9 @@ from omegaconf import OmegaConf
 from pbc.geometry.body.skeleton import Skeleton
 from pbc.sim.poses import (
     SamplingSettings,
+    arm_depth_in_torso,
     arm_probe_indices,
+    clear_arms,
     euler_xzy_to_matrix,
     plot_angle_histograms,
     probes_inside_torso,
@@ -113,6 +115,38 @@ def test_pruning_rejects_arm_in_torso(body):
     angles[2, skel.index("r_arm"), 2] = -30.0
     inside = probes_inside_torso(body, euler_xzy_to_matrix(angles), probes, SamplingSettings())
     assert inside.tolist() == [False, True, True]
+
+
+def test_clear_arms_raises_an_arm_just_out_of_the_torso(body):
+    """An arm retargeted through the torso is raised sideways (about its rest frame's z, the sampler's
+    raising axis) by the smallest step that clears it; an arm outside is left bit for bit, as is every other
+    joint. Checked against the sampler's own test (probes_inside_torso) and a turn one step short."""
+    skel = body.skeleton
+    settings = SamplingSettings()
+    probes = arm_probe_indices(body, settings)
+    angles = torch.zeros(3, skel.num_joints, 3)
+    angles[1, skel.index("l_arm"), 2] = -100.0  # past hanging: into the chest's side
+    angles[2, skel.index("r_arm"), 2] = -95.0
+    angles[2, skel.index("spine"), 0] = 10.0
+    poses = euler_xzy_to_matrix(angles)
+    depth = arm_depth_in_torso(body, poses, probes)
+    assert depth[0].tolist() == [0.0, 0.0] and depth[1, 0] > 0.01 and depth[2, 1] > 0.005 and depth[1, 1] == 0
+    assert ((depth > 0).any(1) == probes_inside_torso(body, poses, probes, settings)).all()
+    out, turned = clear_arms(body, poses, settings, step_deg=2.0, max_deg=40.0)
+    assert not probes_inside_torso(body, out, probes, settings).any()
+    assert turned[0].tolist() == [0.0, 0.0] and turned[1, 1] == 0 and turned[2, 0] == 0
+    assert 0 < turned[1, 0] < 40 and 0 < turned[2, 1] < 40
+    moved = [(1, skel.index("l_arm"), 0), (2, skel.index("r_arm"), 1)]
+    untouched = torch.ones(3, skel.num_joints, dtype=torch.bool)
+    for b, j, side in moved:
+        untouched[b, j] = False
+        raise_by = out[b, j] @ poses[b, j].T  # a turn about z alone, by the recorded angle
+        want = euler_xzy_to_matrix(torch.tensor([0.0, 0.0, float(turned[b, side])]))
+        torch.testing.assert_close(raise_by, want, atol=1e-5, rtol=0)
+        short = poses.clone()  # one step less is still inside: the smallest turn
+        short[b, j] = euler_xzy_to_matrix(torch.tensor([0.0, 0.0, float(turned[b, side]) - 2.0])) @ poses[b, j]
+        assert arm_depth_in_torso(body, short[b:b + 1], probes)[0, side] > 0
+    assert torch.equal(out[untouched], poses[untouched])
 
 
 def test_sampler_keeps_only_clean_poses(body):
