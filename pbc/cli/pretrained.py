@@ -33,6 +33,8 @@ def parser() -> argparse.ArgumentParser:
     pk.add_argument("--trained-on", metavar="TEXT", help="the training machine in words, for the model card "
                     "(the run records none; default: its trainer.accelerator and this machine)")
     pk.add_argument("--command", metavar="TEXT", help="the command that trained the run, for the model card")
+    pk.add_argument("--notes", metavar="FILE", help="a markdown file the model card carries after its table (the "
+                    "data's provenance and licence, scores beyond the test split)")
     pk.add_argument("--commit", metavar="TEXT", help="the commit the run was trained with, for the model card (the "
                     "run records none; default: this checkout's)")
     return ap
@@ -50,7 +52,7 @@ def run(argv: list[str]) -> int:
                   f"{info.get('mean_shape_test_vertex_error_cm')} cm) over {info.get('test_poses')} test poses of "
                   f"{info.get('dataset', {}).get('name')}; {pretrained_dir(name) / CARD}")
         return 0
-    info = pack_run(args.run, args.name, args.out, args.data, args.trained_on, args.command, args.commit)
+    info = pack_run(args.run, args.name, args.out, args.data, args.trained_on, args.command, args.commit, args.notes)
     out = args.out or SHIPPED_DIR / args.name
     print(f"{args.name} -> {out}: {info['bytes']['total'] / 1e6:.2f} MB (weights {info['bytes']['weights'] / 1e6:.2f} "
           f"MB); test vertex error {info['test_vertex_error_cm']:.3f} cm (fp16) vs the training mean shape's "

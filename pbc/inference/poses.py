@@ -135,10 +135,20 @@ def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | No
     ds = predictor.dataset
     rng = range_from_record(predictor.pose_range_record, ds.body.skeleton.names)
     if rng is not None:
-        return rng, f"recorded in the run {predictor.pose_range_run}", None
+        return unread_joints_free(rng, predictor), f"recorded in the run {predictor.pose_range_run}", None
     where = (f"its shipped data's {ds.dir}/training.json" if recorded_training_range(ds) is not None
              else f"the training split of its dataset {ds.dir}")
     note = (f"the run {predictor.pose_range_run} records no training pose range (made before runs recorded it): "
             f"the range is taken from {where}")
     log.info(note)
-    return training_pose_range(ds), where, note
+    return unread_joints_free(training_pose_range(ds), predictor), where, note
+
+
+def unread_joints_free(rng: np.ndarray, predictor: ClothPredictor) -> np.ndarray:
+    """rng (J, 3, 2) with every joint the models do not read (`ClothPredictor.read_joints`) open to any angle
+    (-180 to 180): a shirt's data keeps the legs at rest, so a walk's legs would flag every frame and
+    --clamp-to-range would freeze them, though they cannot move the shirt."""
+    out = np.array(rng, dtype=np.float64)
+    unread = np.setdiff1d(np.arange(len(out)), predictor.read_joints())
+    out[unread, :, 0], out[unread, :, 1] = -180.0, 180.0
+    return out

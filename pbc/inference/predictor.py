@@ -460,6 +460,14 @@ class ClothPredictor:
                              f"{'patches' if self.patch_net is not None else 'whole'}, what this predictor has)")
         return model
 
+    def read_joints(self) -> list[int]:
+        """The body joints (indices) the predictor's models read from a pose (`input_joints`: a shirt on a body
+        with legs reads its upper body only); a joint outside them cannot change the garment."""
+        nets = [n for n in (self.whole_net, *self.patch_nets) if n is not None]
+        every = range(len(self.dataset.body.skeleton.names))
+        read = {j for n in nets for j in (every if getattr(n, "input_joints", None) is None else n.input_joints)}
+        return sorted(read)
+
     def check_person(self, person) -> None:
         """Refuse a `person` (None, one int, or one per pose) this predictor's dataset does not have, before
         anything is predicted or written (`Skinner.people`)."""

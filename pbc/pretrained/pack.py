@@ -146,15 +146,19 @@ def shipped_pose_range(run, ds) -> tuple[dict, str]:
 
 
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,
-             trained_on: str | None = None, command: str | None = None, commit: str | None = None) -> dict:
+             trained_on: str | None = None, command: str | None = None, commit: str | None = None,
+             notes: str | Path | None = None) -> dict:
     """Pack the whole-shirt run `run_dir` as shipped model `name` under `out` (default pbc/pretrained/<name>,
     replaced). data_dir: the run's dataset when it moved; trained_on: the training machine in words (the
     run records none; default: its trainer.accelerator and this machine); command: how the run was made
     (for the card); commit: the code the run was trained with (the run records none; default: this
-    checkout's, which packs it). Returns the card's numbers (also metrics.json's "pretrained" block)."""
+    checkout's, which packs it); notes: a markdown file whose text the card carries after its table (where the
+    data came from, its licence, what was measured beyond the test split). Returns the card's numbers (also
+    metrics.json's "pretrained" block)."""
     t0 = time.time()
     if not name or not name.replace("_", "").replace("-", "").isalnum():
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
+    note_text = _read_notes(notes)  # before anything of a shipped model is replaced
     run = read_run(run_dir)
     if run.kind.value not in WHOLE_KINDS:
         raise ValueError(f"{run.path}: a {run.kind.value!r} run; only a whole-garment run (a whole-shirt CNN or a "
@@ -194,6 +198,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         "parameters": int(sum(v.numel() for v in net_state.values() if v.is_floating_point())),
         "recorded_fp32_test_vertex_error_cm": record.metric("test", VERTEX_ERROR),
         "pose_range_source": range_source,
+        "notes": note_text,
     }
     RunRecord(kind=run.kind, optimized_metric=monitor(run.kind), best_checkpoint=WEIGHTS,
               identity=dict(run.identity), config=dict(run.config), epochs=record.epochs, seconds=record.seconds,
@@ -230,6 +235,16 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     return info
 
 
+def _read_notes(notes) -> str | None:
+    if notes is None:
+        return None
+    try:
+        return Path(notes).read_text().strip()
+    except OSError as exc:
+        raise ValueError(f"--notes {notes}: cannot read it ({exc.strerror}); give a markdown file for the "
+                         "card") from None
+
+
 def model_card(i: dict, pose_range: dict | None = None) -> str:
     """MODEL_CARD.md from the numbers `pack_run` measured, and the training poses' range (RunRecord.pose_range)."""
     d, sch, n = i["dataset"], i["schedule"], i["test_poses"]
@@ -257,6 +272,7 @@ def model_card(i: dict, pose_range: dict | None = None) -> str:
         ("training pose range", f"{i.get('pose_range_source') or 'not recorded'}; per joint below"),
     ]
     table = "\n".join(f"| {k} | {v} |" for k, v in rows)
+    notes = f"{i['notes']}\n\n" if i.get("notes") else ""
     made = i["command"] or "python -m pbc.main   # the README's main job: data, whole model, patch 7"
     return f"""# Shipped model `{i['name']}`: {i.get('network') or 'the whole-garment CNN'}
 
@@ -269,7 +285,7 @@ every number here was measured by it on the packed files.
 | --- | --- |
 {table}
 
-The model saw {d['splits']['train']} training poses: far from the paper's 16K (0.44 cm there). Poses outside
+{notes}The model saw {d['splits']['train']} training poses: far from the paper's 16K (0.44 cm there). Poses outside
 the training poses' joint-angle range (below; metrics.json `pose_range`) are flagged by
 `pbc predict --poses clip.bvh`.
 {range_section(pose_range)}

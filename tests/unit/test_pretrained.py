@@ -151,6 +151,23 @@ def test_the_training_range_ships_in_the_record_and_card(shipped):
     assert "| l_arm | " in card and f"{lo:.1f} to {hi:.1f} |" in card
 
 
+def test_joints_the_model_does_not_read_are_never_flagged(shipped):
+    """A model reading some joints (a shirt on a body with legs): the others get the full circle, so a walk's
+    legs neither flag frames nor get clamped; the joints it reads keep the training range."""
+    _, _, full, _ = shipped
+    pred = ClothPredictor.from_pretrained("standin")
+    J = len(full.body.skeleton.names)
+    assert pred.read_joints() == list(range(J))
+    trained = training_pose_range(full)
+    np.testing.assert_allclose(run_pose_range(pred)[0], trained, atol=1e-9)
+    pred.whole_net.input_joints = (0, 2)
+    assert pred.read_joints() == [0, 2]
+    rng = run_pose_range(pred)[0]
+    np.testing.assert_allclose(rng[[0, 2]], trained[[0, 2]], atol=1e-9)
+    others = [j for j in range(J) if j not in (0, 2)]
+    assert (rng[others, :, 0] == -180).all() and (rng[others, :, 1] == 180).all()
+
+
 def test_unknown_names_are_refused_listing_the_shipped_ones(shipped, capsys):
     with pytest.raises(ValueError, match=r"no shipped model named 'shirt'; pbc ships standin"):
         pretrained_run("shirt")
@@ -213,12 +230,18 @@ def test_a_fully_connected_run_predicts_and_packs(shipped, tmp_path, monkeypatch
     assert x.shape == (4, V, 3) and float(offsets.norm(dim=-1).mean()) > 1e-3 and "state_dict" in net
     torch.testing.assert_close(x, want, atol=1e-6, rtol=0)
     monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
-    info = pack.pack_run(fc, "fcstandin", tmp_path / "shipped" / "fcstandin", command="(fc stand-in)")
+    with pytest.raises(ValueError, match="--notes .*cannot read it"):
+        pack.pack_run(fc, "fcstandin", tmp_path / "shipped" / "fcstandin", notes=tmp_path / "missing.md")
+    assert not (tmp_path / "shipped").exists()  # refused before anything was written
+    (tmp_path / "notes.md").write_text("## Licence\n\nFree for any use (a test's words).\n")
+    info = pack.pack_run(fc, "fcstandin", tmp_path / "shipped" / "fcstandin", command="(fc stand-in)",
+                         notes=tmp_path / "notes.md")
     assert info["kind"] == "fc" and "fully connected" in info["network"] and "8 PCA coefficients" in info["network"]
     rec = json.loads((tmp_path / "shipped" / "fcstandin" / "metrics.json").read_text())
     assert rec["kind"] == "fc"
     card = (tmp_path / "shipped" / "fcstandin" / "MODEL_CARD.md").read_text()
     assert card.startswith("# Shipped model `fcstandin`: a fully connected net (hidden 32 x 32)")
+    assert "## Licence\n\nFree for any use (a test's words)." in card
     packed = ClothPredictor.from_runs(tmp_path / "shipped" / "fcstandin")
     diff_cm = float((packed(poses, model="whole") - x).norm(dim=-1).max()) * 100
     assert packed.whole_kind == "fc" and 0 < diff_cm < FP16_TOL_CM
