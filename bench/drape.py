@@ -23,8 +23,9 @@ Extra `key=value` arguments are config overrides
 
     python bench/drape.py compare [poses=6] [real=6] [batch=8] [data=tshirt_small] [overrides...]
 
-Kept drapes per CPU-hour, the settings before the real-motion fix (`OLD_SIM`: Style3D's untangling force
-on, newton's value) against the config's, side by side in one run on the same poses: the data config's
+Kept drapes per CPU-hour, the settings before the real-motion fixes (`OLD_SIM`: Style3D's untangling force
+on, newton's value; the shear stiffness at 10; a clip's frames as retargeted) against the config's (and a
+clip's arms fitted to the body, pbc.motion.fit), side by side in one run on the same poses: the data config's
 first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
 each pose draped old then new so both share the machine's load alike, then (batch=K > 1) each pose set
 again with the new settings in one batched model of K worlds (pbc/sim/batched.py, what `sim.batch_size=K`
@@ -270,8 +271,8 @@ def batched_main(argv: list[str]) -> dict:
     return figures
 
 
-# the drape settings before the real-motion fix (docs/results/real_motion_drapes): untangling on
-OLD_SIM = ["sim.self_collision_stiffness.untangle=1.0"]
+# the drape before the real-motion fixes (docs/results/real_motion_drapes): untangling on, the soft shear
+OLD_SIM = ["sim.self_collision_stiffness.untangle=1.0", "sim.stretch_ke=[100.0,100.0,10.0]"]
 REAL_CLIPS = ("tests/data/bvh/cmu_mb_02_01_walk.bvh", "tests/data/bvh/cmu_mb_01_01_lfingers.bvh")
 
 
@@ -294,6 +295,8 @@ def real_motion_poses(skeleton, n: int) -> tuple[np.ndarray, list[str]]:
 def compare_main(argv: list[str]) -> dict:
     """Old against new drape settings on sampled and real-motion poses (see the module docstring)."""
     from pbc.data.generate import build_scene
+    from pbc.motion.fit import clear_clip_arms
+    from pbc.motion.retarget import motion_settings
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
     args = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith(("sim.", "body.", "garment.", "+")))
@@ -319,9 +322,14 @@ def compare_main(argv: list[str]) -> dict:
     rows = []
     for set_name, poses, names in sets:
         for pose, name in zip(poses, names, strict=True):
-            bv = pose_body(body, torch.from_numpy(np.asarray(pose))[None].float())
-            start = embedded_points(bv, body.faces, emb)[0].numpy()
+            # the new pipeline takes a clip's frame with its arms fitted to the body (pbc.motion.fit), the old
+            # one as retargeted; a sampled pose is the same for both
+            fitted = (clear_clip_arms(np.asarray(pose)[None], body, motion_settings().clear_arms)[0][0]
+                      if set_name == "real" else np.asarray(pose))
             for setting, cfg in (("old", cfg_old), ("new", cfg_new)):
+                use = np.asarray(pose) if setting == "old" else fitted
+                bv = pose_body(body, torch.from_numpy(np.asarray(use, np.float32))[None])
+                start = embedded_points(bv, body.faces, emb)[0].numpy()
                 res = drape_garment(garment, start, bv[0].numpy(), body, emb, cfg.sim)
                 ok, reason = check_garment_result(res, garment, cfg.sim)
                 rows.append({"set": set_name, "pose": name, "setting": setting, "frames": int(res.iterations),
