@@ -354,6 +354,7 @@ class ClothPredictor:
         check_net_sizes(image_cfg, whole_net, patch_nets)  # before any operator is built
         self.whole_target = make_target(dataset, image_cfg, whole_kind, space=space, skinner=self.skinner,
                                         cache_dir=cache_dir)
+        self._image_cfg, self._cache_dir, self._image_target = image_cfg, cache_dir, None
         nv = len(dataset.garment.vertices)
         if whole_kind == "fc" and whole_net is not None and int(whole_net.num_vertices) != nv:
             raise ValueError(f"the fully connected model predicts {int(whole_net.num_vertices)} vertices, the "
@@ -378,6 +379,17 @@ class ClothPredictor:
         if pca is not None:
             self.use_pca(pca)
         self.to(device)
+
+    @property
+    def image_target(self):
+        """The whole garment's cloth-image target (`pbc.pixels.target` "whole"): the whole model's own, or, for a
+        fully connected model, built on first use (pbc evaluate's representation floor and error images)."""
+        if self.whole_kind == "whole":
+            return self.whole_target
+        if self._image_target is None:
+            self._image_target = make_target(self.dataset, self._image_cfg, "whole", space=self.space,
+                                             skinner=self.skinner, cache_dir=self._cache_dir)
+        return self._image_target
 
     def use_pca(self, basis) -> None:
         """Filter with PCA basis `basis`; refused when it was fitted on another dataset than this one."""

@@ -121,7 +121,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
                 return from_offsets(off, anchors, frames, pred.space)
 
             batch = {"gt": gt}
-            gt_whole = pred.whole_target.values(pred.whole_target.encode(gt_off))
+            gt_whole = pred.image_target.values(pred.image_target.encode(gt_off))
             # the representation floors of the whole (floor_256) and patch (floor_512) images, by their default
             # resolutions' names whatever the run's image sizes
             batch["floor_256"] = pos_of(gt_whole)
@@ -190,7 +190,7 @@ def write_figures(out: Path, pred, keep: dict, faces: torch.Tensor, method: str)
 
     gt = keep["gt"]
     names = [n for n in keep if n != "gt" and not n.startswith("gt_crops")]
-    ops = pred.ops_patch if pred.ops_patch is not None else pred.whole_target.ops
+    ops = pred.ops_patch if pred.ops_patch is not None else pred.image_target.ops
     mask = ops.mask.numpy()
     # the sides with charts, cut to the charts' bounding box (a necktie fills a thin band of one side)
     sides = [s for s in range(2) if mask[s].any()]

@@ -245,6 +245,15 @@ def test_a_fully_connected_run_predicts_and_packs(shipped, tmp_path, monkeypatch
     packed = ClothPredictor.from_runs(tmp_path / "shipped" / "fcstandin")
     diff_cm = float((packed(poses, model="whole") - x).norm(dim=-1).max()) * 100
     assert packed.whole_kind == "fc" and 0 < diff_cm < FP16_TOL_CM
+    # pbc evaluate scores it as the whole model, beside the image representation's floor it has no image of
+    from pbc.jobs.evaluate import evaluate  # noqa: PLC0415 - as the shipped model's evaluate test imports it
+
+    cfg = OmegaConf.create({"whole_run": str(tmp_path / "shipped" / "fcstandin"), "patch_runs": None,
+                            "methods": ["average"], "split": "test", "max_samples": None, "batch_size": 8,
+                            "num_previews": 1, "pca_path": None, "pca_fit_max": 100, "stitch": _stitch_cfg("pca")})
+    e = evaluate(cfg, tmp_path / "eval")["entries"]
+    assert e["whole"]["vertex_error_cm"] == pytest.approx(info["test_vertex_error_cm"], abs=1e-3)
+    assert e["floor_256"]["vertex_error_cm"] < e["whole"]["vertex_error_cm"]
 
 
 def test_the_shipped_tshirt_loads_and_predicts(tmp_path, monkeypatch):
