@@ -349,6 +349,14 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
             d_file = ref[f] @ kids[0] if kids else None if b.end is None else ref[f] @ b.end
         ok = d_file is not None and np.linalg.norm(d_file) > 0 and np.linalg.norm(d_body) > 0
         align[j] = _rotation_between(d_body, axes @ d_file) if ok else np.eye(3)
+    # a foot that ends the body's chain has no bone to match: its frame's y is the shin's line (down), the
+    # file's foot points forward to the toes, and matching the two turned the ankle 70 degrees at the clip's
+    # own rest (the CMU calibration frame). A foot stands the same way in every rest pose (flat, across the
+    # shin), so it is aligned as its shin is.
+    for side in body_cfg.limbs.values():
+        foot, shin = side.get("foot"), side.get("shin")
+        if foot in align and shin in align and not any(p == names.index(foot) for p in skeleton.parents):
+            align[foot] = align[shin]
 
     q = bvh.root_relative_rotations(idx) @ np.swapaxes(ref, -1, -2)  # (F, Jb, 3, 3), file axes, from the rest
     out = np.tile(np.eye(3), (len(idx), len(names), 1, 1))

@@ -11,7 +11,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from pbc.geometry.body.skeleton import forward_kinematics, skeleton_from_config
+from pbc.geometry.body.skeleton import forward_kinematics, skeleton_from_config, xzy_angles
 from pbc.motion.bvh import read_bvh
 from pbc.motion.fit import clear_clip_arms, cleared_note
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, parse_frames
@@ -121,3 +121,19 @@ def test_a_walk_on_a_broader_body_gets_its_arms_out_of_the_torso(body):
     assert note.startswith(f"arms raised out of the torso in {int((~still).sum())} of {len(turned)} frames")
     same, none = clear_clip_arms(motion.poses, body, OmegaConf.create({"step_deg": 2.0, "max_deg": 0.0}))
     assert same is motion.poses and not none.any() and cleared_note(none) is None
+
+
+def test_a_walks_feet_on_a_body_whose_ankle_ends_the_chain(anny_body):
+    """Anny's ankle has no child joint in pbc's skeleton (its frame's y runs down the shin) and the CMU foot
+    points forward to the toes: the feet are aligned as the shins, so the clip's calibration frame (a T-pose
+    standing on flat feet) leaves the ankles at rest, and the walk flexes them as a walk does (within 30
+    degrees), instead of every frame turning them about 70 degrees."""
+    bvh = read_bvh(DATA / "cmu_mb_02_01_walk.bvh")
+    skel = anny_body.skeleton
+    m = bvh_to_poses(bvh, skel, choose_joint_map(bvh), parse_frames(None))
+    angles = xzy_angles(m.poses)
+    for ankle in ("l_ankle", "r_ankle"):
+        j = skel.index(ankle)
+        assert np.abs(angles[0, j]).max() < 5.0, (ankle, angles[0, j])
+        assert np.abs(angles[1:, j]).max() < 30.0, (ankle, angles[1:, j].min(0), angles[1:, j].max(0))
+        assert np.ptp(angles[1:, j, 0]) > 10.0  # and they do move with the gait
