@@ -184,6 +184,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         "source_run": str(Path(run.path).resolve()), "source_checkpoint": run.checkpoint.name,
         "dataset": {"dir": str(Path(ds.dir).resolve()), "name": Path(ds.dir).name,
                     "fingerprint": dataset_fingerprint(ds), "kept": int(len(ds)),
+                    "mirrored": int((ds.manifest.get("counts") or {}).get("mirrored") or 0),
                     "discarded": discarded_count(ds.manifest),
                     "splits": {s: int(len(ds.split(s))) for s in ("train", "val", "test")},
                     "num_vertices": int(len(ds.garment.vertices))},
@@ -251,9 +252,10 @@ def model_card(i: dict, pose_range: dict | None = None) -> str:
     sched = "none" if not sch["model.scheduler"] else "yes (metrics.json config)"
     rows = [
         ("network", i.get("network") or "the whole-garment CNN"),
-        ("data", f"`{d['name']}`: {d['kept']} poses kept ({d['discarded']} discarded by the distortion check), "
-                 f"the {d['num_vertices']:,}-vertex shirt; splits train {d['splits']['train']} / val "
-                 f"{d['splits']['val']} / test {d['splits']['test']}"),
+        ("data", f"`{d['name']}`: {d['kept'] - d.get('mirrored', 0)} drapes kept ({d['discarded']} discarded by the "
+                 "distortion check)" + (f" and {d['mirrored']} mirror images of training drapes" if d.get("mirrored")
+                                        else "") + f", the {d['num_vertices']:,}-vertex garment; splits train "
+                 f"{d['splits']['train']} / val {d['splits']['val']} / test {d['splits']['test']}"),
         ("training", f"{i['epochs']} epochs (trainer.max_epochs {sch['trainer.max_epochs']}), lr "
                      f"{sch['model.optimizer.lr']}, batch {sch['datamodule.batch_size']}, scheduler {sched}; "
                      f"{_time(i['train_seconds'])}"),
@@ -285,7 +287,7 @@ every number here was measured by it on the packed files.
 | --- | --- |
 {table}
 
-{notes}The model saw {d['splits']['train']} training poses: far from the paper's 16K (0.44 cm there). Poses outside
+{notes}The model saw {d['splits']['train']} training rows: far from the paper's 16K (0.44 cm there). Poses outside
 the training poses' joint-angle range (below; metrics.json `pose_range`) are flagged by
 `pbc predict --poses clip.bvh`.
 {range_section(pose_range)}
