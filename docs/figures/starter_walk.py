@@ -1,7 +1,8 @@
 """docs/figures/starter_walk.png: four frames of the video `pbc predict` makes of the shipped starters on a walk.
 
-    pbc predict --pretrained tshirt --poses tests/data/bvh/cmu_mb_02_01_walk.bvh --frames 1: --video mp4 --out /tmp/walk_tshirt
-    pbc predict --pretrained trousers --poses tests/data/bvh/cmu_mb_02_01_walk.bvh --frames 1: --video mp4 --out /tmp/walk_trousers
+    WALK=tests/data/bvh/cmu_mb_02_01_walk.bvh
+    pbc predict --pretrained tshirt --poses $WALK --frames 1: --video mp4 --out /tmp/walk_tshirt
+    pbc predict --pretrained trousers --poses $WALK --frames 1: --video mp4 --out /tmp/walk_trousers
     python docs/figures/starter_walk.py /tmp/walk_tshirt/motion.mp4 /tmp/walk_trousers/motion.mp4
 
 Each row is one video, four frames spread over the clip, side by side.
