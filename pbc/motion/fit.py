@@ -11,22 +11,25 @@ import numpy as np
 import torch
 
 from pbc.geometry.body.base import Body
-from pbc.sim.poses import SamplingSettings, clear_arms
+from pbc.sim.poses import SamplingSettings, can_probe_arms, clear_arms
 
 
 def clear_clip_arms(poses: np.ndarray, body: Body, settings) -> tuple[np.ndarray, np.ndarray]:
     """poses (N, J, 3, 3) of `body`'s skeleton -> (the poses with each arm inside the torso raised out of it,
     (N, 2) degrees each arm was raised, left then right). settings: conf/motion/sequence.yaml `clear_arms`
-    (step_deg, max_deg; max_deg 0 returns the poses unchanged). A body without both arm joints is returned as
-    it is. The probes are the sampler's defaults (53 an arm, 10 cm from the shoulder, conf/body sampling)."""
+    (step_deg, max_deg; max_deg 0 returns the poses unchanged). Poses of a body without both arm joints, or
+    without enough arm vertices to probe, are returned as they are. The probes are the sampler's defaults (53
+    an arm, 10 cm from the shoulder, conf/body sampling)."""
     poses = np.asarray(poses)
-    names = set(body.skeleton.names)
     none = np.zeros((len(poses), 2))
-    if float(settings.max_deg) <= 0 or not {"l_arm", "r_arm"} <= names or len(poses) == 0:
+    if float(settings.max_deg) <= 0 or len(poses) == 0:
+        return poses, none
+    probe = SamplingSettings()
+    if not can_probe_arms(body, probe):  # a body without skinned arms to probe (a stand-in): nothing to fit
         return poses, none
     rot = torch.from_numpy(np.ascontiguousarray(poses, np.float32))
     with torch.no_grad():
-        out, turned = clear_arms(body, rot, SamplingSettings(), float(settings.step_deg), float(settings.max_deg))
+        out, turned = clear_arms(body, rot, probe, float(settings.step_deg), float(settings.max_deg))
     moved = turned.numpy().any(1)
     cleared = poses.copy()  # frames left alone keep their exact (float64) rotations
     cleared[moved] = out.numpy()[moved]

@@ -197,6 +197,22 @@ def sample_angles(skel: Skeleton, n: int, rng: np.random.Generator, settings: Sa
     return out
 
 
+def _probe_candidates(body: Body, part: int, joint: str, settings: SamplingSettings) -> tuple[Tensor, Tensor]:
+    """Arm-part vertex ids outside the torso part and at least probe_min_distance from the arm joint, and every
+    body vertex's distance to that joint."""
+    skel = body.skeleton
+    dist = (body.vertices - skel.rest_heads[skel.index(joint)]).norm(dim=1)
+    return (body.parts[part] & ~body.parts[TORSO] & (dist >= settings.probe_min_distance)).nonzero()[:, 0], dist
+
+
+def can_probe_arms(body: Body, settings: SamplingSettings) -> bool:
+    """Whether `arm_probe_indices` finds its probes on both arms of `body`."""
+    names = set(body.skeleton.names)
+    return {"l_arm", "r_arm"} <= names and all(
+        len(_probe_candidates(body, part, joint, settings)[0]) >= settings.probes_per_arm
+        for part, joint in ((LEFT_ARM, "l_arm"), (RIGHT_ARM, "r_arm")))
+
+
 def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:
     """(2 * probes_per_arm,) long body-vertex ids on the arm parts, fixed and deterministic.
 
@@ -204,12 +220,9 @@ def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:
     joint; chosen by farthest-point sampling (started at the vertex farthest from the joint) so they
     spread over the whole arm.
     """
-    skel = body.skeleton
     out = []
     for part, joint in ((LEFT_ARM, "l_arm"), (RIGHT_ARM, "r_arm")):
-        joint_pos = skel.rest_heads[skel.index(joint)]
-        dist = (body.vertices - joint_pos).norm(dim=1)
-        cand = (body.parts[part] & ~body.parts[TORSO] & (dist >= settings.probe_min_distance)).nonzero()[:, 0]
+        cand, dist = _probe_candidates(body, part, joint, settings)
         if len(cand) < settings.probes_per_arm:
             raise ValueError(
                 f"only {len(cand)} probe candidates on part {part} ({joint}); "
