@@ -25,7 +25,7 @@ from pbc.geometry.body.base import pose_body  # noqa: E402
 from pbc.inference.predictor import ClothPredictor  # noqa: E402
 
 PEOPLE = ["body=anny_tpose", "data=tshirt_tiny", "garment.size_to_body.enabled=true", "data.num_samples=6",
-          "data.body_shape={height:[0.2,0.8]}", "data.body_shapes=2", "data.workers=1"]
+          "data.body_shape={height:[0.1,0.9]}", "data.body_shapes=2", "data.workers=1"]
 
 
 def test_a_dataset_of_two_people_drapes_trains_and_predicts(tmp_path, anny_body, capsys):
@@ -36,14 +36,15 @@ def test_a_dataset_of_two_people_drapes_trains_and_predicts(tmp_path, anny_body,
     assert len(shapes) == 2 and man["body_shapes"]["keys"] == list(shapes.keys)
     # the people differ in height (and only there): their rest bodies' heights a few cm apart
     h = shapes.values[:, shapes.keys.index("height")]
-    assert ((0.2 <= h) & (h <= 0.8)).all() and abs(h[0] - h[1]) > 0.05
+    assert ((0.1 <= h) & (h <= 0.9)).all() and abs(h[0] - h[1]) > 0.05
     others = [k for k in shapes.keys if k != "height"]
     assert (shapes.values[0, [shapes.keys.index(k) for k in others]]
             == shapes.values[1, [shapes.keys.index(k) for k in others]]).all()
     tall = np.ptp(shapes.vertices[..., 1].numpy(), axis=1)
     assert abs(tall[0] - tall[1]) > 0.03, tall
     assert np.array_equal(ds.person, np.asarray(man["source_index"]) % 2) and len(set(ds.person)) == 2
-    # each drape rests on its own person: its nearest tenth of vertices sit at the contact distance (under a cm)
+    # each drape rests on its own person (heights far apart: with a shirt this loose a few cm of stature move its
+    # contact by under a millimetre): its nearest tenth of vertices sit at the contact distance (under a cm)
     # from that person's posed body, further from the other person's
     for i, k in enumerate(ds.person):
         pose, verts = torch.from_numpy(np.array(ds.poses[i:i + 1])), torch.from_numpy(np.array(ds.verts[i]))
