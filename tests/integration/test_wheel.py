@@ -93,14 +93,17 @@ def test_user_errors_outside_a_project_are_one_line(installed):
 
 
 def test_the_shipped_model_predicts_from_the_wheel(installed):
-    """pbc/pretrained ships in the wheel: `--pretrained tshirt` predicts outside any project, and writes
-    nothing into the installed package (its operators go to the user cache)."""
+    """pbc/pretrained ships in the wheel: `--pretrained tshirt` (the starter, a fully connected model) and
+    `--pretrained tshirt_mannequin` (an image CNN) predict outside any project, and write nothing into the
+    installed package (the CNN's image operators go to the user cache)."""
     bin_dir, work = installed
-    r = run([bin_dir / "pbc", "predict", "--pretrained", "tshirt", "--poses", "test", "--max", "2", "--sheet", "0",
-             "--out", work / "pred"], work)
-    assert r.returncode == 0, r.stderr
-    assert "2 poses" in r.stdout and "vertex error vs simulation" in r.stdout
+    for name in ("tshirt", "tshirt_mannequin"):
+        r = run([bin_dir / "pbc", "predict", "--pretrained", name, "--poses", "test", "--max", "2", "--sheet", "0",
+                 "--out", work / f"pred_{name}"], work)
+        assert r.returncode == 0, r.stderr
+        assert "2 poses" in r.stdout and "vertex error vs simulation" in r.stdout
     r = run([bin_dir / "python", "-c", "import pbc.pretrained as p; print(p.SHIPPED_DIR)"], work)
     shipped = Path(r.stdout.strip())
-    assert str(ROOT) not in str(shipped) and not (shipped / "tshirt" / "data" / "operators").exists()
+    assert str(ROOT) not in str(shipped)
+    assert not any((shipped / name / "data" / "operators").exists() for name in ("tshirt", "tshirt_mannequin"))
     assert list((work / ".cache" / "pbc" / "operators").glob("*.npz"))
