@@ -303,10 +303,7 @@ def legs_collide(body: Body, rotations: Tensor, probes: tuple[Tensor, Tensor], s
 
 def probes_inside_torso(body: Body, rotations: Tensor, probes: Tensor, settings: SamplingSettings) -> Tensor:
     """(B,) bool: some arm probe of the posed body lies inside the posed torso. rotations (B, J, 3, 3)."""
-    transforms = forward_kinematics(body.skeleton, rotations)
-    posed = linear_blend_skinning(body.vertices[probes], body.weights[probes], transforms)  # (B, P, 3)
-    sdf = body_sdf(body, rotations, posed, part=TORSO)
-    return (sdf < -settings.prune_tolerance).any(dim=1)
+    return (arm_depth_in_torso(body, rotations, probes) > settings.prune_tolerance).any(dim=1)
 
 
 def sample_poses(
