@@ -1,4 +1,5 @@
-"""Tables and figure of docs/results/converged_gpu/results.json (written by run.py on the GPU machine).
+"""Tables and figure of docs/results/converged_gpu/results.json and results_h200.json (written by run.py on
+two GPU machines: the first seeds on an H100, the second seeds and the hierarchy on an H200).
 
     python docs/results/converged_gpu/report.py      # -> tables.md, converged_gpu.png beside this file
 """
@@ -33,8 +34,36 @@ def row(name: str, rs: list[dict], mean_shape: float) -> str:
             f"{np.mean(nd):.4f} | {real_txt} | {PAPER.get(name, '-')} |")
 
 
-def main() -> None:
+def all_runs() -> dict:
+    """Every run of both sessions by name; the H200's repeat of table1_l1_s0 (the hierarchy's whole model) is
+    kept under its own name, not counted as a third seed."""
     runs = json.loads((HERE / "results.json").read_text())["runs"]
+    later = HERE / "results_h200.json"
+    if later.is_file():
+        runs.update(json.loads(later.read_text())["runs"])
+    return runs
+
+
+def hierarchy_lines(runs: dict) -> list[str]:
+    ev = runs.get("evaluate_s0")
+    if not ev:
+        return []
+    e = ev["entries"]
+    rows = [("training mean shape", "train_mean"), ("whole CNN (L1, seed 0)", "whole")] + [
+        (f"28 patches stitched: {m}", f"patches_{m}") for m in ("pca", "cage", "average", "inpaint", "hierarchy",
+                                                                "hierarchy_detail")]
+    out = ["", f"### Hierarchy: 28 stitched patch models vs the whole model (L1, seed 0, {ev['num_samples']} test "
+           "poses)", "", "| entry | vertex error (cm) | normal distance | seam jump (cm) |", "| --- | --- | --- | --- |"]
+    out += [f"| {label} | {e[k]['vertex_error_cm']:.3f} | {e[k]['normal_distance']:.4f} | {e[k]['seam_jump_cm']:.3f} |"
+            for label, k in rows if k in e]
+    out += ["", f"Patch models: {runs['hier_patches_s0']['epochs']} of 41 epochs ({runs['hier_patches_s0']['stopped_by']}); "
+            f"neighbouring patches disagree by {ev['patch_disagreement_before_blend_cm']:.3f} cm across "
+            f"{ev['seam_edges']} seam edges before blending."]
+    return out
+
+
+def main() -> None:
+    runs = all_runs()
     base = runs["table1_l1_s0"]
     ms, ms_real = base["sampled"]["mean_shape_cm"], base["mocap"]["mean_shape_cm"]
     head = ("| setting | test error per seed (cm) | mean | vs mean shape | normal distance "
@@ -47,24 +76,43 @@ def main() -> None:
     lines += [row(e, seeds(runs, f"table2_{e}"), ms) for e in
               ("fc_direct_local", "fc_pca_local", "fc_direct_root", "fc_pca_root", "fc_direct_position",
                "fc_pca_position")]
-    lines += ["", "### Learning curve: the whole CNN (L1), first n training drapes, no mirrors, seed 0", "",
+    lines += ["", "### Learning curve: the whole CNN (L1), first n training drapes, no mirrors, seeds 0 / 1", "",
               "| training poses | epochs | best epoch | test (cm) | its mean shape (cm) | ratio | real frames (cm) | "
               "its mean shape there | ratio |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    curve = sorted((r for k, r in runs.items() if k.startswith("curve_")), key=lambda r: r["train_rows"])
-    for r in curve:
-        sampled, real = r["sampled"], r["mocap"]
-        lines.append(f"| {r['train_rows']} | {r['epochs']} | {int(r['best_checkpoint'][6:9])} | "
-                     f"{sampled['model_cm']:.3f} | {sampled['mean_shape_cm']:.3f} | {sampled['ratio']:.2f} | "
-                     f"{real['model_cm']:.3f} | {real['mean_shape_cm']:.3f} | {real['ratio']:.2f} |")
+    curve = {}
+    for k, r in runs.items():
+        if k.startswith("curve_") and r.get("test"):
+            curve.setdefault(r["train_rows"], []).append(r)
+    curve = {n: sorted(rs, key=lambda r: r["seed"]) for n, rs in sorted(curve.items())}
+
+    def both(rs, f):
+        return " / ".join(f(r) for r in rs)
+
+    for n, rs in curve.items():
+        lines.append(f"| {n} | {both(rs, lambda r: str(r['epochs']))} | "
+                     f"{both(rs, lambda r: str(int(r['best_checkpoint'][6:9])))} | "
+                     f"{both(rs, lambda r: format(r['test']['vertex_error_cm'], '.3f'))} | "
+                     f"{rs[0]['sampled']['mean_shape_cm']:.3f} | "
+                     f"{np.mean([r['test']['vertex_error_cm'] for r in rs]) / rs[0]['sampled']['mean_shape_cm']:.2f} | "
+                     f"{both([r for r in rs if 'mocap' in r], lambda r: format(r['mocap']['model_cm'], '.3f'))} | "
+                     f"{rs[0]['mocap']['mean_shape_cm']:.3f} | "
+                     f"{np.mean([r['mocap']['ratio'] for r in rs if 'mocap' in r]):.2f} |")
+    lines += hierarchy_lines(runs)
     (HERE / "tables.md").write_text("\n".join(lines) + "\n")
 
     fig, ax = plt.subplots(1, 3, figsize=(16, 4.6))
-    x = [r["train_rows"] for r in curve]
+    x = list(curve)
     for key, style, label in (("sampled", "-o", "sampled test poses"), ("mocap", "-s", "motion-capture frames")):
-        ax[0].plot(x, [r[key]["model_cm"] for r in curve], style, color="C0" if key == "sampled" else "C2",
-                   label=f"model, {label}")
-        ax[0].plot(x, [r[key]["mean_shape_cm"] for r in curve], style, color="C1" if key == "sampled" else "C3",
-                   alpha=0.6, label=f"training mean shape, {label}")
+        def err(r, key=key):  # the sampled test poses are pbc.train's own test split: its metric where unscored
+            return r[key]["model_cm"] if key in r else (r["test"]["vertex_error_cm"] if key == "sampled" else None)
+
+        mean = [np.mean([e for e in map(err, rs) if e is not None]) for rs in curve.values()]
+        ax[0].plot(x, mean, style, color="C0" if key == "sampled" else "C2", label=f"model, {label} (mean of seeds)")
+        for n, rs in curve.items():
+            ys = [e for e in map(err, rs) if e is not None]
+            ax[0].plot([n] * len(ys), ys, ".", color="k", ms=5)
+        ax[0].plot(x, [rs[0][key]["mean_shape_cm"] for rs in curve.values()], style,
+                   color="C1" if key == "sampled" else "C3", alpha=0.6, label=f"training mean shape, {label}")
     mir = seeds(runs, "table1_l1")
     ax[0].plot([739] * len(mir), [r["sampled"]["model_cm"] for r in mir], "^", color="C4",
                label="739 + 739 mirror images (2 seeds), sampled")
@@ -73,7 +121,7 @@ def main() -> None:
     ax[0].minorticks_off()
     ax[0].set_xlabel("training poses (draped)")
     ax[0].set_ylabel("mean vertex error (cm)")
-    ax[0].set_title("learning curve, whole CNN (L1), trained to the schedule's end")
+    ax[0].set_title("learning curve, whole CNN (L1), trained to the schedule's end, 2 seeds")
     ax[0].legend(fontsize=7)
     for a, names, title in ((ax[1], [("l1", "table1_l1"), ("l2", "table1_l2"), ("l2_normal", "table1_l2_normal"),
                                       ("l1_normal", "table1_l1_normal")], "Table 1: losses (1,478 rows)"),
@@ -93,7 +141,8 @@ def main() -> None:
         a.set_title(title + " (dots: seeds; red: paper)")
         a.set_ylabel("test vertex error (cm)")
         a.legend(fontsize=7)
-    fig.suptitle("Converged on one H100: the default data config, 923 kept drapes (739 training + 739 mirror images)")
+    fig.suptitle("Converged on one GPU (first seeds H100, second seeds H200): the default data config, 923 kept "
+                 "drapes (739 training + 739 mirror images); black dots: seeds")
     fig.tight_layout()
     fig.savefig(HERE / "converged_gpu.png", dpi=110)
     print((HERE / "tables.md").read_text())

@@ -13,7 +13,11 @@ Jobs (name: data, model):
 - table1_{loss}_s{seed}: the 1,478 mirrored rows, the whole CNN under loss l1, l2, l2_normal, l1_normal
   (table1_l1 is also Table 2's CNN column and the curve's mirrored 739-pose point);
 - table2_{experiment}_s{seed}: the same rows, the six fully connected baselines (L1);
-- curve_n{n}_s{seed}: the first n training drapes without mirrors, the whole CNN under L1.
+- curve_n{n}_s{seed}: the first n training drapes without mirrors, the whole CNN under L1;
+- hier_patches_s{seed}: the same rows as Table 1, the 28 patch models (L1) as one stacked job
+  (`+experiment=patches`), then `pbc.evaluate` stitches them under every seam method beside table1_l1_s{seed}
+  (the hierarchy: whole vs stitched patches, one evaluation per seed: evaluate_s{seed} in results.json).
+`--only` takes job name prefixes and also orders the jobs: the first prefix's jobs start first.
 Writes WORK/results.json and, with --out, a tarball of every run dir without its checkpoints.
 """
 
@@ -84,6 +88,7 @@ def jobs(seeds: tuple[int, ...]) -> list[dict]:
         out += [dict(name=f"table2_{e}_s{seed}", data="n0739_mirror", experiment=e, loss="l1", seed=seed) for e in FC]
         out += [dict(name=f"curve_n{n:04d}_s{seed}", data=f"n{n:04d}_plain", experiment="whole", loss="l1", seed=seed)
                 for n in SIZES]
+        out.append(dict(name=f"hier_patches_s{seed}", data="n0739_mirror", experiment="patches", loss="l1", seed=seed))
     # the first seed of everything first: a deadline cuts second seeds, not whole tables
     return sorted(out, key=lambda j: j["seed"])
 
@@ -128,6 +133,8 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--only", default="", help="comma list of job name prefixes (a smoke run)")
     ap.add_argument("--trainer", default="gpu", help="trainer preset (cpu: a smoke run here)")
+    ap.add_argument("--extra", default="", help="space-separated overrides added to every pbc.train call (a smoke "
+                    "run: 'trainer.limit_train_batches=2 trainer.limit_val_batches=1')")
     ap.add_argument("--out", type=Path, help="where the tarball of run dirs (no checkpoints) and results go")
     args = ap.parse_args(argv)
     t0 = time.time()
@@ -136,10 +143,16 @@ def main(argv: list[str]) -> None:
     pool = load_dataset(unpack(args.pack, work))
     z = np.load(args.pack / "mocap.npz")
     mocap = {"poses": z["poses"], "verts": z["verts"]}
-    todo = [j for j in jobs(tuple(int(s) for s in args.seeds.split(",")))
-            if not args.only or any(j["name"].startswith(p) for p in args.only.split(","))]
+    todo = jobs(tuple(int(s) for s in args.seeds.split(",")))
+    if args.only:  # the prefixes filter and order: a job starts in the order of the first prefix it matches
+        prefixes = args.only.split(",")
+        rank = {j["name"]: next((k for k, p in enumerate(prefixes) if j["name"].startswith(p)), None) for j in todo}
+        todo = sorted((j for j in todo if rank[j["name"]] is not None), key=lambda j: rank[j["name"]])
     # the pool's own data settings (the default data config with these), so that pbc.train accepts its data
-    pool_overrides = [f"data.num_samples={pool.manifest['counts']['requested']}", "data.mirror=true"]
+    # (the pool was draped before the shear stiffness went from 10 to 40: its own value is named)
+    shear = pool.manifest["sim"]["stretch_ke"]
+    pool_overrides = [f"data.num_samples={pool.manifest['counts']['requested']}", "data.mirror=true",
+                      "sim.stretch_ke=[" + ",".join(repr(float(x)) for x in shear) + "]"]
     rows = {}
     for name in sorted({j["data"] for j in todo}):
         sub = work / "subsets" / name
@@ -158,7 +171,7 @@ def main(argv: list[str]) -> None:
         if job["name"] in results or left < 120:
             return
         argv = train_argv(job, work, rows[job["data"]], args.budget, int(left - 60), pool_overrides,
-                          args.trainer)
+                          args.trainer) + args.extra.split()
         ts = time.time()
         with open(work / f"{job['name']}.log", "w") as log:
             code = subprocess.run(argv, cwd=REPO, stdout=log, stderr=subprocess.STDOUT).returncode
@@ -176,6 +189,16 @@ def main(argv: list[str]) -> None:
 
     with ThreadPoolExecutor(args.parallel) as ex:
         list(ex.map(run, todo))
+    evals = {}  # the hierarchy: each seed's stitched patches beside its whole model, while the runs are scored
+    for seed in sorted({j["seed"] for j in todo if j["experiment"] == "patches"}):
+        whole, patches = results.get(f"table1_l1_s{seed}", {}), results.get(f"hier_patches_s{seed}", {})
+        if whole.get("returncode") == 0 and patches.get("returncode") == 0 and f"evaluate_s{seed}" not in results:
+            out = work / f"evaluate_s{seed}"
+            argv = [sys.executable, "-m", "pbc.evaluate", f"whole_run='{work / 'runs' / f'table1_l1_s{seed}'}'",
+                    f"patch_runs='{work / 'runs' / f'hier_patches_s{seed}'}'", f"hydra.run.dir={out}"]
+            log = open(work / f"evaluate_s{seed}.log", "w")  # noqa: SIM115 - closed when the process is waited on
+            evals[seed] = (subprocess.Popen(argv, cwd=REPO, stdout=log, stderr=subprocess.STDOUT), log, out,
+                           time.time())
     for name, rec in results.items():  # scoring after training: the GPU is free by then
         if rec["experiment"] == "whole" and rec.get("returncode") == 0 and "sampled" not in rec:
             try:
@@ -183,6 +206,14 @@ def main(argv: list[str]) -> None:
                 print(f"{name}: sampled {rec['sampled']}, mocap {rec['mocap']}", flush=True)
             except Exception as e:  # noqa: BLE001 - a failed score is recorded, the others still run
                 rec["score_error"] = f"{type(e).__name__}: {e}"
+    for seed, (proc, log, out, ts) in evals.items():
+        code = proc.wait()
+        log.close()
+        rec = {"experiment": "evaluate", "seed": seed, "returncode": code, "wall_s": round(time.time() - ts, 1)}
+        if (out / "metrics.json").is_file():
+            rec["metrics"] = json.loads((out / "metrics.json").read_text())
+        print(f"evaluate_s{seed}: rc {code}, {rec['wall_s']} s", flush=True)
+        results[f"evaluate_s{seed}"] = rec
     meta = {"device": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "cpu",
             "torch": torch.__version__, "budget_samples": args.budget, "parallel": args.parallel,
             "pool_rebuilt_identical": (work / "pool_identical.txt").read_text(),
@@ -198,6 +229,8 @@ def main(argv: list[str]) -> None:
                         filter=lambda ti: None if ti.name.endswith((".ckpt", ".obj")) else ti)
             for p in sorted(work.glob("*.log")):
                 tar.add(p, arcname=f"logs/{p.name}")
+            for p in sorted(work.glob("evaluate_s*")):
+                tar.add(p, arcname=p.name, filter=lambda ti: None if ti.name.endswith((".ckpt", ".obj")) else ti)
         data = (args.out / "runs.tgz").read_bytes()
         if len(data) > 15 * 2**20:  # the machine returns files of at most 16 MiB: parts, rejoined by `cat`
             (args.out / "runs.tgz").unlink()
