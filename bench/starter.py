@@ -38,11 +38,10 @@ from pbc.core.runs import RunRecord  # noqa: E402
 from pbc.data.generate import Scene, drape_pose  # noqa: E402
 from pbc.data.trimmed import recorded_mean_offsets  # noqa: E402
 from pbc.geometry.body.base import pose_body  # noqa: E402
-from pbc.geometry.body.skeleton import xzy_angles  # noqa: E402
 from pbc.inference.poses import read_motion, run_pose_range  # noqa: E402
 from pbc.inference.predictor import ClothPredictor  # noqa: E402
 from pbc.jobs.writers import contact_sheet  # noqa: E402
-from pbc.motion.ranges import outside_range  # noqa: E402
+from pbc.motion.ranges import range_report  # noqa: E402
 from pbc.motion.retarget import motion_settings  # noqa: E402
 from pbc.pixels.frames import from_offsets  # noqa: E402
 from pbc.pretrained import PREFIX, pretrained_dir, shipped_models  # noqa: E402
@@ -106,7 +105,8 @@ def main(argv: list[str] | None = None) -> dict:
     rows, per_clip, sheet = [], {}, None
     for path in [*CLIPS, *[Path(c) for c in args.clip]]:
         poses, labels = clip_frames(pred, path, args.every)
-        flagged = outside_range(xzy_angles(poses.astype(np.float64)), rng, tol).any((1, 2))
+        report = range_report(poses.astype(np.float64), rng, list(ds.body.skeleton.names), tol)
+        flagged = np.isin(np.arange(len(poses)), report["frames_outside"])
         drapes, kept, secs = [], [], []
         for pose, label in zip(poses, labels, strict=True):
             t = time.process_time()

@@ -3,6 +3,12 @@
 Angles are the body's own Euler angles (conf/body: R = Rx Rz Ry about the joint's rest frame, per axis
 x, y, z, degrees), the ones the pose sampler draws within the joint limits. The training range of a run is
 the per-joint, per-axis [min, max] over its dataset's training split.
+
+A rotation is inside a range when some rotation the range holds equals it: near the angles' singular point
+(z near +-90 degrees, where x and y turn about nearly one axis: a T-posed arm hanging down) a small turn moves
+x and y far in opposite directions, so a rotation's own angles can leave the box while the box still holds it
+(or its other decomposition, x + 180, y + 180, 180 - z). `nearest_in_range` searches the box for the nearest
+rotation; the flag and the clamp both read it.
 """
 
 from __future__ import annotations
@@ -34,20 +40,78 @@ def outside_range(angles: np.ndarray, rng: np.ndarray, tol: float) -> np.ndarray
     return (angles < rng[..., 0] - tol) | (angles > rng[..., 1] + tol)
 
 
+def other_angles(angles: np.ndarray) -> np.ndarray:
+    """(..., 3) the other Euler angles (x, y, z) of the same rotations: (x + 180, y + 180, 180 - z), each in
+    [-180, 180) (Rx(x + 180) Rz(180 - z) Ry(y + 180) = Rx(x) Rz(z) Ry(y))."""
+    a = np.asarray(angles, dtype=np.float64)
+    b = np.stack([a[..., 0] + 180.0, a[..., 1] + 180.0, 180.0 - a[..., 2]], -1)
+    return (b + 180.0) % 360.0 - 180.0
+
+
+def geodesic_deg(a, b) -> np.ndarray:
+    """(...,) the angle in degrees of the rotation between rotations a and b (..., 3, 3)."""
+    c = (np.einsum("...ij,...ij->...", np.asarray(a, np.float64), np.asarray(b, np.float64)) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def nearest_in_range(poses, rng: np.ndarray, tol: float = 0.0, steps: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest rotation a range holds, per joint: poses (N, J, 3, 3), rng (J, 3, 2) degrees ->
+    (angles (N, J, 3) degrees inside rng, their rotation's geodesic distance (N, J) degrees from the pose's).
+
+    A joint whose angles (either decomposition, `other_angles`) are inside rng within tol is itself, at
+    distance 0. The others are searched by projected gradient descent on the Frobenius distance, from both
+    decompositions clipped into the box, the nearer result kept: inside the box by construction, a local
+    optimum (the box is small against a half turn, where the distance has one minimum)."""
+    p = np.asarray(poses, dtype=np.float64)
+    a = xzy_angles(p)
+    b = other_angles(a)
+    lo, hi = np.broadcast_to(rng[..., 0], a.shape), np.broadcast_to(rng[..., 1], a.shape)
+    in_a, in_b = ~outside_range(a, rng, tol).any(-1), ~outside_range(b, rng, tol).any(-1)
+    angles = np.where(in_b[..., None] & ~in_a[..., None], b, np.clip(a, lo, hi))
+    dist = np.zeros(a.shape[:-1])
+    todo = ~(in_a | in_b)
+    if todo.any():
+        target = torch.from_numpy(p[todo]).repeat(2, 1, 1)
+        tlo = torch.from_numpy(np.ascontiguousarray(lo[todo])).repeat(2, 1)
+        thi = torch.from_numpy(np.ascontiguousarray(hi[todo])).repeat(2, 1)
+        x = torch.cat([torch.from_numpy(np.clip(a[todo], lo[todo], hi[todo])),
+                       torch.from_numpy(np.clip(b[todo], lo[todo], hi[todo]))]).requires_grad_(True)
+        opt = torch.optim.Adam([x], lr=2.0)  # degrees
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=1e-4)
+        for _ in range(steps):
+            opt.zero_grad()
+            ((euler_xzy_to_matrix(x) - target) ** 2).sum().backward()
+            opt.step()
+            sched.step()
+            with torch.no_grad():
+                x.copy_(torch.minimum(torch.maximum(x, tlo), thi))
+        x = x.detach()
+        d = geodesic_deg(euler_xzy_to_matrix(x).numpy(), target.numpy()).reshape(2, -1)
+        pick = d.argmin(0)
+        m = int(todo.sum())
+        angles[todo] = x.numpy().reshape(2, m, 3)[pick, np.arange(m)]
+        dist[todo] = d[pick, np.arange(m)]
+    return angles, dist
+
+
 def range_report(poses, rng: np.ndarray, names: Sequence[str], tol: float) -> dict:
-    """What predict.json records: the frames outside rng (J, 3, 2) and, per such frame, each joint axis
-    outside with its angle (degrees)."""
+    """What predict.json records: the frames with a joint farther than tol degrees from every rotation rng
+    (J, 3, 2) holds (`nearest_in_range`) and, per such frame, that joint's axes outside with their angles
+    (degrees) and the joint's distance (`distance_deg`)."""
     a = xzy_angles(poses)
-    out = outside_range(a, rng, tol)
-    frames = np.flatnonzero(out.any((1, 2)))
-    per_frame = {}
+    _, dist = nearest_in_range(poses, rng, tol)
+    far = dist > tol  # (N, J)
+    out = outside_range(a, rng, 0.0) & far[..., None]
+    frames = np.flatnonzero(far.any(1))
+    per_frame, distance = {}, {}
     for f in frames.tolist():
         per_frame[str(f)] = {f"{names[j]}.{AXES[k]}": round(float(a[f, j, k]), 3)
                              for j, k in zip(*np.nonzero(out[f]), strict=True)}
+        distance[str(f)] = {names[j]: round(float(dist[f, j]), 3) for j in np.flatnonzero(far[f])}
     axes_out = {f"{names[j]}.{AXES[k]}": int(out[:, j, k].sum()) for j, k in zip(*np.nonzero(out.any(0)),
                                                                                   strict=True)}
     return {"frames_outside": frames.tolist(), "num_outside": int(len(frames)), "num_frames": int(len(a)),
-            "joint_axes_outside": axes_out, "outside": per_frame, "tolerance_deg": tol,
+            "joint_axes_outside": axes_out, "outside": per_frame, "distance_deg": distance, "tolerance_deg": tol,
             "range_deg": {n: {ax: [round(float(rng[j, k, 0]), 3), round(float(rng[j, k, 1]), 3)]
                               for k, ax in enumerate(AXES)} for j, n in enumerate(names)}}
 
@@ -65,14 +129,13 @@ def range_summary(report: dict) -> str:
 
 
 def clamp_to_range(poses, rng: np.ndarray, tol: float = 0.0) -> np.ndarray:
-    """Poses (N, J, 3, 3) with every joint angle clamped into rng (J, 3, 2); joints inside (within tol)
-    are returned unchanged, the others rebuilt from their clamped angles."""
+    """Poses (N, J, 3, 3) with every joint moved to the nearest rotation rng (J, 3, 2) holds
+    (`nearest_in_range`); joints within tol degrees of one are returned unchanged."""
     p = np.array(poses, dtype=np.float64)
-    a = xzy_angles(p)
-    out = outside_range(a, rng, tol).any(-1)  # (N, J)
+    angles, dist = nearest_in_range(p, rng, tol)
+    out = dist > tol  # (N, J)
     if out.any():
-        clamped = np.clip(a[out], rng[None, ..., 0].repeat(len(p), 0)[out], rng[None, ..., 1].repeat(len(p), 0)[out])
-        p[out] = euler_xzy_to_matrix(torch.from_numpy(clamped)).numpy()
+        p[out] = euler_xzy_to_matrix(torch.from_numpy(angles[out])).numpy()
     return p
 
 

@@ -317,8 +317,9 @@ def range_section(pose_range: dict | None) -> str:
 ## Training poses' joint angles
 
 [min, max] degrees over the {pose_range['poses']} poses of the {pose_range['split']} split, per joint and axis:
-{pose_range['angles']}. A clip's frame outside them by more than `range_tolerance_deg`
-(conf/motion/sequence.yaml) is flagged; `--clamp-to-range` clamps it into them.
+{pose_range['angles']}. A clip's frame with a joint whose rotation is more than `range_tolerance_deg`
+(conf/motion/sequence.yaml) from every rotation these angles hold is flagged; `--clamp-to-range` moves it to the
+nearest one.
 
 | joint | x | y | z |
 | --- | --- | --- | --- |

@@ -1,0 +1,71 @@
+"""The training-range test on rotations, not on their angles: pbc.motion.ranges.nearest_in_range against a
+brute-force search of the box, near the Euler angles' singular point where the angles alone mislead."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+
+from pbc.geometry.body.skeleton import xzy_angles
+from pbc.motion.ranges import clamp_to_range, geodesic_deg, nearest_in_range, other_angles, range_report
+from pbc.sim.poses import euler_xzy_to_matrix
+
+# one joint, a T-posed arm hanging down: z (the middle angle) near -90, where x and y turn about nearly one axis
+HANGING = np.array([[[-10.0, 10.0], [-10.0, 10.0], [-95.0, -80.0]]])
+
+
+def rot(*angles) -> np.ndarray:
+    """(N, 1, 3, 3) rotations of (x, y, z) degree triples."""
+    return euler_xzy_to_matrix(torch.tensor(angles, dtype=torch.float64)).numpy()[:, None]
+
+
+def brute_force_distance(r: np.ndarray, box: np.ndarray, n: int = 41) -> float:
+    """The naive reference: the smallest geodesic distance (deg) from r (3, 3) to an n^3 grid over box (3, 2)."""
+    grid = np.array(list(itertools.product(*(np.linspace(lo, hi, n) for lo, hi in box))))
+    return float(geodesic_deg(euler_xzy_to_matrix(torch.from_numpy(grid)).numpy(), r[None]).min())
+
+
+def test_other_angles_are_the_same_rotation():
+    a = np.random.default_rng(0).uniform(-170, 170, (64, 3))
+    b = other_angles(a)
+    assert np.all((b >= -180) & (b < 180)) and not np.allclose(a, b)
+    np.testing.assert_allclose(euler_xzy_to_matrix(torch.from_numpy(b)).numpy(),
+                               euler_xzy_to_matrix(torch.from_numpy(a)).numpy(), atol=1e-12)
+
+
+def test_a_rotation_the_box_holds_is_inside_whatever_its_own_angles_say():
+    # inside the box at z = -89.9; a turn of 0.2 degrees takes its own decomposition to x = 175, y = -175
+    held = rot([5.0, -5.0, -89.9])[0, 0] @ rot([0.0, 0.0, -0.2])[0, 0]
+    own = xzy_angles(held)
+    assert abs(own[0]) > 150 and abs(own[1]) > 150  # far outside the box by its own angles
+    angles, dist = nearest_in_range(held[None, None], HANGING, 1e-3)
+    assert dist[0, 0] < 1e-6
+    assert np.all((angles[0, 0] >= HANGING[0, :, 0]) & (angles[0, 0] <= HANGING[0, :, 1]))
+    assert range_report(held[None, None], HANGING, ["l_arm"], 1e-3)["frames_outside"] == []
+
+
+@pytest.mark.parametrize("angles", [[30.0, 0.0, -85.0], [14.0, -14.0, -89.0], [0.0, 40.0, -60.0], [-25.0, 3.0, -99.0]])
+def test_nearest_in_range_matches_a_brute_force_search_of_the_box(angles):
+    r = rot(angles)
+    found, dist = nearest_in_range(r, HANGING, 1e-3)
+    assert np.all((found[0, 0] >= HANGING[0, :, 0] - 1e-9) & (found[0, 0] <= HANGING[0, :, 1] + 1e-9))
+    # the distance reported is the distance of the angles returned
+    assert geodesic_deg(euler_xzy_to_matrix(torch.from_numpy(found[0, 0])).numpy(), r[0, 0]) == pytest.approx(
+        dist[0, 0], abs=1e-6)
+    reference = brute_force_distance(r[0, 0], HANGING[0])
+    assert dist[0, 0] <= reference + 1e-6  # at least as near as the grid's best (grid step 0.4-0.5 degrees)
+    assert dist[0, 0] >= reference - 0.5
+
+
+def test_range_report_and_clamp_agree_on_a_joint_past_the_box():
+    poses = np.concatenate([rot([0.0, 0.0, -88.0]), rot([0.0, 0.0, -60.0])])  # inside; 20 degrees past z = -80
+    rep = range_report(poses, HANGING, ["l_arm"], 1e-3)
+    assert rep["frames_outside"] == [1] and list(rep["outside"]["1"]) == ["l_arm.z"]
+    assert rep["distance_deg"]["1"]["l_arm"] == pytest.approx(20.0, abs=1e-3)
+    c = clamp_to_range(poses, HANGING, 1e-3)
+    np.testing.assert_array_equal(c[0], poses[0])  # inside: untouched
+    assert geodesic_deg(c[1, 0], poses[1, 0]) == pytest.approx(20.0, abs=1e-3)
+    assert range_report(c, HANGING, ["l_arm"], 1e-3)["frames_outside"] == []
