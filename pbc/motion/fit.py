@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from pbc.geometry.body.base import Body
-from pbc.sim.poses import SamplingSettings, can_probe_arms, clear_arms
+from pbc.sim.poses import SamplingSettings, arm_probes_if_any, clear_arms
 
 
 def clear_clip_arms(poses: np.ndarray, body: Body, settings) -> tuple[np.ndarray, np.ndarray]:
@@ -25,11 +25,12 @@ def clear_clip_arms(poses: np.ndarray, body: Body, settings) -> tuple[np.ndarray
     if float(settings.max_deg) <= 0 or len(poses) == 0:
         return poses, none
     probe = SamplingSettings()
-    if not can_probe_arms(body, probe):  # a body without skinned arms to probe (a stand-in): nothing to fit
+    probes = arm_probes_if_any(body, probe)
+    if probes is None:  # a body without skinned arms to probe (a stand-in): nothing to fit
         return poses, none
     rot = torch.from_numpy(np.ascontiguousarray(poses, np.float32))
     with torch.no_grad():
-        out, turned = clear_arms(body, rot, probe, float(settings.step_deg), float(settings.max_deg))
+        out, turned = clear_arms(body, rot, probe, float(settings.step_deg), float(settings.max_deg), probes)
     moved = turned.numpy().any(1)
     cleared = poses.copy()  # frames left alone keep their exact (float64) rotations
     cleared[moved] = out.numpy()[moved]

@@ -205,32 +205,37 @@ def _probe_candidates(body: Body, part: int, joint: str, settings: SamplingSetti
     return (body.parts[part] & ~body.parts[TORSO] & (dist >= settings.probe_min_distance)).nonzero()[:, 0], dist
 
 
-def can_probe_arms(body: Body, settings: SamplingSettings) -> bool:
-    """Whether `arm_probe_indices` finds its probes on both arms of `body`."""
-    names = set(body.skeleton.names)
-    return {"l_arm", "r_arm"} <= names and all(
-        len(_probe_candidates(body, part, joint, settings)[0]) >= settings.probes_per_arm
-        for part, joint in ((LEFT_ARM, "l_arm"), (RIGHT_ARM, "r_arm")))
-
-
 def arm_probe_indices(body: Body, settings: SamplingSettings) -> Tensor:
     """(2 * probes_per_arm,) long body-vertex ids on the arm parts, fixed and deterministic.
 
     Candidates: arm-part vertices outside the torso part and at least probe_min_distance from their arm
     joint; chosen by farthest-point sampling (started at the vertex farthest from the joint) so they
-    spread over the whole arm.
+    spread over the whole arm. A body without enough of them on an arm is a ValueError saying what to change.
     """
+    probes, why = _arm_probes(body, settings)
+    if probes is None:
+        raise ValueError(why)
+    return probes
+
+
+def arm_probes_if_any(body: Body, settings: SamplingSettings) -> Tensor | None:
+    """`arm_probe_indices`, or None for a body without both arm joints or without enough arm vertices to
+    probe (a stand-in body): callers that only correct poses leave them as they are then."""
+    if not {"l_arm", "r_arm"} <= set(body.skeleton.names):
+        return None
+    return _arm_probes(body, settings)[0]
+
+
+def _arm_probes(body: Body, settings: SamplingSettings) -> tuple[Tensor | None, str]:
     out = []
     for part, joint in ((LEFT_ARM, "l_arm"), (RIGHT_ARM, "r_arm")):
         cand, dist = _probe_candidates(body, part, joint, settings)
         if len(cand) < settings.probes_per_arm:
-            raise ValueError(
-                f"only {len(cand)} probe candidates on part {part} ({joint}); "
-                f"need {settings.probes_per_arm}: lower sampling.probe_min_distance or use a finer body mesh"
-            )
+            return None, (f"only {len(cand)} probe candidates on part {part} ({joint}); "
+                          f"need {settings.probes_per_arm}: lower sampling.probe_min_distance or use a finer body mesh")
         out.append(cand[_farthest_points(body.vertices[cand].double(), int(dist[cand].argmax()),
                                          settings.probes_per_arm)])
-    return torch.cat(out)
+    return torch.cat(out), ""
 
 
 def _farthest_points(pts: Tensor, first: int, count: int) -> Tensor:
@@ -417,7 +422,7 @@ def arm_depth_in_torso(body: Body, rotations: Tensor, probes: Tensor) -> Tensor:
 
 
 def clear_arms(body: Body, rotations: Tensor, settings: SamplingSettings, step_deg: float = 2.0,
-               max_deg: float = 40.0) -> tuple[Tensor, Tensor]:
+               max_deg: float = 40.0, probes: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Poses with each arm that lies inside the torso raised sideways, about its rest frame's z axis (the axis
     the sampler's limits call raising), by the smallest multiple of `step_deg` that takes its probes out of the
     torso (the sampler's prune test, made corrective); at most `max_deg`.
@@ -429,10 +434,11 @@ def clear_arms(body: Body, rotations: Tensor, settings: SamplingSettings, step_d
     discarded. A retargeting tool would keep the arm on the body's surface; this does that with one turn.
 
     rotations (B, J, 3, 3) -> (cleared (B, J, 3, 3), turned (B, 2) degrees per arm, left then right; an arm
-    still inside after `max_deg` keeps that turn, so `turned == max_deg` marks it).
+    still inside after `max_deg` keeps that turn, so `turned == max_deg` marks it). probes: the body's
+    `arm_probe_indices` when the caller has them (None: found here).
     """
     skel = body.skeleton
-    probes = arm_probe_indices(body, settings)
+    probes = arm_probe_indices(body, settings) if probes is None else probes
     out = rotations.clone()
     turned = torch.zeros(len(rotations), 2, dtype=rotations.dtype)
     joints = [skel.index("l_arm"), skel.index("r_arm")]
