@@ -1,7 +1,9 @@
 """A garment from another ecosystem lands where pbc's own shirt sits on the body (pbc.geometry.garment.placement):
 the four files of tests/helpers/ecosystems.py (a SMPL-frame T-pose top, a 3x-scale pattern tee in centimetres
-with loose vertices, a shirt without UVs, a decimetre A-pose shirt) on Anny in its A-pose and its T-pose, and
-what is refused in one line. No drapes here (tests/integration/test_garment_fit.py fits them)."""
+with loose vertices, a shirt without UVs, a decimetre A-pose shirt) on Anny in its A-pose and its T-pose, a
+long-sleeved shirt modelled on T-posed Anny (tests/helpers/long_sleeves.py) turned at the shoulder and the elbow
+onto A-posed Anny's arms, and what is refused in one line. No drapes here (tests/integration/test_garment_fit.py
+fits them)."""
 
 from __future__ import annotations
 
@@ -10,13 +12,15 @@ import logging
 import numpy as np
 import pytest
 from helpers.ecosystems import ECOSYSTEMS, LOOSE, shirt
+from helpers.long_sleeves import long_sleeve_shirt
+from scipy.spatial import cKDTree
 
 from pbc.cli.garment import run
 from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
 from pbc.geometry.garment import garment_from_config
-from pbc.geometry.garment.checks import sleeve_axes
-from pbc.geometry.garment.placement import openings, placed_mesh
+from pbc.geometry.garment.checks import sleeve_axes, sleeves_inside
+from pbc.geometry.garment.placement import openings, place_garment, placed_mesh, sits
 from pbc.geometry.meshio import read_obj
 
 
@@ -78,6 +82,71 @@ def test_sleeves_are_turned_onto_the_rest_arms(world):
     assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
     axes = sleeve_axes(mesh.vertices, mesh.faces, body)
     assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
+
+
+def _one_turn(gcfg):
+    """gcfg with every arm turned as one bone (no second turn at the elbow), as placement was before."""
+    out = gcfg.copy()
+    out.placement.forearm_turn = False
+    return out
+
+
+def test_short_sleeves_are_turned_as_one_bone_as_before(world):
+    # a sleeve that ends before the elbow gets no second turn: placed bit for bit as by the one-turn transfer
+    name, body, gcfg, folder = world
+    turned = []
+    for garment in ("pattern_tee", "no_uv_shirt", "a_pose_shirt"):
+        mesh, placement = placed_mesh(folder / f"{garment}.obj", gcfg, body)
+        before, _ = placed_mesh(folder / f"{garment}.obj", _one_turn(gcfg), body)
+        assert np.array_equal(mesh.vertices, before.vertices), (name, garment)
+        assert not placement.forearm_turn_deg
+        turned += list(placement.arm_turn_deg.values())
+    assert turned and min(turned) > 20  # the transfer ran (T-shirts on the A-pose, the A-pose shirt on the T-pose)
+
+
+@pytest.fixture(scope="module")
+def long_t_pose_shirt():
+    """(A-posed Anny, garment config (`_any_sleeve`: see the last assertions below), the long-sleeved shirt
+    modelled on T-posed Anny (V, 3) m and its faces, the same shirt posed by the helper's rig onto A-posed Anny's
+    arms ((V', 3) m, faces): where the transfer should put it)."""
+    tpose = body_from_config(load_config(["body=anny_tpose"]).body)
+    p, f, _, _ = long_sleeve_shirt(tpose)
+    body = body_from_config(load_config(["body=anny"]).body)
+    truth = long_sleeve_shirt(body)[:2]
+    gcfg = _any_sleeve(load_config(["body=anny", "garment=obj", "garment.obj=x", "garment.position_unit=dm"]).garment)
+    # its collar registered where it was modelled (the neck is where it was): what is measured is the transfer
+    neck = tpose.skeleton.rest_heads[tpose.skeleton.index("neck")].double().numpy()
+    gcfg.placement.collar_offset = (openings(p, f)[0]["centre"] - neck).tolist()
+    return body, gcfg, p, f, truth
+
+
+def _forearm_degrees(x, f, body) -> int:
+    """How far round the left forearm its sleeve's cloth past the elbow reaches (`sleeves_inside`'s measure)."""
+    return int(sleeves_inside(x, f, body, 361.0, "top").split("it reaches ")[1].split(" degrees")[0])
+
+
+def test_a_long_t_pose_sleeve_is_turned_at_the_shoulder_and_at_the_elbow(long_t_pose_shirt):
+    body, gcfg, p, f, truth = long_t_pose_shirt
+    x, placement = place_garment(10.0 * p, f, body, gcfg)  # decimetres, as an asset's file
+    x1, placement1 = place_garment(10.0 * p, f, body, _one_turn(gcfg))
+    # the upper arm turned onto the upper sleeve (~50 degrees), the forearm ~36 more about the elbow; one turn of
+    # the whole arm laid the sleeve along the forearm, bent forward, and left the upper sleeve off the upper arm
+    assert set(placement.forearm_turn_deg) == {"left", "right"} and min(placement.forearm_turn_deg.values()) > 20
+    assert 35 < min(placement.arm_turn_deg.values()) < 65 and "forearm" in placement.lines()[0]
+    assert not placement1.forearm_turn_deg
+    sleeve = np.abs(p[:, 0]) > 0.25
+    near, near1 = (cKDTree(truth[0]).query(y[sleeve])[0] for y in (x, x1))  # the sleeves against the rig's
+    assert near.mean() < 0.02 and near.max() < 0.06, (near.mean(), near.max())  # 1.3 cm, 4.6 cm
+    assert near1.mean() > 0.04  # 5 cm, 21 cm at most
+    axes = sleeve_axes(x, f, body)  # the sleeves' outer halves along the forearms' skin
+    assert all(a["angle_deg"] < 10.0 for a in axes.values()), axes
+    # round the forearm about as far as the rig's own shirt (287 and 296 degrees; one turn: 32): the sleeve now sits,
+    # where one turn is refused
+    assert _forearm_degrees(x, f, body) > _forearm_degrees(*truth, body) - 30
+    assert _forearm_degrees(x1, f, body) < 90
+    need = float(load_config(["body=anny", "garment=obj", "garment.obj=x"]).garment.shrinkwrap.min_encircled_deg)
+    assert sits(x, f, body, gcfg.placement, "top", None, need) is None
+    assert "does not surround the body's left forearm" in sits(x1, f, body, gcfg.placement, "top", None, need)
 
 
 def test_loose_vertices_are_dropped_and_counted_and_a_mesh_without_uvs_gets_front_and_back(world, caplog):

@@ -114,6 +114,9 @@ def tube_axis(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]
     return v[:, 0], float(w[0] / max(w[1], 1e-30))
 
 
+TUBE_LIMIT = 0.35  # `tube_axis`'s least / middle eigenvalue past which faces are no tube (a flap, a cape)
+
+
 def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dict]:
     """The axis of each sleeve of a garment at its rest positions (V, 3), against the body's rest arm.
 
@@ -142,13 +145,13 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dic
         lo, hi = x0 + 0.5 * (reach.max() - x0), reach.max()
         sel = (reach > lo) & (centre[:, 1] > 0.0)
         sleeve = tube_axis(p, f[sel])
-        if sleeve is None or sleeve[1] > 0.35:  # not a tube (a flat flap, a cape): no axis to compare
+        if sleeve is None or sleeve[1] > TUBE_LIMIT:  # not a tube (a flat flap, a cape): no axis to compare
             continue
         axis = sleeve[0] * (1.0 if sgn * sleeve[0][0] >= 0 else -1.0)  # pointing away from the body
         body_reach = sgn * body_centre[:, 0]
         skin = tube_axis(bv, bf[body.parts[row].cpu().numpy()[bf].all(1) & (body_reach > lo) & (body_reach <= hi)
                                 & (body_centre[:, 1] > 0.0)])
-        arm = arms[side] if skin is None or skin[1] > 0.35 else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
+        arm = arms[side] if skin is None or skin[1] > TUBE_LIMIT else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
         angle = float(np.degrees(np.arccos(np.clip(abs(axis @ arm), 0.0, 1.0))))
         out[side] = {"axis": axis, "arm": arm, "angle_deg": angle, "droop_deg": droop_deg(axis),
                      "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum()), "centre": centre[sel].mean(0)}
@@ -266,12 +269,14 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
 ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's
+FLAP_REACH = 0.12  # m from a forearm's bones: cloth this near it past the elbow lies along the forearm
 
 
 def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
-    """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow) on a body with
-    forearms, and a sleeve there does not surround the forearm: then which, in words (`encircled_degrees` of the
-    centres of the faces past the elbow about the forearm's bones; a sleeve that passes the elbow nowhere near
+    """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow, or past it along
+    the forearm within FLAP_REACH of its bones) on a body with forearms, and a sleeve there does not surround the
+    forearm: then which, in words (`encircled_degrees` of the centres of the faces past the elbow about the
+    forearm's bones; a sleeve that passes the elbow nowhere near
     the forearm reaches a few degrees round it, or too few faces to say: refused too). A short sleeve is not
     measured: round a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and wraps well."""
     if kind != "top":
@@ -283,7 +288,14 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
         if len(segs) < 2:
             continue
         sgn = 1.0 if side == "left" else -1.0
-        past = sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE  # sideways past the elbow
+        # past the elbow: sideways (a sleeve modelled on another arm, in the air) or along the forearm's bones
+        # near them (an A-posed forearm points forward and down: a sideways bound cuts its sleeve's inner half)
+        elbow, end = segs[1, 0], segs[-1, 1]
+        ab = end - elbow
+        t = (centre - elbow) @ ab / max(float(ab @ ab), 1e-12)
+        off = np.linalg.norm(centre - (elbow + np.clip(t, 0.0, 1.0)[:, None] * ab), axis=1)
+        along = (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (off < FLAP_REACH)
+        past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE) | along
         if past.sum() < 8:
             continue
         deg = encircled_degrees(centre[past], segs[1:])
@@ -294,9 +306,6 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
                     f"garment.shrinkwrap.min_encircled_deg = {min_deg:g}): a sleeve modelled on another arm, or a "
                     "cape's or poncho's flap")
     return None
-
-
-FLAP_REACH = 0.12  # m from a forearm's bones: cloth this near it past the elbow lies along the forearm
 
 
 def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_deg: float) -> None:

@@ -12,7 +12,9 @@ file's numbers, where a person would put them on the rest body of ``body``, in f
    (within ``placement.scale_range``) until the torso's cloth is outside the body;
 3. **rest-pose transfer**: sleeves modelled at another arm angle (a T-pose top on an A-posed body, or the
    other way round) turn the body's arms to the sleeves, the garment takes the skinning weights of the posed
-   body where it lies (sleeves follow the arms), and is skinned back to the body's rest pose;
+   body where it lies (sleeves follow the arms), and is skinned back to the body's rest pose; a sleeve that
+   reaches past the elbow turns the arm in two (the upper arm onto its inner band, the forearm about the elbow
+   onto its outer band: `_elbow_turn`), a shorter one the whole arm as one bone;
 4. **pushed out** of the rest body by ``placement.push_out_margin``;
 5. **checked**: a garment that still does not sit (its collar below the shoulders, its cloth far from the
    body, a bottom's waist off the waist) is refused in one line: never a silent fit.
@@ -34,7 +36,7 @@ from scipy.spatial import cKDTree
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
 from pbc.geometry.body.skeleton import descendants, limb_segments
-from pbc.geometry.garment.checks import ARM_JOINTS, sleeve_axes, sleeves_inside
+from pbc.geometry.garment.checks import ARM_JOINTS, TUBE_LIMIT, sleeve_axes, sleeves_inside, tube_axis
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import boundary_loops, encircled_degrees, mesh_pieces, push_out
@@ -62,9 +64,12 @@ class Placement:
     distance_before: float = float("nan")  # m, median |distance| to the rest body, as the file's numbers in metres
     distance_after: float = float("nan")  # m, the same after placement
     pushed_out: int = 0  # vertices moved out of the body
+    forearm_turn_deg: dict = field(default_factory=dict)  # side -> degrees its forearm turned further, at the elbow
 
     def lines(self) -> list[str]:
-        turn = ", ".join(f"{s} arm turned {d:.0f} deg" for s, d in self.arm_turn_deg.items()) or "none"
+        turn = ", ".join(f"{s} arm turned {d:.0f} deg" + (f" (its forearm {self.forearm_turn_deg[s]:.0f} deg more "
+                                                          "at the elbow)" if s in self.forearm_turn_deg else "")
+                         for s, d in self.arm_turn_deg.items()) or "none"
         how = "kept as given (it already sits on the body)" if self.kept else (
             f"unit {self.unit_name} ({self.unit:.4g} m per file unit), then shifted by "
             f"{np.round(self.translation, 3).tolist()} m")
@@ -180,27 +185,44 @@ def arm_chain(body: Body, side: str) -> set[int]:
     return descendants(body.skeleton, ARM_JOINTS[side])
 
 
+def forearm_joint(body: Body, side: str) -> str | None:
+    """The name of the joint below one side's arm joint (its forearm), or None for an arm of one bone."""
+    sk = body.skeleton
+    children = [j for j, par in enumerate(sk.parents) if par == sk.index(ARM_JOINTS[side])]
+    return sk.names[children[0]] if children else None
+
+
+def _rigid(rot: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """(4, 4) the turn rot (3, 3) about pivot (3,)."""
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = rot, pivot - rot @ pivot
+    return t
+
+
 def _arm_transforms(body: Body, turns: dict) -> torch.Tensor:
     """(J+1, 4, 4) bone transforms of the body with each side's arm chain (its arm joint and every joint below
     it) turned by turns[side] = (R (3, 3) root axes, pivot (3,)) about the pivot, every other bone at rest. The
     pivot is the garment's own shoulder (on its sleeve's axis), not the body's joint: a sleeve modelled on
-    another body turns where its maker turned it."""
+    another body turns where its maker turned it. A turn with an ``elbow`` (3,) (`_elbow_turn`) turns the
+    forearm's chain (the forearm joint and every joint below it) further by its ``fore_rot`` (3, 3) about that
+    point, the garment's own elbow on the turned upper arm's sleeve axis."""
     sk = body.skeleton
     out = torch.eye(4, dtype=torch.float64).repeat(sk.num_joints + 1, 1, 1)
     for side, turn in turns.items():
-        rot, pivot = turn["rot"], turn["pivot"]
-        chain = arm_chain(body, side)
-        t = np.eye(4)
-        t[:3, :3], t[:3, 3] = rot, pivot - rot @ pivot
-        for j in chain:
-            out[1 + j] = torch.as_tensor(t)
+        t = _rigid(turn["rot"], turn["pivot"])
+        fore = descendants(sk, forearm_joint(body, side)) if "elbow" in turn else set()
+        t_fore = _rigid(turn["fore_rot"], turn["elbow"]) @ t if fore else t
+        for j in arm_chain(body, side):
+            out[1 + j] = torch.as_tensor(t_fore if j in fore else t)
     return out
 
 
-def _unpose(points: np.ndarray, body: Body, turns: dict, neighbours: int, ramp: float) -> np.ndarray:
+def _unpose(points: np.ndarray, body: Body, turns: dict, neighbours: int, ramp: float,
+            elbow_ramp: float = 0.0) -> np.ndarray:
     """Garment points on the body with its arms turned (`_arm_transforms` of turns) taken back to its rest pose,
     with the skinning weights of the posed body's nearest vertices (inverse-distance blended), each sleeve's own
-    points held to its arm (`_sleeve_membership`): (P, 3)."""
+    points held to its arm (`_sleeve_membership`), a long sleeve's split between its upper arm and its forearm
+    across the elbow (`_forearm_share`, over elbow_ramp m): (P, 3)."""
     transforms = _arm_transforms(body, turns)
     weights = body.weights.double()
     posed = torch.einsum("vk,kij->vij", weights, transforms[:, :3, :]).numpy()  # per body vertex (Vb, 3, 4)
@@ -217,42 +239,151 @@ def _unpose(points: np.ndarray, body: Body, turns: dict, neighbours: int, ramp: 
         rest = 1.0 - had
         blend *= np.where(rest > 1e-9, (1.0 - want) / np.maximum(rest, 1e-9), 0.0)[:, None]  # the other bones
         blend[:, cols] = 0.0
-        blend[:, cols[0]] = want  # the chain turns as one bone (`_arm_transforms`)
+        if "elbow" in turn:  # two bones: the upper arm's turn, the forearm's chain's (`_arm_transforms`)
+            share = _forearm_share(points, turn, elbow_ramp)
+            blend[:, cols[0]] = want * (1.0 - share)
+            blend[:, 1 + body.skeleton.index(forearm_joint(body, side))] = want * share
+        else:
+            blend[:, cols[0]] = want  # the chain turns as one bone (`_arm_transforms`)
         # cloth the arm alone held, outside the sleeve (an A-posed arm against the torso's side): the shoulder's
         blend[:, 1 + body.skeleton.parents[min(cols) - 1]] += 1.0 - blend.sum(1)
     m = torch.einsum("pk,kij->pij", torch.as_tensor(blend), transforms[:, :3, :]).numpy()  # (P, 3, 4)
     return np.linalg.solve(m[:, :, :3], (points - m[:, :, 3])[..., None])[..., 0]
 
 
-def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, limit_deg: float) -> dict:
-    """Per side whose sleeve is more than limit_deg off the rest arm (`sleeve_axes`: like with like, the arm's
-    skin in the sleeve's band): {rot (3, 3) turning the rest arm onto the sleeve, pivot (3,) the point of the
-    sleeve's axis nearest the body's shoulder joint, axis (3,), radius (m) of the sleeve round it}; {} when no
-    sleeve is off."""
+def _band_radius(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
+    """The median distance (m) of the points within SLEEVE_BAND of centre (3,) along axis (3,) from that axis."""
+    rel = points - centre
+    along = rel @ axis
+    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    band = (np.abs(along) < SLEEVE_BAND) & (radial < 2 * SLEEVE_BAND)
+    return float(np.median(radial[band])) if band.any() else SLEEVE_BAND
+
+
+def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> dict:
+    """Per side whose sleeve is more than pcfg.transfer_min_deg off the rest arm (`sleeve_axes`: like with like,
+    the arm's skin in the sleeve's band): {rot (3, 3) turning the rest arm onto the sleeve, pivot (3,) the point
+    of the sleeve's axis nearest the body's shoulder joint, axis (3,), radius (m) of the sleeve round it}, with
+    the elbow's turn (`_elbow_turn`) in place of the one turn for a sleeve that reaches past the elbow; {} when
+    no sleeve is off."""
     sk = body.skeleton
     out = {}
     for side, a in sleeve_axes(points, faces, body).items():
-        if side in ARM_JOINTS and a["angle_deg"] > limit_deg:
+        if side in ARM_JOINTS and a["angle_deg"] > float(pcfg.transfer_min_deg):
             joint = sk.rest_heads[sk.index(ARM_JOINTS[side])].double().numpy()
             pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
-            rel = points - a["centre"]
-            along = rel @ a["axis"]
-            radial = np.linalg.norm(rel - along[:, None] * a["axis"], axis=1)
-            band = (np.abs(along) < SLEEVE_BAND) & (radial < 2 * SLEEVE_BAND)
             out[side] = {"rot": _rotation_between(a["arm"], a["axis"]), "pivot": pivot, "axis": a["axis"],
-                         "radius": float(np.median(radial[band])) if band.any() else SLEEVE_BAND}
+                         "radius": _band_radius(points, a["centre"], a["axis"])}
+            if pcfg.get("forearm_turn", False):
+                out[side] = _elbow_turn(points, faces, body, side, out[side], pcfg) or out[side]
     return out
+
+
+def _skin_band_axis(body: Body, side: str, bone: np.ndarray, band) -> np.ndarray | None:
+    """(3,) the axis of the body's arm skin (its part's faces) whose centres lie over the fraction ``band``
+    (lo, hi) of the bone (2, 3) (rest heads, m), pointing down the bone; None where that is no tube. Like with
+    like: a sleeve's band is compared with the skin it covers, not the bone's line."""
+    row = 1 if side == "left" else 2
+    bv = body.vertices.double().cpu().numpy()
+    bf = body.faces.cpu().numpy()
+    centre = bv[bf].mean(1)
+    d = bone[1] - bone[0]
+    t = (centre - bone[0]) @ d / max(float(d @ d), 1e-12)
+    sel = body.parts[row].cpu().numpy()[bf].all(1) & (t >= float(band[0])) & (t <= float(band[1]))
+    skin = tube_axis(bv, bf[sel])
+    if skin is None or skin[1] > TUBE_LIMIT:
+        return None
+    return skin[0] * (1.0 if skin[0] @ d >= 0 else -1.0)
+
+
+def _sleeve_band_axis(points: np.ndarray, faces: np.ndarray, turn: dict, reach) -> tuple[np.ndarray, np.ndarray] | None:
+    """(3,) the axis and (3,) the centre of the sleeve's band of faces whose centres are ``reach`` (lo, hi) m
+    from its pivot, within 1.5 sleeve radii of its axis (turn's, `_transfer_turns`): the axis points away from
+    the pivot. None where that is no tube. The distance from the pivot, not the reach along the axis, holds a
+    sleeve bent at the elbow (an A-posed arm's) in the same band as a straight one."""
+    centre = points[faces].mean(1)
+    rel = centre - turn["pivot"]
+    along = rel @ turn["axis"]
+    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
+    dist = np.linalg.norm(rel, axis=1)
+    sel = (radial < 1.5 * turn["radius"]) & (along > 0.0) & (dist >= float(reach[0])) & (dist <= float(reach[1]))
+    tube = tube_axis(points, faces[sel])
+    if tube is None or tube[1] > TUBE_LIMIT:
+        return None
+    axis = tube[0] * (1.0 if tube[0] @ (centre[sel].mean(0) - turn["pivot"]) >= 0 else -1.0)
+    return axis, centre[sel].mean(0)
+
+
+def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, turn: dict, pcfg) -> dict | None:
+    """The arm turned in two for a sleeve that reaches past the body's elbow by pcfg.elbow_reach m (along its
+    axis from its pivot, `_transfer_turns`' one turn): the upper arm's skin over pcfg.upper_band (fractions of
+    the upper arm) onto the sleeve's band as far from its shoulder, then the forearm's skin over
+    pcfg.forearm_band onto the sleeve's band there, turned about the garment's elbow (on its upper sleeve's axis,
+    as far from its shoulder as the body's elbow from its shoulder joint). One turn of the whole arm lays a long
+    T-pose sleeve along an A-posed body's forearm, bent forward at the elbow, and leaves its upper part off the
+    upper arm. {rot, pivot, axis, radius (the upper sleeve's), elbow (3,), fore_rot (3, 3) (root axes, after
+    rot), fore_axis (3,), fore_radius}; None for a shorter sleeve, an arm of one bone, or a band that is no tube
+    (then the one turn stands). The bands are picked round the one turn's axis: a sleeve modelled bent at the
+    elbow (an A-posed long sleeve) has its upper part off that axis, finds no upper band and keeps one turn."""
+    fore = forearm_joint(body, side)
+    if fore is None:
+        return None
+    sk = body.skeleton
+    heads = sk.rest_heads.double().cpu().numpy()
+    segs = limb_segments(sk, ARM_JOINTS[side])  # shoulder -> elbow -> wrist (-> ...)
+    upper_len, fore_len = (float(np.linalg.norm(s[1] - s[0])) for s in segs[:2])
+    rel = points - turn["pivot"]
+    along = rel @ turn["axis"]
+    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
+    reach = float(along[radial < 1.5 * turn["radius"]].max(initial=0.0))
+    if reach < upper_len + float(pcfg.elbow_reach):
+        return None
+    ub, fb = pcfg.upper_band, pcfg.forearm_band
+    upper = _sleeve_band_axis(points, faces, turn, [upper_len * float(ub[0]), upper_len * float(ub[1])])
+    lower = _sleeve_band_axis(points, faces, turn, [upper_len + fore_len * float(fb[0]),
+                                                    min(upper_len + fore_len * float(fb[1]), reach)])
+    arm_axis = _skin_band_axis(body, side, segs[0], ub)
+    fore_axis = _skin_band_axis(body, side, segs[1], fb)
+    if upper is None or lower is None:
+        return None
+    arm_axis = (segs[0][1] - segs[0][0]) / upper_len if arm_axis is None else arm_axis
+    fore_axis = (segs[1][1] - segs[1][0]) / fore_len if fore_axis is None else fore_axis
+    (g1, c1), (g2, c2) = upper, lower
+    joint = heads[sk.index(ARM_JOINTS[side])]
+    pivot = c1 + g1 * float((joint - c1) @ g1)
+    rot = _rotation_between(arm_axis, g1)
+    # the garment's elbow: as far down its upper sleeve from its shoulder as the body's elbow down its upper arm
+    elbow = pivot + g1 * float((heads[sk.index(fore)] - joint) @ arm_axis)
+    return {"rot": rot, "pivot": pivot, "axis": g1, "radius": _band_radius(points, c1, g1), "elbow": elbow,
+            "fore_rot": _rotation_between(rot @ fore_axis, g2), "fore_axis": g2,
+            "fore_radius": _band_radius(points, c2, g2)}
+
+
+def _forearm_share(points: np.ndarray, turn: dict, ramp: float) -> np.ndarray:
+    """(P,) 0..1 how much of each point's arm weight is the forearm's: past the plane through the turn's elbow
+    halfway between its upper and lower sleeve axes (a bent sleeve's elbow), over a ramp of ``ramp`` m across it,
+    as a rig's weights blend across a joint."""
+    n = turn["axis"] + turn["fore_axis"]
+    n = n / max(float(np.linalg.norm(n)), 1e-12)
+    return np.clip((points - turn["elbow"]) @ n / max(ramp, 1e-9) + 0.5, 0.0, 1.0)
 
 
 def _sleeve_membership(points: np.ndarray, turn: dict, ramp: float) -> tuple[np.ndarray, np.ndarray]:
     """How much each point belongs to the sleeve (P,) 0..1: beyond the pivot along the sleeve's axis (a ramp of
     `ramp` m across it) within 1.5 sleeve radii of the axis; and (P,) bool, whether it lies in that cylinder at
     all. A loose sleeve's underside lies nearer the torso's side than the arm, and an A-posed arm lies against
-    the torso's side: the nearest body vertex alone would leave the one behind and carry the other off."""
+    the torso's side: the nearest body vertex alone would leave the one behind and carry the other off. With an
+    elbow (`_elbow_turn`), past the elbow's plane (`_forearm_share`) the cylinder is the forearm's: 1.5 forearm
+    band radii round the lower sleeve's axis through the elbow."""
     rel = points - turn["pivot"]
     along = rel @ turn["axis"]
     radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
     cylinder = (radial < 1.5 * turn["radius"]) & (along > -0.5 * ramp)
+    if "elbow" in turn:  # past the elbow the sleeve lies round the lower axis (a bent sleeve's is off the upper)
+        rel = points - turn["elbow"]
+        fore = np.linalg.norm(rel - (rel @ turn["fore_axis"])[:, None] * turn["fore_axis"], axis=1)
+        cylinder = np.where(_forearm_share(points, turn, 0.0) > 0.5, (fore < 1.5 * turn["fore_radius"]) & (along > 0.0),
+                            cylinder)
     return np.clip(along / ramp + 0.5, 0.0, 1.0) * cylinder, cylinder
 
 
@@ -326,6 +457,11 @@ def has_legs(body: Body) -> bool:
     return bool((body.skeleton.rest_heads[:, 1] < -LEG_BELOW_ROOT).any())
 
 
+def _degrees(rot: np.ndarray) -> float:
+    """The angle (degrees) of a rotation (3, 3)."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
+
+
 def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where: str = "<garment>"
                   ) -> tuple[np.ndarray, Placement]:
     """The garment's vertices (V, 3), in the file's numbers, placed on the rest body: (V, 3) m and what was
@@ -375,18 +511,21 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
                 x, unit = y, unit * s
                 break
     turned: dict[str, float] = {}
+    forearm: dict[str, float] = {}
     for _ in range(int(pcfg.transfer_iterations) if kind == "top" else 0):
         # each pass takes what the last left: a long sleeve's band follows the forearm, not the upper arm turned
-        turns = _transfer_turns(x, f, body, float(pcfg.transfer_min_deg))
+        turns = _transfer_turns(x, f, body, pcfg)
         if not turns:
             break
-        x = _unpose(x, body, turns, int(pcfg.skin_neighbours), float(pcfg.sleeve_ramp))
+        x = _unpose(x, body, turns, int(pcfg.skin_neighbours), float(pcfg.sleeve_ramp),
+                    float(pcfg.get("elbow_ramp", pcfg.sleeve_ramp)))
         for side, turn in turns.items():
-            r = turn["rot"]
-            turned[side] = turned.get(side, 0.0) + float(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
+            turned[side] = turned.get(side, 0.0) + _degrees(turn["rot"])
+            if "elbow" in turn:
+                forearm[side] = forearm.get(side, 0.0) + _degrees(turn["fore_rot"])
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
     placement = Placement(unit, name, kind, target - _anchor(p * unit, f, kind)[0], False, turned, before,
-                          float(np.median(np.abs(_sdf(body, x)))), stats["inside"])
+                          float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
     wrong = sits(x, f, body, pcfg, kind, lm, float(gcfg.shrinkwrap.min_encircled_deg))
     if wrong is not None:
         raise ValueError(f"{where}: placed on the body ({placement.unit_name}, shifted by "
