@@ -35,6 +35,9 @@ def parser() -> argparse.ArgumentParser:
     pk.add_argument("--command", metavar="TEXT", help="the command that trained the run, for the model card")
     pk.add_argument("--notes", metavar="FILE", help="a markdown file the model card carries after its table (the "
                     "data's provenance and licence, scores beyond the test split)")
+    pk.add_argument("--test-poses", metavar="N", type=int, help="ship (and score the card on) the first N poses of "
+                    "the test split (default: all; their drapes are most of a shipped model's bytes, and it should "
+                    "stay under 8 MB)")
     pk.add_argument("--commit", metavar="TEXT", help="the commit the run was trained with, for the model card (the "
                     "run records none; default: this checkout's)")
     return ap
@@ -52,7 +55,8 @@ def run(argv: list[str]) -> int:
                   f"{info.get('mean_shape_test_vertex_error_cm')} cm) over {info.get('test_poses')} test poses of "
                   f"{info.get('dataset', {}).get('name')}; {pretrained_dir(name) / CARD}")
         return 0
-    info = pack_run(args.run, args.name, args.out, args.data, args.trained_on, args.command, args.commit, args.notes)
+    info = pack_run(args.run, args.name, args.out, args.data, args.trained_on, args.command, args.commit, args.notes,
+                    args.test_poses)
     out = args.out or SHIPPED_DIR / args.name
     print(f"{args.name} -> {out}: {info['bytes']['total'] / 1e6:.2f} MB (weights {info['bytes']['weights'] / 1e6:.2f} "
           f"MB); test vertex error {info['test_vertex_error_cm']:.3f} cm (fp16) vs the training mean shape's "

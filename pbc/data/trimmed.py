@@ -38,12 +38,15 @@ def range_table(rng: np.ndarray, names: Sequence[str]) -> dict:
 
 
 def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean_offsets: torch.Tensor | np.ndarray,
-                 space: str, split: str = "test") -> Path:
-    """Write `ds` cut to `split` under `out` (replaced if it exists), with the training split's joint-angle
-    range `pose_range` (J, 3, 2) degrees and mean offsets (V, 3) in the models' `space`. Returns `out`."""
+                 space: str, split: str = "test", max_rows: int | None = None) -> Path:
+    """Write `ds` cut to `split` (its first `max_rows` rows; None: all) under `out` (replaced if it exists), with
+    the training split's joint-angle range `pose_range` (J, 3, 2) degrees and mean offsets (V, 3) in the models'
+    `space`. Returns `out`."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; choose one of {SPLITS}")
-    idx = ds.split(split)
+    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1):
+        raise ValueError(f"max_rows={max_rows!r}: give the number of {split} poses to ship, an integer >= 1")
+    idx = ds.split(split)[:max_rows]
     if len(idx) == 0:
         raise ValueError(f"split {split!r} of {ds.dir} is empty: nothing to ship for scoring")
     out = Path(out)

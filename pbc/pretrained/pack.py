@@ -147,17 +147,20 @@ def shipped_pose_range(run, ds) -> tuple[dict, str]:
 
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,
              trained_on: str | None = None, command: str | None = None, commit: str | None = None,
-             notes: str | Path | None = None) -> dict:
+             notes: str | Path | None = None, test_poses: int | None = None) -> dict:
     """Pack the whole-shirt run `run_dir` as shipped model `name` under `out` (default pbc/pretrained/<name>,
     replaced). data_dir: the run's dataset when it moved; trained_on: the training machine in words (the
     run records none; default: its trainer.accelerator and this machine); command: how the run was made
     (for the card); commit: the code the run was trained with (the run records none; default: this
     checkout's, which packs it); notes: a markdown file whose text the card carries after its table (where the
-    data came from, its licence, what was measured beyond the test split). Returns the card's numbers (also
-    metrics.json's "pretrained" block)."""
+    data came from, its licence, what was measured beyond the test split); test_poses: ship and score the first
+    this many poses of the test split (None: all; the split's drapes are most of a shipped model's bytes).
+    Returns the card's numbers (also metrics.json's "pretrained" block)."""
     t0 = time.time()
     if not name or not name.replace("_", "").replace("-", "").isalnum():
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
+    if test_poses is not None and (isinstance(test_poses, bool) or not isinstance(test_poses, int) or test_poses < 1):
+        raise ValueError(f"--test-poses {test_poses!r}: give the number of test poses to ship, an integer >= 1")
     note_text = _read_notes(notes)  # before anything of a shipped model is replaced
     run = read_run(run_dir)
     if run.kind.value not in WHOLE_KINDS:
@@ -176,7 +179,8 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
                   out / "checkpoints" / WEIGHTS)
     mean = mean_training_offsets(full)
     pose_range, range_source = shipped_pose_range(run, ds)
-    trim_dataset(ds, out / DATA, range_from_record(pose_range, ds.body.skeleton.names), mean, full.space, "test")
+    trim_dataset(ds, out / DATA, range_from_record(pose_range, ds.body.skeleton.names), mean, full.space, "test",
+                 test_poses)
     shipped = load_dataset(out / DATA)
     record = run.record
     info = {
@@ -215,6 +219,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     diff = (s16["positions"] - s32["positions"]).norm(dim=-1)
     info.update({
         "test_poses": int(len(poses)),
+        "test_split_poses": int(len(ds.split("test"))),
         "test_vertex_error_cm": round(float(s16["model"].mean()), 4),
         "test_vertex_error_cm_std": round(float(s16["model"].std()), 4),
         "mean_shape_test_vertex_error_cm": round(float(s16["mean_shape"].mean()), 4),
@@ -249,6 +254,8 @@ def _read_notes(notes) -> str | None:
 def model_card(i: dict, pose_range: dict | None = None) -> str:
     """MODEL_CARD.md from the numbers `pack_run` measured, and the training poses' range (RunRecord.pose_range)."""
     d, sch, n = i["dataset"], i["schedule"], i["test_poses"]
+    split_n = i.get("test_split_poses", n)
+    which = f"the {n} test poses" if split_n == n else f"the first {n} of the {split_n} test poses"
     sched = "none" if not sch["model.scheduler"] else "yes (metrics.json config)"
     rows = [
         ("network", i.get("network") or "the whole-garment CNN"),
@@ -264,7 +271,7 @@ def model_card(i: dict, pose_range: dict | None = None) -> str:
         ("weights", f"{i['parameters']:,} parameter and buffer values in float16, a deflated torch file: "
                     f"{i['bytes']['weights'] / 1e6:.2f} MB"),
         ("test vertex error", f"**{i['test_vertex_error_cm']:.3f} cm** (std {i['test_vertex_error_cm_std']:.3f}) "
-                              f"over the {n} test poses, fp16 weights"),
+                              f"over {which}, fp16 weights"),
         ("training mean shape", f"{i['mean_shape_test_vertex_error_cm']:.3f} cm on the same poses (the training "
                                 "split's mean offsets, skinned)"),
         ("fp16 vs fp32", f"fp32 checkpoint {i['fp32_test_vertex_error_cm']:.3f} cm; positions differ by "

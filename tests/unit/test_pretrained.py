@@ -209,6 +209,24 @@ def test_pack_refuses_a_patch_run_and_a_bad_name(shipped, tmp_path):
         pack.pack_run(patch, "p", tmp_path / "out")
     with pytest.raises(ValueError, match="plain name"):
         pack.pack_run(shipped[1], "../x", tmp_path / "out")
+    with pytest.raises(ValueError, match="--test-poses 0: give the number of test poses to ship"):
+        pack.pack_run(shipped[1], "x", tmp_path / "out", test_poses=0)
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_pack_ships_the_first_test_poses_asked_for(shipped, tmp_path, monkeypatch):
+    """--test-poses N: the first N rows of the test split ship, the card scores them and says of how many."""
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    full = shipped[2]
+    test = full.split("test")
+    assert len(test) >= 2
+    info = pack.pack_run(shipped[1], "few", tmp_path / "few", test_poses=1)
+    ds = load_dataset(tmp_path / "few" / "data")
+    assert info["test_poses"] == 1 == len(ds.split("test")) and info["test_split_poses"] == len(test)
+    np.testing.assert_array_equal(np.asarray(ds.verts), np.asarray(full.verts)[test[:1]])
+    assert ds.manifest["trimmed_from"]["rows"] == [int(test[0])]
+    card = (tmp_path / "few" / "MODEL_CARD.md").read_text()
+    assert f"over the first 1 of the {len(test)} test poses, fp16 weights" in card
 
 
 def test_a_fully_connected_run_predicts_and_packs(shipped, tmp_path, monkeypatch):
