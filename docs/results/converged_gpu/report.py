@@ -53,10 +53,12 @@ def hierarchy_lines(runs: dict) -> list[str]:
         (f"28 patches stitched: {m}", f"patches_{m}") for m in ("pca", "cage", "average", "inpaint", "hierarchy",
                                                                 "hierarchy_detail")]
     out = ["", f"### Hierarchy: 28 stitched patch models vs the whole model (L1, seed 0, {ev['num_samples']} test "
-           "poses)", "", "| entry | vertex error (cm) | normal distance | seam jump (cm) |", "| --- | --- | --- | --- |"]
+           "poses)", "", "| entry | vertex error (cm) | normal distance | seam jump (cm) |",
+           "| --- | --- | --- | --- |"]
     out += [f"| {label} | {e[k]['vertex_error_cm']:.3f} | {e[k]['normal_distance']:.4f} | {e[k]['seam_jump_cm']:.3f} |"
             for label, k in rows if k in e]
-    out += ["", f"Patch models: {runs['hier_patches_s0']['epochs']} of 41 epochs ({runs['hier_patches_s0']['stopped_by']}); "
+    hier = runs["hier_patches_s0"]
+    out += ["", f"Patch models: {hier['epochs']} of 41 epochs ({hier['stopped_by']}); "
             f"neighbouring patches disagree by {ev['patch_disagreement_before_blend_cm']:.3f} cm across "
             f"{ev['seam_edges']} seam edges before blending."]
     return out
