@@ -37,6 +37,12 @@ def range_table(rng: np.ndarray, names: Sequence[str]) -> dict:
             for j, n in enumerate(names)}
 
 
+def check_max_rows(max_rows, split: str = "test", name: str = "max_rows") -> None:
+    """`trim_dataset`'s max_rows: None or an integer >= 1, else one ValueError saying so under `name`."""
+    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1):
+        raise ValueError(f"{name} {max_rows!r}: give the number of {split} poses to ship, an integer >= 1")
+
+
 def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean_offsets: torch.Tensor | np.ndarray,
                  space: str, split: str = "test", max_rows: int | None = None) -> Path:
     """Write `ds` cut to `split` (its first `max_rows` rows; None: all) under `out` (replaced if it exists), with
@@ -44,8 +50,7 @@ def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean
     `space`. Returns `out`."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; choose one of {SPLITS}")
-    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1):
-        raise ValueError(f"max_rows={max_rows!r}: give the number of {split} poses to ship, an integer >= 1")
+    check_max_rows(max_rows, split)
     idx = ds.split(split)[:max_rows]
     if len(idx) == 0:
         raise ValueError(f"split {split!r} of {ds.dir} is empty: nothing to ship for scoring")

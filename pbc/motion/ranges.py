@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from pbc.geometry.body.skeleton import AXES, xzy_angles
+from pbc.geometry.body.skeleton import AXES, geodesic_deg, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
 
 
@@ -46,12 +46,6 @@ def other_angles(angles: np.ndarray) -> np.ndarray:
     a = np.asarray(angles, dtype=np.float64)
     b = np.stack([a[..., 0] + 180.0, a[..., 1] + 180.0, 180.0 - a[..., 2]], -1)
     return (b + 180.0) % 360.0 - 180.0
-
-
-def geodesic_deg(a, b) -> np.ndarray:
-    """(...,) the angle in degrees of the rotation between rotations a and b (..., 3, 3)."""
-    c = (np.einsum("...ij,...ij->...", np.asarray(a, np.float64), np.asarray(b, np.float64)) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def nearest_in_range(poses, rng: np.ndarray, tol: float = 0.0, steps: int = 300) -> tuple[np.ndarray, np.ndarray]:

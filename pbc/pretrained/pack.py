@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 from pbc.core.io import load_checkpoint, write_text
 from pbc.core.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
-from pbc.data.trimmed import recorded_mean_offsets, trim_dataset
+from pbc.data.trimmed import check_max_rows, recorded_mean_offsets, trim_dataset
 from pbc.inference.poses import training_pose_range
 from pbc.inference.predictor import WHOLE_KINDS, ClothPredictor
 from pbc.motion.ranges import range_from_record, range_table_record
@@ -159,8 +159,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     t0 = time.time()
     if not name or not name.replace("_", "").replace("-", "").isalnum():
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
-    if test_poses is not None and (isinstance(test_poses, bool) or not isinstance(test_poses, int) or test_poses < 1):
-        raise ValueError(f"--test-poses {test_poses!r}: give the number of test poses to ship, an integer >= 1")
+    check_max_rows(test_poses, "test", "--test-poses")  # before anything is written
     note_text = _read_notes(notes)  # before anything of a shipped model is replaced
     run = read_run(run_dir)
     if run.kind.value not in WHOLE_KINDS:

@@ -194,6 +194,12 @@ def xzy_angles(poses) -> np.ndarray:
     return np.degrees(np.stack([x, y, z], -1))
 
 
+def geodesic_deg(a, b) -> np.ndarray:
+    """(...,) the angle in degrees of the rotation between rotations a and b (..., 3, 3)."""
+    c = (np.einsum("...ij,...ij->...", np.asarray(a, np.float64), np.asarray(b, np.float64)) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
 def descendants(sk: Skeleton, joint: str) -> set[int]:
     """The joint (model-input index) named ``joint`` and every joint below it."""
     chain = {sk.index(joint)}

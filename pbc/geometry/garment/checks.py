@@ -272,6 +272,16 @@ ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long
 FLAP_REACH = 0.12  # m from a forearm's bones: cloth this near it past the elbow lies along the forearm
 
 
+def along_forearm(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
+    """(P,) bool: points (P, 3) past the elbow by ELBOW_CLEARANCE along the line from the elbow to the limb's end
+    and within FLAP_REACH of that segment. segs (S, 2, 3): the arm's bone segments (`limb_segments`, S >= 2)."""
+    a, b = segs[1, 0], segs[-1, 1]  # elbow -> the limb's end
+    ab = b - a
+    t = (points - a) @ ab / max(float(ab @ ab), 1e-12)
+    q = a + np.clip(t, 0.0, 1.0)[:, None] * ab
+    return (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (np.linalg.norm(points - q, axis=1) < FLAP_REACH)
+
+
 def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
     """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow, or past it along
     the forearm within FLAP_REACH of its bones) on a body with forearms, and a sleeve there does not surround the
@@ -290,12 +300,7 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
         sgn = 1.0 if side == "left" else -1.0
         # past the elbow: sideways (a sleeve modelled on another arm, in the air) or along the forearm's bones
         # near them (an A-posed forearm points forward and down: a sideways bound cuts its sleeve's inner half)
-        elbow, end = segs[1, 0], segs[-1, 1]
-        ab = end - elbow
-        t = (centre - elbow) @ ab / max(float(ab @ ab), 1e-12)
-        off = np.linalg.norm(centre - (elbow + np.clip(t, 0.0, 1.0)[:, None] * ab), axis=1)
-        along = (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (off < FLAP_REACH)
-        past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE) | along
+        past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE) | along_forearm(centre, segs)
         if past.sum() < 8:
             continue
         deg = encircled_degrees(centre[past], segs[1:])
@@ -318,11 +323,7 @@ def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_de
         segs = limb_segments(body.skeleton, joint)
         if len(segs) < 2:
             continue
-        a, b = segs[1, 0], segs[-1, 1]  # elbow -> the limb's end
-        ab = b - a
-        t = (p - a) @ ab / max(float(ab @ ab), 1e-12)
-        q = a + np.clip(t, 0.0, 1.0)[:, None] * ab
-        along = on_torso & (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (np.linalg.norm(p - q, axis=1) < FLAP_REACH)
+        along = on_torso & along_forearm(p, segs)
         if along.sum() >= 8:
             raise ValueError(
                 f"the garment cannot be wrapped: {int(along.sum())} of its vertices lie along the body's {side} "

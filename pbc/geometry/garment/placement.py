@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
-from pbc.geometry.body.skeleton import descendants, limb_segments
+from pbc.geometry.body.skeleton import descendants, geodesic_deg, limb_segments
 from pbc.geometry.garment.checks import ARM_JOINTS, TUBE_LIMIT, sleeve_axes, sleeves_inside, tube_axis
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
@@ -251,11 +251,17 @@ def _unpose(points: np.ndarray, body: Body, turns: dict, neighbours: int, ramp: 
     return np.linalg.solve(m[:, :, :3], (points - m[:, :, 3])[..., None])[..., 0]
 
 
+def _axial(points: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """points (P, 3) about the line through origin (3,) along the unit axis (3,): (P,) how far along it, (P,)
+    how far from it (m)."""
+    rel = points - origin
+    along = rel @ axis
+    return along, np.linalg.norm(rel - along[:, None] * axis, axis=1)
+
+
 def _band_radius(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
     """The median distance (m) of the points within SLEEVE_BAND of centre (3,) along axis (3,) from that axis."""
-    rel = points - centre
-    along = rel @ axis
-    radial = np.linalg.norm(rel - along[:, None] * axis, axis=1)
+    along, radial = _axial(points, centre, axis)
     band = (np.abs(along) < SLEEVE_BAND) & (radial < 2 * SLEEVE_BAND)
     return float(np.median(radial[band])) if band.any() else SLEEVE_BAND
 
@@ -274,7 +280,7 @@ def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> 
             pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
             out[side] = {"rot": _rotation_between(a["arm"], a["axis"]), "pivot": pivot, "axis": a["axis"],
                          "radius": _band_radius(points, a["centre"], a["axis"])}
-            if pcfg.get("forearm_turn", False):
+            if pcfg.forearm_turn:
                 out[side] = _elbow_turn(points, faces, body, side, out[side], pcfg) or out[side]
     return out
 
@@ -302,10 +308,8 @@ def _sleeve_band_axis(points: np.ndarray, faces: np.ndarray, turn: dict, reach) 
     the pivot. None where that is no tube. The distance from the pivot, not the reach along the axis, holds a
     sleeve bent at the elbow (an A-posed arm's) in the same band as a straight one."""
     centre = points[faces].mean(1)
-    rel = centre - turn["pivot"]
-    along = rel @ turn["axis"]
-    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
-    dist = np.linalg.norm(rel, axis=1)
+    along, radial = _axial(centre, turn["pivot"], turn["axis"])
+    dist = np.linalg.norm(centre - turn["pivot"], axis=1)
     sel = (radial < 1.5 * turn["radius"]) & (along > 0.0) & (dist >= float(reach[0])) & (dist <= float(reach[1]))
     tube = tube_axis(points, faces[sel])
     if tube is None or tube[1] > TUBE_LIMIT:
@@ -332,9 +336,7 @@ def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, tu
     heads = sk.rest_heads.double().cpu().numpy()
     segs = limb_segments(sk, ARM_JOINTS[side])  # shoulder -> elbow -> wrist (-> ...)
     upper_len, fore_len = (float(np.linalg.norm(s[1] - s[0])) for s in segs[:2])
-    rel = points - turn["pivot"]
-    along = rel @ turn["axis"]
-    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
+    along, radial = _axial(points, turn["pivot"], turn["axis"])
     reach = float(along[radial < 1.5 * turn["radius"]].max(initial=0.0))
     if reach < upper_len + float(pcfg.elbow_reach):
         return None
@@ -375,13 +377,10 @@ def _sleeve_membership(points: np.ndarray, turn: dict, ramp: float) -> tuple[np.
     the torso's side: the nearest body vertex alone would leave the one behind and carry the other off. With an
     elbow (`_elbow_turn`), past the elbow's plane (`_forearm_share`) the cylinder is the forearm's: 1.5 forearm
     band radii round the lower sleeve's axis through the elbow."""
-    rel = points - turn["pivot"]
-    along = rel @ turn["axis"]
-    radial = np.linalg.norm(rel - along[:, None] * turn["axis"], axis=1)
+    along, radial = _axial(points, turn["pivot"], turn["axis"])
     cylinder = (radial < 1.5 * turn["radius"]) & (along > -0.5 * ramp)
     if "elbow" in turn:  # past the elbow the sleeve lies round the lower axis (a bent sleeve's is off the upper)
-        rel = points - turn["elbow"]
-        fore = np.linalg.norm(rel - (rel @ turn["fore_axis"])[:, None] * turn["fore_axis"], axis=1)
+        fore = _axial(points, turn["elbow"], turn["fore_axis"])[1]
         cylinder = np.where(_forearm_share(points, turn, 0.0) > 0.5, (fore < 1.5 * turn["fore_radius"]) & (along > 0.0),
                             cylinder)
     return np.clip(along / ramp + 0.5, 0.0, 1.0) * cylinder, cylinder
@@ -457,11 +456,6 @@ def has_legs(body: Body) -> bool:
     return bool((body.skeleton.rest_heads[:, 1] < -LEG_BELOW_ROOT).any())
 
 
-def _degrees(rot: np.ndarray) -> float:
-    """The angle (degrees) of a rotation (3, 3)."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))))
-
-
 def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where: str = "<garment>"
                   ) -> tuple[np.ndarray, Placement]:
     """The garment's vertices (V, 3), in the file's numbers, placed on the rest body: (V, 3) m and what was
@@ -518,11 +512,11 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
         if not turns:
             break
         x = _unpose(x, body, turns, int(pcfg.skin_neighbours), float(pcfg.sleeve_ramp),
-                    float(pcfg.get("elbow_ramp", pcfg.sleeve_ramp)))
+                    float(pcfg.elbow_ramp))
         for side, turn in turns.items():
-            turned[side] = turned.get(side, 0.0) + _degrees(turn["rot"])
+            turned[side] = turned.get(side, 0.0) + float(geodesic_deg(turn["rot"], np.eye(3)))
             if "elbow" in turn:
-                forearm[side] = forearm.get(side, 0.0) + _degrees(turn["fore_rot"])
+                forearm[side] = forearm.get(side, 0.0) + float(geodesic_deg(turn["fore_rot"], np.eye(3)))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
     placement = Placement(unit, name, kind, target - _anchor(p * unit, f, kind)[0], False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
