@@ -13,6 +13,7 @@ Jobs (name: data, model):
 - table1_{loss}_s{seed}: the 1,478 mirrored rows, the whole CNN under loss l1, l2, l2_normal, l1_normal
   (table1_l1 is also Table 2's CNN column and the curve's mirrored 739-pose point);
 - table2_{experiment}_s{seed}: the same rows, the six fully connected baselines (L1);
+- table2_l2_{experiment}_s{seed}: the same six under L2 (the loss the CNN does best with here);
 - curve_n{n}_s{seed}: the first n training drapes without mirrors, the whole CNN under L1;
 - hier_patches_s{seed}: the same rows as Table 1, the 28 patch models (L1) as one stacked job
   (`+experiment=patches`), then `pbc.evaluate` stitches them under every seam method beside table1_l1_s{seed}
@@ -86,6 +87,8 @@ def jobs(seeds: tuple[int, ...]) -> list[dict]:
         out += [dict(name=f"table1_{loss}_s{seed}", data="n0739_mirror", experiment="whole", loss=loss, seed=seed)
                 for loss in LOSSES]
         out += [dict(name=f"table2_{e}_s{seed}", data="n0739_mirror", experiment=e, loss="l1", seed=seed) for e in FC]
+        out += [dict(name=f"table2_l2_{e}_s{seed}", data="n0739_mirror", experiment=e, loss="l2", seed=seed)
+                for e in FC]
         out += [dict(name=f"curve_n{n:04d}_s{seed}", data=f"n{n:04d}_plain", experiment="whole", loss="l1", seed=seed)
                 for n in SIZES]
         out.append(dict(name=f"hier_patches_s{seed}", data="n0739_mirror", experiment="patches", loss="l1", seed=seed))
@@ -135,6 +138,8 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--trainer", default="gpu", help="trainer preset (cpu: a smoke run here)")
     ap.add_argument("--extra", default="", help="space-separated overrides added to every pbc.train call (a smoke "
                     "run: 'trainer.limit_train_batches=2 trainer.limit_val_batches=1')")
+    ap.add_argument("--eval-methods", default="", help="comma list of seam methods pbc.evaluate scores (default: "
+                    "its conf's all six; a subset when the call's time is short)")
     ap.add_argument("--out", type=Path, help="where the tarball of run dirs (no checkpoints) and results go")
     args = ap.parse_args(argv)
     t0 = time.time()
@@ -196,6 +201,8 @@ def main(argv: list[str]) -> None:
             out = work / f"evaluate_s{seed}"
             argv = [sys.executable, "-m", "pbc.evaluate", f"whole_run='{work / 'runs' / f'table1_l1_s{seed}'}'",
                     f"patch_runs='{work / 'runs' / f'hier_patches_s{seed}'}'", f"hydra.run.dir={out}"]
+            if args.eval_methods:
+                argv.append(f"methods=[{args.eval_methods}]")
             log = open(work / f"evaluate_s{seed}.log", "w")  # noqa: SIM115 - closed when the process is waited on
             evals[seed] = (subprocess.Popen(argv, cwd=REPO, stdout=log, stderr=subprocess.STDOUT), log, out,
                            time.time())
