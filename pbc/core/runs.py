@@ -245,6 +245,8 @@ def check_pose_range(record) -> None:
     deg = record.get("deg") if isinstance(record, Mapping) else None
     if not isinstance(deg, Mapping) or not deg:
         raise ValueError(f"pose_range is not a joint-angle range record (no 'deg' table of joints): {record!r:.80}")
+    if record.get("chart", "euler_xzy") not in ("euler_xzy", "swing_twist"):  # pbc.motion.ranges' charts
+        raise ValueError(f"pose_range/chart: {record['chart']!r} is not a joint-angle chart (euler_xzy, swing_twist)")
     for joint, axes in deg.items():
         for ax, lo_hi in (axes.items() if isinstance(axes, Mapping) else [(None, axes)]):
             ok = (ax in ("x", "y", "z") and isinstance(lo_hi, list | tuple) and len(lo_hi) == 2

@@ -23,6 +23,7 @@ import torch
 from pbc.core.io import load_npy, read_json, save_npy, write_json
 from pbc.data.dataset import SPLITS, ClothDataset, dataset_fingerprint
 from pbc.geometry.body.skeleton import AXES
+from pbc.motion.ranges import EULER, PoseRange
 
 TRAINING_FILE = "training.json"
 MEAN_FILE = "mean_offsets.npy"
@@ -43,10 +44,10 @@ def check_max_rows(max_rows, split: str = "test", name: str = "max_rows") -> Non
         raise ValueError(f"{name} {max_rows!r}: give the number of {split} poses to ship, an integer >= 1")
 
 
-def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean_offsets: torch.Tensor | np.ndarray,
+def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: PoseRange, mean_offsets: torch.Tensor | np.ndarray,
                  space: str, split: str = "test", max_rows: int | None = None) -> Path:
     """Write `ds` cut to `split` (its first `max_rows` rows; None: all) under `out` (replaced if it exists), with
-    the training split's joint-angle range `pose_range` (J, 3, 2) degrees and mean offsets (V, 3) in the models'
+    the training split's joint-angle range `pose_range` (deg (J, 3, 2)) and mean offsets (V, 3) in the models'
     `space`. Returns `out`."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; choose one of {SPLITS}")
@@ -77,7 +78,7 @@ def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: np.ndarray, mean
     save_npy(out / MEAN_FILE, mean)
     write_json(out / TRAINING_FILE, {
         "num_train": int(len(ds.split("train"))), "space": space, "mean_offsets": MEAN_FILE,
-        "pose_range_deg": range_table(np.asarray(pose_range), names)})
+        "pose_range_deg": range_table(np.asarray(pose_range.deg), names), "pose_range_chart": pose_range.chart})
     manifest = dict(ds.manifest)
     src = manifest.get("source_index")
     if src and len(src) == len(ds):
@@ -105,9 +106,10 @@ def _summary(ds: ClothDataset) -> dict | None:
     return read_json(Path(ds.dir) / TRAINING_FILE, "shipped training summary") if is_trimmed(ds) else None
 
 
-def recorded_training_range(ds: ClothDataset) -> np.ndarray | None:
-    """The training split's (J, 3, 2) joint-angle range in degrees, as recorded by `trim_dataset`, in the
-    body's joint order; None for a full dataset (take it from its training poses)."""
+def recorded_training_range(ds: ClothDataset) -> PoseRange | None:
+    """The training split's joint-angle range, as recorded by `trim_dataset`, in the body's joint order (a
+    record without a chart is of the Euler angles); None for a full dataset (take it from its training
+    poses)."""
     s = _summary(ds)
     if s is None:
         return None
@@ -117,7 +119,8 @@ def recorded_training_range(ds: ClothDataset) -> np.ndarray | None:
     if missing:
         raise ValueError(f"{Path(ds.dir) / TRAINING_FILE} has no range for joints {missing}: pack the model again "
                          "(pbc pretrained pack RUN --name NAME)")
-    return np.array([[table[n][ax] for ax in AXES] for n in names], dtype=np.float64)
+    return PoseRange(np.array([[table[n][ax] for ax in AXES] for n in names], dtype=np.float64),
+                     s.get("pose_range_chart", EULER))
 
 
 def recorded_mean_offsets(ds: ClothDataset) -> tuple[torch.Tensor, str] | None:

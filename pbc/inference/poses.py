@@ -17,7 +17,7 @@ from pbc.data.trimmed import recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
 from pbc.motion.fit import clear_clip_arms, cleared_note
-from pbc.motion.ranges import angle_range, range_from_record
+from pbc.motion.ranges import PoseRange, angle_range, range_from_record
 from pbc.motion.retarget import Motion, motion_settings, poses_from_clip
 
 log = logging.getLogger(__name__)
@@ -117,9 +117,9 @@ def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frame
     return motion
 
 
-def training_pose_range(dataset) -> np.ndarray:
-    """(J, 3, 2) per joint and axis [min, max] degrees of the body's Euler angles over the dataset's training
-    split: the poses a run trained on it saw (the run records its dataset; pbc.motion.ranges)."""
+def training_pose_range(dataset) -> PoseRange:
+    """The per joint and axis [min, max] degrees (swing-twist) over the dataset's training split: the poses a
+    run trained on it saw (the run records its dataset; pbc.motion.ranges)."""
     recorded = recorded_training_range(dataset)
     if recorded is not None:  # a shipped model's data holds its training split's range, not its poses
         return recorded
@@ -127,8 +127,8 @@ def training_pose_range(dataset) -> np.ndarray:
     return angle_range(np.asarray(dataset.poses)[idx] if len(idx) else np.asarray(dataset.poses))
 
 
-def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | None]:
-    """(J, 3, 2) the joint-angle range of the poses the predictor's model was trained on, where it came from,
+def run_pose_range(predictor: ClothPredictor) -> tuple[PoseRange, str, str | None]:
+    """The joint-angle range of the poses the predictor's model was trained on, where it came from,
     and a note when it was not the run's own record. The run's record first (RunRecord.pose_range, written by
     pbc.train and carried by pbc pretrained pack): no dataset needed. A run made before runs recorded it falls
     back to its dataset's training split (or a shipped model's data/training.json), saying so."""
@@ -144,11 +144,11 @@ def run_pose_range(predictor: ClothPredictor) -> tuple[np.ndarray, str, str | No
     return unread_joints_free(training_pose_range(ds), predictor), where, note
 
 
-def unread_joints_free(rng: np.ndarray, predictor: ClothPredictor) -> np.ndarray:
-    """rng (J, 3, 2) with every joint the models do not read (`ClothPredictor.read_joints`) open to any angle
+def unread_joints_free(rng: PoseRange, predictor: ClothPredictor) -> PoseRange:
+    """rng with every joint the models do not read (`ClothPredictor.read_joints`) open to any angle
     (-180 to 180): a shirt's data keeps the legs at rest, so a walk's legs would flag every frame and
     --clamp-to-range would freeze them, though they cannot move the shirt."""
-    out = np.array(rng, dtype=np.float64)
+    out = np.array(rng.deg, dtype=np.float64)
     unread = np.setdiff1d(np.arange(len(out)), predictor.read_joints())
     out[unread, :, 0], out[unread, :, 1] = -180.0, 180.0
-    return out
+    return PoseRange(out, rng.chart)

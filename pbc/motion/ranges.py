@@ -1,38 +1,73 @@
 """Poses against what a model saw: joint angles vs the training data's range, flags and clamping.
 
-Angles are the body's own Euler angles (conf/body: R = Rx Rz Ry about the joint's rest frame, per axis
-x, y, z, degrees), the ones the pose sampler draws within the joint limits. The training range of a run is
-the per-joint, per-axis [min, max] over its dataset's training split.
+The training range of a run is the per-joint, per-axis [min, max] of its training split's joint angles
+(`PoseRange`), in one of two charts of a joint's rotation about its rest frame, per axis x, y, z, degrees:
+- `SWING_TWIST` (what runs record): the swing that turns the bone (local y) from its rest direction, as axis
+  times angle (x, z), then the twist about the bone (y) (pbc.geometry.body.skeleton.swing_twist_angles);
+- `EULER`: the body's Euler angles R = Rx Rz Ry (conf/body), the ones the pose sampler draws within the joint
+  limits; runs recorded before the swing-twist chart hold these.
+Euler angles are singular where a T-posed arm hangs down (z near -90: x and y turn about nearly one axis), the
+posture real motion holds most: a box of them misses a hanging arm swung 10 degrees back with its twist
+unchanged (x -100, y +100 against a box of +-60), or holds one never seen. The swing-twist chart is singular
+only for a bone turned fully about, which no joint reaches.
 
-A rotation is inside a range when some rotation the range holds equals it: near the angles' singular point
-(z near +-90 degrees, where x and y turn about nearly one axis: a T-posed arm hanging down) a small turn moves
-x and y far in opposite directions, so a rotation's own angles can leave the box while the box still holds it
-(or its other decomposition, x + 180, y + 180, 180 - z). `nearest_in_range` searches the box for the nearest
+A rotation is inside a range when some rotation the range holds equals it (for Euler boxes also through the
+angles' other decomposition, x + 180, y + 180, 180 - z). `nearest_in_range` searches the box for the nearest
 rotation; the flag and the clamp both read it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from pbc.geometry.body.skeleton import AXES, geodesic_deg, xzy_angles
+from pbc.geometry.body.skeleton import AXES, geodesic_deg, swing_twist_angles, swing_twist_to_matrix, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
 
+EULER, SWING_TWIST = "euler_xzy", "swing_twist"
+CHART_TEXT = {
+    EULER: "the body's Euler angles x, y, z, R = Rx Rz Ry about the joint's rest frame (conf/body)",
+    SWING_TWIST: "swing and twist about the joint's rest frame: x and z the swing turning the bone (local y) from "
+                 "its rest direction, as axis times angle; y the twist about the bone after it",
+}
 
-def angle_range(poses, chunk: int = 4096) -> np.ndarray:
-    """(J, 3, 2) per joint and axis [min, max] degrees over poses (N, J, 3, 3) (a memory map is read in
+
+class PoseRange(NamedTuple):
+    """A training range: deg (J, 3, 2) per joint and axis [min, max] degrees, in `chart` (EULER or
+    SWING_TWIST)."""
+
+    deg: np.ndarray
+    chart: str = SWING_TWIST
+
+
+def joint_angles(poses, chart: str = SWING_TWIST) -> np.ndarray:
+    """Rotations (..., 3, 3) -> their angles (..., 3) degrees in `chart`."""
+    if chart == EULER:
+        return xzy_angles(poses)
+    if chart == SWING_TWIST:
+        return swing_twist_angles(poses)
+    raise ValueError(f"unknown joint-angle chart {chart!r}: one of {EULER!r}, {SWING_TWIST!r}")
+
+
+def angles_to_matrix(angles: torch.Tensor, chart: str) -> torch.Tensor:
+    """Angles (..., 3) degrees in `chart` -> rotations (..., 3, 3); the inverse of `joint_angles`."""
+    return euler_xzy_to_matrix(angles) if chart == EULER else swing_twist_to_matrix(angles)
+
+
+def angle_range(poses, chunk: int = 4096, chart: str = SWING_TWIST) -> PoseRange:
+    """The per joint and axis [min, max] degrees over poses (N, J, 3, 3) in `chart` (a memory map is read in
     chunks)."""
     lo = hi = None
     for i in range(0, len(poses), chunk):
-        a = xzy_angles(np.asarray(poses[i:i + chunk]))
+        a = joint_angles(np.asarray(poses[i:i + chunk]), chart)
         lo = a.min(0) if lo is None else np.minimum(lo, a.min(0))
         hi = a.max(0) if hi is None else np.maximum(hi, a.max(0))
     if lo is None:
         raise ValueError("no training poses to take the range from (the training split is empty)")
-    return np.stack([lo, hi], -1)
+    return PoseRange(np.stack([lo, hi], -1), chart)
 
 
 def outside_range(angles: np.ndarray, rng: np.ndarray, tol: float) -> np.ndarray:
@@ -48,54 +83,58 @@ def other_angles(angles: np.ndarray) -> np.ndarray:
     return (b + 180.0) % 360.0 - 180.0
 
 
-def nearest_in_range(poses, rng: np.ndarray, tol: float = 0.0, steps: int = 300) -> tuple[np.ndarray, np.ndarray]:
-    """The nearest rotation a range holds, per joint: poses (N, J, 3, 3), rng (J, 3, 2) degrees ->
-    (angles (N, J, 3) degrees inside rng, their rotation's geodesic distance (N, J) degrees from the pose's).
+def nearest_in_range(poses, rng: PoseRange, tol: float = 0.0, steps: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest rotation a range holds, per joint: poses (N, J, 3, 3), rng (deg (J, 3, 2)) ->
+    (angles (N, J, 3) degrees in rng's chart inside its box, their rotation's geodesic distance (N, J) degrees
+    from the pose's).
 
-    A joint whose angles (either decomposition, `other_angles`) are inside rng within tol is itself, at
-    distance 0. The others are searched by projected gradient descent on the Frobenius distance, from both
-    decompositions clipped into the box, the nearer result kept: inside the box by construction, a local
-    optimum (the box is small against a half turn, where the distance has one minimum)."""
+    A joint whose angles (for an Euler box either decomposition, `other_angles`) are inside the box within tol
+    is itself, at distance 0. The others are searched by projected gradient descent on the Frobenius distance,
+    from each decomposition clipped into the box, the nearest result kept: inside the box by construction, a
+    local optimum (the box is small against a half turn, where the distance has one minimum)."""
     p = np.asarray(poses, dtype=np.float64)
-    a = xzy_angles(p)
-    b = other_angles(a)
-    lo, hi = np.broadcast_to(rng[..., 0], a.shape), np.broadcast_to(rng[..., 1], a.shape)
-    in_a, in_b = ~outside_range(a, rng, tol).any(-1), ~outside_range(b, rng, tol).any(-1)
-    angles = np.where(in_b[..., None] & ~in_a[..., None], b, np.clip(a, lo, hi))
+    box, chart = rng
+    a = joint_angles(p, chart)
+    starts = [a, other_angles(a)] if chart == EULER else [a]
+    lo, hi = np.broadcast_to(box[..., 0], a.shape), np.broadcast_to(box[..., 1], a.shape)
+    inside = [~outside_range(s, box, tol).any(-1) for s in starts]
+    angles = np.clip(a, lo, hi)
+    for s, held in zip(starts[::-1], inside[::-1], strict=True):  # the first decomposition that is held wins
+        angles = np.where(held[..., None], s, angles)
     dist = np.zeros(a.shape[:-1])
-    todo = ~(in_a | in_b)
+    todo = ~np.logical_or.reduce(inside)
     if todo.any():
-        target = torch.from_numpy(p[todo]).repeat(2, 1, 1)
-        tlo = torch.from_numpy(np.ascontiguousarray(lo[todo])).repeat(2, 1)
-        thi = torch.from_numpy(np.ascontiguousarray(hi[todo])).repeat(2, 1)
-        x = torch.cat([torch.from_numpy(np.clip(a[todo], lo[todo], hi[todo])),
-                       torch.from_numpy(np.clip(b[todo], lo[todo], hi[todo]))]).requires_grad_(True)
+        k = len(starts)
+        target = torch.from_numpy(p[todo]).repeat(k, 1, 1)
+        tlo = torch.from_numpy(np.ascontiguousarray(lo[todo])).repeat(k, 1)
+        thi = torch.from_numpy(np.ascontiguousarray(hi[todo])).repeat(k, 1)
+        x = torch.cat([torch.from_numpy(np.clip(s[todo], lo[todo], hi[todo])) for s in starts]).requires_grad_(True)
         opt = torch.optim.Adam([x], lr=2.0)  # degrees
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=1e-4)
         for _ in range(steps):
             opt.zero_grad()
-            ((euler_xzy_to_matrix(x) - target) ** 2).sum().backward()
+            ((angles_to_matrix(x, chart) - target) ** 2).sum().backward()
             opt.step()
             sched.step()
             with torch.no_grad():
                 x.copy_(torch.minimum(torch.maximum(x, tlo), thi))
         x = x.detach()
-        d = geodesic_deg(euler_xzy_to_matrix(x).numpy(), target.numpy()).reshape(2, -1)
+        d = geodesic_deg(angles_to_matrix(x, chart).numpy(), target.numpy()).reshape(k, -1)
         pick = d.argmin(0)
         m = int(todo.sum())
-        angles[todo] = x.numpy().reshape(2, m, 3)[pick, np.arange(m)]
+        angles[todo] = x.numpy().reshape(k, m, 3)[pick, np.arange(m)]
         dist[todo] = d[pick, np.arange(m)]
     return angles, dist
 
 
-def range_report(poses, rng: np.ndarray, names: Sequence[str], tol: float) -> dict:
+def range_report(poses, rng: PoseRange, names: Sequence[str], tol: float) -> dict:
     """What predict.json records: the frames with a joint farther than tol degrees from every rotation rng
-    (J, 3, 2) holds (`nearest_in_range`) and, per such frame, that joint's axes outside with their angles
-    (degrees) and the joint's distance (`distance_deg`)."""
-    a = xzy_angles(poses)
+    holds (`nearest_in_range`) and, per such frame, that joint's axes outside with their angles (degrees, in
+    rng's chart) and the joint's distance (`distance_deg`)."""
+    a = joint_angles(poses, rng.chart)
     _, dist = nearest_in_range(poses, rng, tol)
     far = dist > tol  # (N, J)
-    out = outside_range(a, rng, 0.0) & far[..., None]
+    out = outside_range(a, rng.deg, 0.0) & far[..., None]
     frames = np.flatnonzero(far.any(1))
     per_frame, distance = {}, {}
     for f in frames.tolist():
@@ -106,7 +145,8 @@ def range_report(poses, rng: np.ndarray, names: Sequence[str], tol: float) -> di
                                                                                   strict=True)}
     return {"frames_outside": frames.tolist(), "num_outside": int(len(frames)), "num_frames": int(len(a)),
             "joint_axes_outside": axes_out, "outside": per_frame, "distance_deg": distance, "tolerance_deg": tol,
-            "range_deg": {n: {ax: [round(float(rng[j, k, 0]), 3), round(float(rng[j, k, 1]), 3)]
+            "chart": rng.chart, "angles": CHART_TEXT[rng.chart],
+            "range_deg": {n: {ax: [round(float(rng.deg[j, k, 0]), 3), round(float(rng.deg[j, k, 1]), 3)]
                               for k, ax in enumerate(AXES)} for j, n in enumerate(names)}}
 
 
@@ -122,36 +162,38 @@ def range_summary(report: dict) -> str:
             + ("" if report.get("clamped") else "; --clamp-to-range clamps them"))
 
 
-def clamp_to_range(poses, rng: np.ndarray, tol: float = 0.0) -> np.ndarray:
-    """Poses (N, J, 3, 3) with every joint moved to the nearest rotation rng (J, 3, 2) holds
-    (`nearest_in_range`); joints within tol degrees of one are returned unchanged."""
+def clamp_to_range(poses, rng: PoseRange, tol: float = 0.0) -> np.ndarray:
+    """Poses (N, J, 3, 3) with every joint moved to the nearest rotation rng holds (`nearest_in_range`);
+    joints within tol degrees of one are returned unchanged."""
     p = np.array(poses, dtype=np.float64)
     angles, dist = nearest_in_range(p, rng, tol)
     out = dist > tol  # (N, J)
     if out.any():
-        p[out] = euler_xzy_to_matrix(torch.from_numpy(angles[out])).numpy()
+        p[out] = angles_to_matrix(torch.from_numpy(angles[out]), rng.chart).numpy()
     return p
 
 
 def range_record(poses, names: Sequence[str], split: str = "train") -> dict:
     """What a run records of its training poses (N, J, 3, 3) (pbc.core.runs.RunRecord.pose_range, written by
-    pbc.train): the per-joint, per-axis [min, max] degrees (`angle_range`) keyed by joint name, so predict
-    compares new poses with it without the dataset."""
+    pbc.train): the per-joint, per-axis [min, max] degrees (`angle_range`, swing-twist) keyed by joint name, so
+    predict compares new poses with it without the dataset."""
     return range_table_record(angle_range(poses), names, len(poses), split)
 
 
-def range_table_record(rng: np.ndarray, names: Sequence[str], num_poses: int, split: str = "train") -> dict:
-    """`range_record` of a range rng (J, 3, 2) degrees already taken over `num_poses` poses."""
-    return {"split": split, "poses": int(num_poses),
-            "angles": "the body's Euler angles x, y, z, R = Rx Rz Ry about the joint's rest frame (conf/body)",
-            "deg": {n: {ax: [float(rng[j, k, 0]), float(rng[j, k, 1])] for k, ax in enumerate(AXES)}
+def range_table_record(rng: PoseRange, names: Sequence[str], num_poses: int, split: str = "train") -> dict:
+    """`range_record` of a range already taken over `num_poses` poses."""
+    return {"split": split, "poses": int(num_poses), "chart": rng.chart, "angles": CHART_TEXT[rng.chart],
+            "deg": {n: {ax: [float(rng.deg[j, k, 0]), float(rng.deg[j, k, 1])] for k, ax in enumerate(AXES)}
                     for j, n in enumerate(names)}}
 
 
-def range_from_record(record: dict | None, names: Sequence[str]) -> np.ndarray | None:
-    """`range_record`'s table as (J, 3, 2) degrees in the joint order `names`; None when there is no record
-    or it lacks one of the joints (a record of another body: the caller takes the range elsewhere)."""
+def range_from_record(record: dict | None, names: Sequence[str]) -> PoseRange | None:
+    """`range_record`'s table as a PoseRange in the joint order `names` (a record without a chart is of the
+    Euler angles: runs recorded those before); None when there is no record or it lacks one of the joints (a
+    record of another body: the caller takes the range elsewhere)."""
     deg = (record or {}).get("deg") or {}
     if not deg or any(n not in deg for n in names):
         return None
-    return np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64)
+    chart = record.get("chart", EULER)
+    joint_angles(np.eye(3), chart)  # an unknown chart: one clear error here
+    return PoseRange(np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64), chart)

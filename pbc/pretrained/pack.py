@@ -25,10 +25,10 @@ from omegaconf import OmegaConf
 from pbc.core.io import load_checkpoint, write_text
 from pbc.core.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
-from pbc.data.trimmed import check_max_rows, recorded_mean_offsets, trim_dataset
+from pbc.data.trimmed import check_max_rows, is_trimmed, recorded_mean_offsets, trim_dataset
 from pbc.inference.poses import training_pose_range
 from pbc.inference.predictor import WHOLE_KINDS, ClothPredictor
-from pbc.motion.ranges import range_from_record, range_table_record
+from pbc.motion.ranges import SWING_TWIST, range_from_record, range_table_record
 from pbc.pixels.frames import from_offsets
 from pbc.pretrained import SHIPPED_DIR
 
@@ -135,14 +135,17 @@ def this_machine() -> str:
 
 def shipped_pose_range(run, ds) -> tuple[dict, str]:
     """The joint-angle range of the run's training poses to ship (RunRecord.pose_range) and where it came
-    from: the run's own record, or (a run trained before runs recorded it) measured here from its dataset's
-    training split."""
+    from: the run's own swing-twist record, or (a run trained before runs recorded it, or that recorded Euler
+    angles, whose box misreads hanging arms: pbc.motion.ranges) measured here from its dataset's training
+    split."""
     names = ds.body.skeleton.names
-    if range_from_record(run.record.pose_range, names) is not None:
+    recorded = range_from_record(run.record.pose_range, names)
+    if recorded is not None and (recorded.chart == SWING_TWIST or is_trimmed(ds)):
         return run.record.pose_range, "recorded by the training run (its metrics.json pose_range)"
     rng = training_pose_range(ds)
+    why = "the run predates the recorded range" if recorded is None else "the run recorded Euler angles"
     return (range_table_record(rng, names, len(ds.split("train"))),
-            "measured by pbc pretrained pack from the run's dataset (the run predates the recorded range)")
+            f"measured by pbc pretrained pack from the run's dataset, swing-twist ({why})")
 
 
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,

@@ -18,6 +18,12 @@ purpose. A candidate falls in a mode with the mode's `fraction`; its named joint
 share of their limits (0 = the limit's min, 1 = its max, so the same share fits a re-rested body), the
 other axes as D.3 draws them; pruning follows as for any candidate. Modes draw from their own stream,
 default_rng([seed, b, 1]): with every fraction 0 (the default) the poses are those of D.3 alone, bit for bit.
+
+A mode may instead (or also) draw joints in a cone (`cone`): each named joint's bone direction uniform over
+the cap of `half_angle_deg` round a direction of the root frame (`around`, e.g. straight down), its twist about
+the bone uniform in `twist_deg`, both in the swing-twist chart (pbc.geometry.body.skeleton.swing_twist_angles).
+Why: Euler limits are boxes whose corners turn meaningless where an arm hangs (z near -90: x and y turn about
+one axis), so shares of them cannot say "hanging, swung forward or back, any twist"; a walk's arms are there.
 """
 
 from __future__ import annotations
@@ -35,7 +41,13 @@ from torch import Tensor  # noqa: E402
 
 from pbc.core.io import save_figure  # noqa: E402
 from pbc.geometry.body.base import Body, body_sdf, bones_sdf  # noqa: E402
-from pbc.geometry.body.skeleton import Skeleton, forward_kinematics, linear_blend_skinning  # noqa: E402
+from pbc.geometry.body.skeleton import (  # noqa: E402
+    Skeleton,
+    forward_kinematics,
+    linear_blend_skinning,
+    swing_twist_to_matrix,
+    xzy_angles,
+)
 
 TORSO, LEFT_ARM, RIGHT_ARM = 0, 1, 2
 X, Y, Z = 0, 1, 2
@@ -61,8 +73,9 @@ class SamplingSettings:
     probes_per_leg: int = 53
     leg_probe_min_distance: float = 0.15  # m from the hip joint: clear of the groin, where the legs meet
     leg_torso_joints: tuple[str, ...] = ()  # the primitives (by joint, `root` included) a leg must not enter
-    # the active modes (fraction > 0): (name, fraction, ((joint, axis, low share, high share), ...)), see
-    # the module docstring; a mode at fraction 0 is left out, so the default equals a config with every mode off
+    # the active modes (fraction > 0): (name, fraction, ((joint, axis, low share, high share), ...), cone),
+    # cone None or (joints, around (3,), half_angle_deg, (twist low, twist high)); see the module docstring.
+    # A mode at fraction 0 is left out, so the default equals a config with every mode off
     modes: tuple = ()
 
 
@@ -81,14 +94,15 @@ def sampling_settings_from_config(cfg: Mapping) -> SamplingSettings:
 
 
 def _parse_modes(modes: Mapping) -> tuple:
-    """`sampling.modes` ({name: {fraction, range: {joint: {axis: [low, high] shares}}}}) -> the active modes,
-    checked (fractions in [0, 1] summing to at most 1, shares 0 <= low <= high <= 1, axes x / y / z)."""
+    """`sampling.modes` ({name: {fraction, range: {joint: {axis: [low, high] shares}}, cone: {joints, around,
+    half_angle_deg, twist_deg}}}) -> the active modes, checked (fractions in [0, 1] summing to at most 1, shares
+    0 <= low <= high <= 1, axes x / y / z, a cone's half angle in (0, 180], its twist [low, high] degrees)."""
     out, total = [], 0.0
     for name, mode in modes.items():
         key = f"sampling.modes.{name}"
-        unknown = set(mode) - {"fraction", "range"}
+        unknown = set(mode) - {"fraction", "range", "cone"}
         if unknown:
-            raise ValueError(f"{key}: unknown keys {sorted(unknown)}; a mode has a fraction and a range")
+            raise ValueError(f"{key}: unknown keys {sorted(unknown)}; a mode has a fraction, a range and a cone")
         fraction = float(mode.get("fraction", 0.0))
         if not 0.0 <= fraction <= 1.0:
             raise ValueError(f"{key}.fraction={fraction}: give the share of poses drawn in this mode, in [0, 1]")
@@ -101,33 +115,92 @@ def _parse_modes(modes: Mapping) -> tuple:
                     raise ValueError(f"{key}.range.{joint}.{axis}={list(share)}: give an axis x, y or z and "
                                      "[low, high] shares of the joint's limits, 0 <= low <= high <= 1")
                 ranges.append((str(joint), "xyz".index(axis), float(share[0]), float(share[1])))
+        cone = _parse_cone(mode.get("cone"), f"{key}.cone")
         if fraction > 0:
-            out.append((str(name), fraction, tuple(ranges)))
+            out.append((str(name), fraction, tuple(ranges), cone))
     if total > 1.0 + 1e-9:
         raise ValueError(f"sampling.modes: the fractions sum to {total:g} > 1; lower them (the rest is plain D.3)")
     return tuple(out)
 
 
+def _parse_cone(cone: Mapping | None, key: str) -> tuple | None:
+    """A mode's `cone` node -> (joints, around (3,) unit, half_angle_deg, (twist low, twist high)), or None."""
+    if not cone:
+        return None
+    unknown = set(cone) - {"joints", "around", "half_angle_deg", "twist_deg"}
+    if unknown:
+        raise ValueError(f"{key}: unknown keys {sorted(unknown)}; a cone has joints, around, half_angle_deg, "
+                         "twist_deg")
+    around = np.asarray(cone.get("around", ()), dtype=np.float64)
+    half = float(cone.get("half_angle_deg", 0.0))
+    twist = [float(t) for t in cone.get("twist_deg", ())]
+    joints = tuple(str(j) for j in cone.get("joints", ()))
+    if not joints:
+        raise ValueError(f"{key}.joints: name the joints drawn in the cone (e.g. [l_arm, r_arm])")
+    if around.shape != (3,) or not np.linalg.norm(around) > 0:
+        raise ValueError(f"{key}.around={around.tolist()}: give the cone's axis as a direction [x, y, z] of the "
+                         "root frame (straight down: [0, -1, 0])")
+    if not 0.0 < half <= 180.0:
+        raise ValueError(f"{key}.half_angle_deg={half}: give the cone's half angle in (0, 180] degrees")
+    if len(twist) != 2 or not -180.0 <= twist[0] <= twist[1] <= 180.0:
+        raise ValueError(f"{key}.twist_deg={twist}: give [low, high] degrees of twist about the bone, "
+                         "-180 <= low <= high <= 180")
+    return joints, tuple(around / np.linalg.norm(around)), half, (twist[0], twist[1])
+
+
 def modes_record(settings: SamplingSettings) -> dict:
     """The active modes as plain data (a dataset's fingerprint): {name: {fraction, range: [[joint, axis,
-    low, high], ...]}}; empty when every mode is off."""
-    return {name: {"fraction": f, "range": [[j, "xyz"[a], lo, hi] for j, a, lo, hi in ranges]}
-            for name, f, ranges in settings.modes}
+    low, high], ...]}} and, for a mode with a cone, its cone; empty when every mode is off."""
+    out = {}
+    for name, f, ranges, cone in settings.modes:
+        out[name] = {"fraction": f, "range": [[j, "xyz"[a], lo, hi] for j, a, lo, hi in ranges]}
+        if cone is not None:
+            joints, around, half, twist = cone
+            out[name]["cone"] = {"joints": list(joints), "around": list(around), "half_angle_deg": half,
+                                 "twist_deg": list(twist)}
+    return out
+
+
+def cone_rotations(u: np.ndarray, around_local: np.ndarray, half_angle_deg: float,
+                   twist_deg: tuple[float, float]) -> np.ndarray:
+    """(n, 3, 3) joint rotations whose bone (local y) points uniformly over the cap of half_angle_deg round
+    around_local (3,) (a unit direction in the joint's rest frame), twisted uniformly in twist_deg about the
+    bone (swing-twist chart). u (n, 3) uniform [0, 1) numbers: cap height, azimuth, twist."""
+    cos_t = 1.0 - u[:, 0] * (1.0 - np.cos(np.radians(half_angle_deg)))  # uniform over the cap's area
+    sin_t = np.sqrt(np.clip(1.0 - cos_t**2, 0.0, None))
+    phi = 2.0 * np.pi * u[:, 1]
+    a = np.asarray(around_local, np.float64)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    d = cos_t[:, None] * a + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    twist = twist_deg[0] + u[:, 2] * (twist_deg[1] - twist_deg[0])
+    theta = np.degrees(np.arccos(np.clip(d[:, 1], -1.0, 1.0)))
+    h = np.hypot(d[:, 0], d[:, 2])
+    scale = np.where(h > 1e-12, theta / np.maximum(h, 1e-12), 0.0)
+    angles = np.stack([d[:, 2] * scale, twist, -d[:, 0] * scale], -1)  # the swing-twist chart's (x, y, z)
+    return swing_twist_to_matrix(torch.from_numpy(angles)).numpy()
 
 
 def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, settings: SamplingSettings) -> None:
     """Put candidates (n, J, 3) degrees, in place, into the modes: candidate i falls in mode k with its
-    fraction, and that mode's joint axes are redrawn uniformly in their share of the limits. Joints the
-    sampler keeps at rest (`posed_joints`) stay there."""
+    fraction, and that mode's joint axes are redrawn uniformly in their share of the limits, its cone joints
+    in their cone (`cone_rotations`, written back as Euler angles). Joints the sampler keeps at rest
+    (`posed_joints`) stay there."""
     if not settings.modes:
         return
     n = len(angles)
     lim = skel.limits_deg.double().numpy()
     pick = rng.random(n)
-    u = rng.random((n, sum(len(r) for _, _, r in settings.modes)))  # every stream drawn: counts never shift it
+    u = rng.random((n, sum(len(r) for _, _, r, _ in settings.modes)))  # every stream drawn: counts never shift it
+    cones = [c for *_, c in settings.modes if c is not None]
+    # drawn only when a mode has a cone, after the rest: data sets without one keep their poses bit for bit
+    u_cone = rng.random((n, sum(len(c[0]) for c in cones), 3)) if cones else None
     posed = set(settings.posed_joints)
-    start, col = 0.0, 0
-    for name, fraction, ranges in settings.modes:
+    frames = skel.frames().double().numpy()
+    start, col, ccol = 0.0, 0, 0
+    for name, fraction, ranges, cone in settings.modes:
         rows = (pick >= start) & (pick < start + fraction)
         start += fraction
         for joint, axis, lo, hi in ranges:
@@ -137,6 +210,14 @@ def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, se
                 low, high = a + lo * (b - a), a + hi * (b - a)
                 angles[rows, j, axis] = low + u[rows, col] * (high - low)
             col += 1
+        if cone is None:
+            continue
+        joints, around, half, twist = cone
+        for joint, j in zip(joints, skel.indices(joints, f"sampling.modes.{name}.cone.joints"), strict=True):
+            if (not posed or joint in posed) and rows.any():
+                local = frames[j].T @ np.asarray(around)  # the root-frame direction in the joint's rest frame
+                angles[rows, j] = xzy_angles(cone_rotations(u_cone[rows, ccol], local, half, twist))
+            ccol += 1
 
 
 def _axis_rotation(angles_rad: Tensor, axis: int) -> Tensor:

@@ -94,8 +94,8 @@ def test_experiment_end_to_end(e2e_root, tiny_dataset, exp):
     # the training split's joint-angle range, recorded for predict (it flags a clip's frames without the data)
     ds = load_dataset(tiny_dataset)
     assert metrics["pose_range"]["poses"] == len(ds.split("train")) > 0
-    np.testing.assert_allclose(range_from_record(metrics["pose_range"], ds.body.skeleton.names),
-                               angle_range(np.asarray(ds.poses)[ds.split("train")]), atol=1e-9)
+    np.testing.assert_allclose(range_from_record(metrics["pose_range"], ds.body.skeleton.names).deg,
+                               angle_range(np.asarray(ds.poses)[ds.split("train")]).deg, atol=1e-9)
     # an image model starts from (and keeps in its checkpoint) the train split's mean image
     state = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["state_dict"]
     assert state["net.output_mean"].abs().sum() > 0

@@ -24,7 +24,7 @@ from pbc.geometry.meshio import write_garment_mesh
 from pbc.jobs.writers import FrameObjWriter, render_frames
 from pbc.motion.bvh import BvhError, parse_bvh, read_bvh
 from pbc.motion.fit import clear_clip_arms
-from pbc.motion.ranges import angle_range, clamp_to_range, range_report
+from pbc.motion.ranges import EULER, angle_range, clamp_to_range, range_report
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, motion_settings, parse_frames
 from pbc.sim.poses import euler_xzy_to_matrix
 
@@ -221,21 +221,21 @@ def test_auto_picks_the_dialect_by_the_whole_name_set():
 
 def test_range_flags_and_clamps():
     train = random_poses(50, seed=7)
-    rng = angle_range(train)
+    rng = angle_range(train, chart=EULER)
     a = xzy_angles(train)
     np.testing.assert_allclose(euler_xzy_to_matrix(torch.from_numpy(a)).numpy(), train, atol=1e-9)
     names = list(SKEL.names)
     poses = train[:3].copy()
     j = SKEL.index("l_arm")
     beyond = a[2].copy()
-    beyond[j, 2] = rng[j, 2, 1] + 10.0  # l_arm raised 10 degrees past anything seen
+    beyond[j, 2] = rng.deg[j, 2, 1] + 10.0  # l_arm raised 10 degrees past anything seen
     poses[2] = euler_xzy_to_matrix(torch.from_numpy(beyond)).numpy()
     rep = range_report(poses, rng, names, 1e-3)
     assert rep["frames_outside"] == [2] and list(rep["outside"]["2"]) == ["l_arm.z"]
-    assert rep["outside"]["2"]["l_arm.z"] == pytest.approx(rng[j, 2, 1] + 10.0, abs=1e-3)
+    assert rep["outside"]["2"]["l_arm.z"] == pytest.approx(rng.deg[j, 2, 1] + 10.0, abs=1e-3)
     c = clamp_to_range(poses, rng, 1e-3)
     np.testing.assert_allclose(c[:2], poses[:2], atol=0)  # inside: untouched
-    assert xzy_angles(c[2])[j, 2] == pytest.approx(rng[j, 2, 1], abs=1e-6)
+    assert xzy_angles(c[2])[j, 2] == pytest.approx(rng.deg[j, 2, 1], abs=1e-6)
     assert range_report(c, rng, names, 1e-3)["frames_outside"] == []
 
 

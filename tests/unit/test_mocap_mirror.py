@@ -20,7 +20,7 @@ from pbc.data.mirror import MIRROR, mirror_map, mirror_poses, mirror_verts
 from pbc.data.mocap import SAMPLED, clip_poses, farthest_pose_selection
 from pbc.data.subset import originals_and_mirrors, subset_dataset
 from pbc.geometry.body.base import pose_body
-from pbc.geometry.body.skeleton import xzy_angles
+from pbc.geometry.body.skeleton import swing_twist_angles, xzy_angles
 from pbc.geometry.shrinkwrap import embedded_points
 from pbc.inference.poses import training_pose_range
 from pbc.motion.fit import clear_clip_arms
@@ -103,7 +103,7 @@ def test_poses_from_a_folder_of_clips_mixed_with_the_sampler_record_their_clip_a
     assert 0 <= ds.manifest["poses"]["arms_raised"]["poses"] <= 7
     # the recorded training range is the range of what was trained on
     train = np.asarray(ds.poses)[ds.split("train")]
-    np.testing.assert_allclose(training_pose_range(ds)[..., 0], xzy_angles(train).min(0), atol=1e-9)
+    np.testing.assert_allclose(training_pose_range(ds).deg[..., 0], swing_twist_angles(train).min(0), atol=1e-9)
     # reproducible from the seed: the same clips elsewhere make the same data
     again = make(tmp_path / "again", f"data.poses={write_clips(tmp_path / 'copy', 7, 9)}", "data.num_samples=10",
                  "data.poses_sampled_fraction=0.3")
@@ -260,6 +260,41 @@ def test_hanging_arms_mode_draws_its_share_and_leaves_the_default_poses_alone(bo
             "l_arm": {"z": [0.5, 0.2]}}}}}))
 
 
+def test_a_cone_mode_hangs_the_arms_tilted_any_way_and_twisted_in_its_range(body_cfg, body):
+    from omegaconf import OmegaConf
+
+    from pbc.sim.poses import modes_record
+
+    cone = {"joints": ["l_arm", "r_arm"], "around": [0.0, -2.0, 0.0], "half_angle_deg": 30, "twist_deg": [-45, 45]}
+    settings = sampling_settings_from_config(OmegaConf.merge(body_cfg.sampling, {"modes": {
+        "swinging_arms": {"fraction": 1.0, "cone": cone}}}))
+    poses, _ = sample_poses(body.skeleton, 200, 5, body, settings)
+    frames = body.skeleton.frames().double().numpy()
+    for joint in ("l_arm", "r_arm"):
+        j = list(body.skeleton.names).index(joint)
+        r = poses.numpy().astype(np.float64)[:, j]
+        bone = np.einsum("ij,njk,k->ni", frames[j], r, [0.0, 1.0, 0.0])  # F R e_y: the bone in the root frame
+        tilt = np.degrees(np.arccos(np.clip(-bone[:, 1], -1.0, 1.0)))  # from straight down
+        assert tilt.max() <= 30.0 + 1e-6 and tilt.max() > 20.0  # inside the cone and spread over it
+        forward = bone[:, 2]  # some swung forward, some back (tilted into the torso: pruned)
+        assert (forward > 0.2).any() and (forward < -0.2).any()
+        twist = swing_twist_angles(r)[:, 1]
+        assert twist.min() >= -45.0 - 1e-6 and twist.max() <= 45.0 + 1e-6 and np.ptp(twist) > 45.0
+    rec = modes_record(settings)["swinging_arms"]
+    assert rec["cone"]["around"] == [0.0, -1.0, 0.0] and rec["cone"]["half_angle_deg"] == 30.0
+    # a mode without a cone records none: data sets made before cones keep their fingerprint
+    hanging = sampling_settings_from_config(OmegaConf.merge(body_cfg.sampling, {"modes": {
+        "hanging_arms": {"fraction": 0.5}}}))
+    assert "cone" not in modes_record(hanging)["hanging_arms"]
+    for bad, match in (({"half_angle_deg": 0}, r"half_angle_deg=0.0: give the cone's half angle in \(0, 180\]"),
+                       ({"around": [0, 0, 0]}, r"around=\[0.0, 0.0, 0.0\]: give the cone's axis"),
+                       ({"twist_deg": [40, -40]}, r"twist_deg=\[40.0, -40.0\]"),
+                       ({"joints": []}, r"joints: name the joints")):
+        with pytest.raises(ValueError, match=rf"sampling.modes.swinging_arms.cone.{match}"):
+            sampling_settings_from_config(OmegaConf.merge(body_cfg.sampling, {"modes": {
+                "swinging_arms": {"fraction": 0.5, "cone": {**cone, **bad}}}}))
+
+
 # ------------------------------------------------------------------------------------------- subsets
 def test_a_subset_trains_on_the_first_poses_and_their_mirrors_and_tests_as_its_source(tmp_path, no_drape):
     """subset_dataset (a learning curve's sizes): the training split is the first n drapes and, with mirrors,
@@ -283,9 +318,9 @@ def test_a_subset_trains_on_the_first_poses_and_their_mirrors_and_tests_as_its_s
     assert dataset_fingerprint(sub)["manifest_hash"] != dataset_fingerprint(ds)["manifest_hash"]
     plain = load_dataset(subset_dataset(ds, tmp_path / "sub3_plain", 3, mirrors=False))
     assert plain.split("train").tolist() == originals[:3]
-    np.testing.assert_allclose(training_pose_range(plain),
+    np.testing.assert_allclose(training_pose_range(plain).deg,
                                training_pose_range(dataclasses.replace(ds, manifest={
-                                   **ds.manifest, "splits": {**ds.manifest["splits"], "train": originals[:3]}})))
+                                   **ds.manifest, "splits": {**ds.manifest["splits"], "train": originals[:3]}})).deg)
     assert (ds.dir / "manifest.json").read_bytes() == before
 
 

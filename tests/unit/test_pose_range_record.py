@@ -46,7 +46,8 @@ def test_train_records_the_training_splits_range(dataset_dir, tmp_path):
     names = list(ds.body.skeleton.names)
     idx = ds.split("train")
     assert rec["split"] == "train" and rec["poses"] == len(idx) > 0 and list(rec["deg"]) == names
-    np.testing.assert_allclose(range_from_record(rec, names), angle_range(np.asarray(ds.poses)[idx]), atol=0)
+    np.testing.assert_allclose(range_from_record(rec, names).deg, angle_range(np.asarray(ds.poses)[idx]).deg, atol=0)
+    assert rec["chart"] == range_from_record(rec, names).chart == "swing_twist"
     # through metrics.json and back; a record of another body (a joint missing) reads as none
     run = recording_run(tmp_path / "run", dataset_dir)
     assert RunRecord.read(run).pose_range == json.loads(json.dumps(rec))
@@ -94,6 +95,6 @@ def test_an_older_run_falls_back_to_its_dataset_saying_so(dataset_dir, tmp_path,
     assert res["pose_range_source"] == f"the training split of its dataset {dataset_dir}"
     ds = load_dataset(dataset_dir)
     names = list(ds.body.skeleton.names)
-    want = angle_range(np.asarray(ds.poses)[ds.split("train")])
+    want = angle_range(np.asarray(ds.poses)[ds.split("train")]).deg
     got = np.array([[res["pose_range"]["range_deg"][n][a] for a in "xyz"] for n in names])
     np.testing.assert_allclose(got, want, atol=1e-3)

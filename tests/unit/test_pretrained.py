@@ -112,7 +112,8 @@ def test_packed_data_is_the_test_split_with_the_training_summary(shipped):
     assert len(ds.split("train")) == 0 and ds.manifest["trimmed_from"]["splits"]["train"] == 7
     np.testing.assert_array_equal(ds.verts, full.verts[test])
     # the training range and mean shape of the full data, though its training poses are not shipped
-    np.testing.assert_allclose(training_pose_range(ds), training_pose_range(full), atol=1e-9)
+    np.testing.assert_allclose(training_pose_range(ds).deg, training_pose_range(full).deg, atol=1e-9)
+    assert training_pose_range(ds).chart == training_pose_range(full).chart == "swing_twist"
     mean, space = recorded_mean_offsets(ds)
     pred = ClothPredictor.from_runs(shipped[1])
     idx = full.split("train")
@@ -141,7 +142,7 @@ def test_the_training_range_ships_in_the_record_and_card(shipped):
     d = pretrained_run("standin")
     names = list(full.body.skeleton.names)
     rec = RunRecord.read(d).pose_range
-    np.testing.assert_allclose(range_from_record(rec, names), training_pose_range(full), atol=1e-9)
+    np.testing.assert_allclose(range_from_record(rec, names).deg, training_pose_range(full).deg, atol=1e-9)
     assert rec["poses"] == 7 and info["pose_range_source"].startswith("measured by pbc pretrained pack")
     pred = ClothPredictor.from_pretrained("standin")
     assert run_pose_range(pred)[1] == f"recorded in the run {d}"
@@ -158,11 +159,11 @@ def test_joints_the_model_does_not_read_are_never_flagged(shipped):
     pred = ClothPredictor.from_pretrained("standin")
     J = len(full.body.skeleton.names)
     assert pred.read_joints() == list(range(J))
-    trained = training_pose_range(full)
-    np.testing.assert_allclose(run_pose_range(pred)[0], trained, atol=1e-9)
+    trained = training_pose_range(full).deg
+    np.testing.assert_allclose(run_pose_range(pred)[0].deg, trained, atol=1e-9)
     pred.whole_net.input_joints = (0, 2)
     assert pred.read_joints() == [0, 2]
-    rng = run_pose_range(pred)[0]
+    rng = run_pose_range(pred)[0].deg
     np.testing.assert_allclose(rng[[0, 2]], trained[[0, 2]], atol=1e-9)
     others = [j for j in range(J) if j not in (0, 2)]
     assert (rng[others, :, 0] == -180).all() and (rng[others, :, 1] == 180).all()

@@ -194,6 +194,63 @@ def xzy_angles(poses) -> np.ndarray:
     return np.degrees(np.stack([x, y, z], -1))
 
 
+def swing_twist_angles(poses) -> np.ndarray:
+    """Rotations (..., 3, 3) of joints whose bone runs along local y -> angles (..., 3) in degrees, per axis
+    (x, y, z): x and z the swing (the turn taking the bone's rest direction onto its posed one, as axis times
+    angle; its axis lies in the x-z plane), y the twist about the bone after it. The inverse of
+    `swing_twist_to_matrix`.
+
+    Why a second chart: the body's Euler angles (`xzy_angles`) are singular where a T-posed arm hangs down
+    (z = -90, x and y turn about one axis), so a box of them holds or misses hanging arms by accident. The swing
+    is singular only for a bone turned fully about (180 degrees), which no joint reaches."""
+    r = np.asarray(poses, dtype=np.float64)
+    d = r[..., :, 1]  # the bone's posed direction in its rest frame
+    theta = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
+    h = np.hypot(d[..., 0], d[..., 2])
+    scale = np.where(h > 1e-12, theta / np.maximum(h, 1e-12), 1.0)  # theta / sin(theta), 1 at no swing
+    sx, sz = d[..., 2] * scale, -d[..., 0] * scale
+    swing = _rodrigues_np(np.stack([sx, np.zeros_like(sx), sz], -1))
+    twist = np.swapaxes(swing, -1, -2) @ r  # a turn about y alone
+    y = np.arctan2(twist[..., 0, 2], twist[..., 0, 0])
+    return np.degrees(np.stack([sx, y, sz], -1))
+
+
+def _rodrigues_np(v: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors (..., 3) radians -> rotations (..., 3, 3)."""
+    t = np.linalg.norm(v, axis=-1)[..., None, None]
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    small = t < 1e-8
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t**2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def swing_twist_to_matrix(angles_deg) -> Tensor:
+    """Angles (..., 3) in degrees, per axis (x, y, z) of `swing_twist_angles` -> rotations (..., 3, 3):
+    the swing (axis-angle (x, 0, z)) after the twist y about the bone. Differentiable everywhere (the range
+    search descends on it)."""
+    a = torch.deg2rad(torch.as_tensor(angles_deg))
+    sx, tw, sz = a[..., 0], a[..., 1], a[..., 2]
+    zero = torch.zeros_like(sx)
+    k = torch.stack([torch.stack([zero, -sz, zero], -1), torch.stack([sz, zero, -sx], -1),
+                     torch.stack([zero, sx, zero], -1)], -2)
+    t2 = sx**2 + sz**2
+    small = t2 < 1e-12
+    t = torch.sqrt(torch.where(small, torch.ones_like(t2), t2))  # a safe root: no NaN gradient at no swing
+    a1 = torch.where(small, 1.0 - t2 / 6.0, torch.sin(t) / t)[..., None, None]
+    b1 = torch.where(small, 0.5 - t2 / 24.0, (1.0 - torch.cos(t)) / t**2)[..., None, None]
+    eye = torch.eye(3, dtype=a.dtype).expand(k.shape)
+    swing = eye + a1 * k + b1 * (k @ k)
+    c, s = torch.cos(tw), torch.sin(tw)
+    one = torch.ones_like(tw)
+    twist = torch.stack([torch.stack([c, zero, s], -1), torch.stack([zero, one, zero], -1),
+                         torch.stack([-s, zero, c], -1)], -2)
+    return swing @ twist
+
+
 def geodesic_deg(a, b) -> np.ndarray:
     """(...,) the angle in degrees of the rotation between rotations a and b (..., 3, 3)."""
     c = (np.einsum("...ij,...ij->...", np.asarray(a, np.float64), np.asarray(b, np.float64)) - 1.0) / 2.0
