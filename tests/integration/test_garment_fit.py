@@ -232,7 +232,7 @@ def test_each_ecosystems_garment_is_placed_and_one_is_fitted(tmp_path, capsys):
     # (unit, registration, rest-pose transfer, push-out), runs the shrink-wrap and its checks and writes
     # fitted.obj; the 3x-scale pattern tee (loose vertices, an odd unit) goes on through `pbc garment fit` at the
     # smallest settings. The SMPL top's sleeves are longer than the mannequin's arms: it goes on A-posed Anny,
-    # where its long sleeves miss the forearms and it is refused.
+    # where, registered by its collar alone, its long sleeves miss the forearms and it is refused.
     # tests/unit/test_placement.py measures every placement on Anny A- and T-posed; a fit of each would cost
     # minutes of drapes apiece, past what CI affords
     bodies = {"pattern_tee": MANNEQUIN, "no_uv_shirt": MANNEQUIN, "a_pose_shirt": MANNEQUIN}
@@ -247,10 +247,12 @@ def test_each_ecosystems_garment_is_placed_and_one_is_fitted(tmp_path, capsys):
         fitted = (out / "fitted.obj").read_text()
         assert fitted.count("\nv ") > 100, name
     # the SMPL top's long sleeves (pbc's mannequin-proportioned shirt) miss A-posed Anny's forearms once its collar
-    # is registered: refused in one line, nothing written (tests/unit/test_placement.py measures it)
+    # alone is registered (by default its shoulders are, and it sits: tests/unit/test_placement.py measures both):
+    # refused in one line, nothing written
     garment = tmp_path / "smpl_top.obj"
     garment.write_text(ECOSYSTEMS["smpl_top"](), newline="")
-    assert exit_code(main, ["inspect", str(garment), "body=anny", "--out", str(tmp_path / "smpl")]) == 2
+    assert exit_code(main, ["inspect", str(garment), "body=anny", "garment.placement.shoulder_registration=false",
+                            "--out", str(tmp_path / "smpl")]) == 2
     err = capsys.readouterr().err.strip()
     assert "sleeve passes the elbow but does not surround the body's" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "smpl" / "fitted.obj").exists()

@@ -1,9 +1,9 @@
 """A garment from another ecosystem lands where pbc's own shirt sits on the body (pbc.geometry.garment.placement):
 the four files of tests/helpers/ecosystems.py (a SMPL-frame T-pose top, a 3x-scale pattern tee in centimetres
-with loose vertices, a shirt without UVs, a decimetre A-pose shirt) on Anny in its A-pose and its T-pose, a
-long-sleeved shirt modelled on T-posed Anny (tests/helpers/long_sleeves.py) turned at the shoulder and the elbow
-onto A-posed Anny's arms, and what is refused in one line. No drapes here (tests/integration/test_garment_fit.py
-fits them)."""
+with loose vertices, a shirt without UVs, a decimetre A-pose shirt) on Anny in its A-pose and its T-pose, the
+long-sleeve top registered by its shoulders, a long-sleeved shirt modelled on T-posed Anny
+(tests/helpers/long_sleeves.py) turned at the shoulder and the elbow onto A-posed Anny's arms, and what is
+refused in one line. No drapes here (tests/integration/test_garment_fit.py fits them)."""
 
 from __future__ import annotations
 
@@ -18,8 +18,9 @@ from scipy.spatial import cKDTree
 from pbc.cli.garment import run
 from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
+from pbc.geometry.body.skeleton import limb_segments
 from pbc.geometry.garment import garment_from_config
-from pbc.geometry.garment.checks import sleeve_axes, sleeves_inside
+from pbc.geometry.garment.checks import sleeve_axes, sleeves_inside, tube_axis
 from pbc.geometry.garment.placement import openings, place_garment, placed_mesh, sits
 from pbc.geometry.meshio import read_obj
 
@@ -48,11 +49,12 @@ def test_each_garment_lands_within_a_few_centimetres_of_pbcs_shirt(world):
         assert not placement.kept
     assert placed_mesh(folder / "pattern_tee.obj", gcfg, body)[1].unit_name == "odd scale"
     assert placed_mesh(folder / "a_pose_shirt.obj", gcfg, body)[1].unit_name == "dm"
-    # the long-sleeve top has more vertices: its collar where the shirt's is, 25 cm above SMPL's
-    top, placement = placed_mesh(folder / "smpl_top.obj", _any_sleeve(gcfg), body)
+    # the long-sleeve top has more vertices and is registered by its shoulders (test below): lifted from SMPL's
+    # frame (25 cm), less the 7 cm its collar registration left it above Anny's shoulders
+    top, placement = placed_mesh(folder / "smpl_top.obj", gcfg, body)
     collar = openings(top.vertices, top.faces)[0]["centre"]
-    assert np.linalg.norm(collar - openings(ref.vertices, ref.faces)[0]["centre"]) < 0.02
-    assert placement.translation[1] > 0.2
+    assert 0.04 < (openings(ref.vertices, ref.faces)[0]["centre"] - collar)[1] < 0.1
+    assert 0.2 < placement.translation[1] < 0.35
 
 
 def _any_sleeve(gcfg):
@@ -62,12 +64,19 @@ def _any_sleeve(gcfg):
     return out
 
 
+def _collar_only(gcfg):
+    """gcfg with tops registered by their collar alone (no move onto the shoulders), as placement was before."""
+    out = gcfg.copy()
+    out.placement.shoulder_registration = False
+    return out
+
+
 def test_long_sleeves_that_miss_the_forearms_are_refused_in_one_line(world):
-    # the SMPL top is pbc's mannequin-proportioned shirt: registered by its collar, its long sleeves lie above
-    # Anny's arms (T-pose: the arm along the sleeve's lower edge) or off its bent forearms (A-pose)
+    # the SMPL top is pbc's mannequin-proportioned shirt: registered by its collar alone, its long sleeves lie
+    # above Anny's arms (T-pose: the arm along the sleeve's lower edge) or off its bent forearms (A-pose)
     name, body, gcfg, folder = world
     with pytest.raises(ValueError) as err:
-        placed_mesh(folder / "smpl_top.obj", gcfg, body)
+        placed_mesh(folder / "smpl_top.obj", _collar_only(gcfg), body)
     msg = str(err.value)
     assert "sleeve passes the elbow but does not surround the body's" in msg and "forearm (it reaches" in msg
     assert "\n" not in msg
@@ -82,6 +91,43 @@ def test_sleeves_are_turned_onto_the_rest_arms(world):
     assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
     axes = sleeve_axes(mesh.vertices, mesh.faces, body)
     assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
+
+
+def _shoulder_gaps(given: np.ndarray, x: np.ndarray, f: np.ndarray, body) -> list[float]:
+    """Per side (left, right), how far (m) the body's shoulder joint lies from the axis of the garment's upper
+    sleeve as placed (x (V, 3), faces f): the faces that lay over 0.4-0.9 of the upper arm's length out from
+    the joint in the T-pose garment as given (V, 3), wherever placement took them (the A-pose turns them down)."""
+    out = []
+    for sgn, joint in ((1.0, "l_arm"), (-1.0, "r_arm")):
+        bone = limb_segments(body.skeleton, joint)[0]
+        length = float(np.linalg.norm(bone[1] - bone[0]))
+        reach = sgn * given[f].mean(1)[:, 0] - abs(bone[0][0])
+        band = f[(reach > 0.4 * length) & (reach < 0.9 * length)]
+        axis, tube = tube_axis(x, band)
+        assert tube < 0.1  # a ring of sleeve, wherever it went
+        rel = bone[0] - x[band].mean((0, 1))
+        out.append(float(np.linalg.norm(rel - (rel @ axis) * axis)))
+    return out
+
+
+def test_long_straight_sleeves_are_registered_on_the_shoulders(world):
+    # the SMPL top (pbc's mannequin-proportioned shirt, long T-pose sleeves): its collar onto Anny's neck left its
+    # sleeves' axes 4-6 cm above Anny's shoulder joints (Anny's neck stands 10 cm above them, the mannequin's 3),
+    # and the sleeves missed the forearms; moved so each sleeve's axis passes through the shoulder joint it sits,
+    # its collar where a long-sleeved shirt sized to Anny has it (tests/helpers/long_sleeves.py)
+    name, body, gcfg, folder = world
+    given = read_obj(folder / "smpl_top.obj", "garment OBJ").vertices
+    top, placement = placed_mesh(folder / "smpl_top.obj", gcfg, body)  # refused if it did not sit
+    before, _ = placed_mesh(folder / "smpl_top.obj", _any_sleeve(_collar_only(gcfg)), body)
+    gaps, gaps_before = (_shoulder_gaps(given, m.vertices, m.faces, body) for m in (top, before))
+    assert max(gaps) < 0.015 and min(gaps_before) > 0.035, (name, gaps, gaps_before)  # 0.1-0.6 cm; 4.4-5.6 before
+    need = float(gcfg.shrinkwrap.min_encircled_deg)
+    assert _forearm_degrees(top.vertices, top.faces, body) >= need  # 291-292 degrees; 246 (A), 224 (T) before
+    assert _forearm_degrees(before.vertices, before.faces, body) < need
+    assert abs(placement.translation[0]) < 1e-9  # moved up and down, back and forth: never off the midline
+    rig, faces, _, _ = long_sleeve_shirt(body)
+    collar = openings(top.vertices, top.faces)[0]["centre"]
+    assert np.linalg.norm(collar - openings(rig, faces)[0]["centre"]) < 0.02  # 1.0 cm
 
 
 def _one_turn(gcfg):

@@ -9,7 +9,10 @@ file's numbers, where a person would put them on the rest body of ``body``, in f
    ``placement.unit_snap`` x, else kept as an odd scale;
 2. **registration** from landmarks: the collar (a top's highest opening) onto the body's neck joint plus
    ``placement.collar_offset``, the waistband of a bottom onto the body's waist; an odd scale is then grown
-   (within ``placement.scale_range``) until the torso's cloth is outside the body;
+   (within ``placement.scale_range``) until the torso's cloth is outside the body; a top with long straight
+   sleeves is then moved onto the shoulders, each sleeve's axis through the body's shoulder joint
+   (`_shoulder_shift`), as a person pulls a shirt on: a body's neck stands higher above its shoulders than
+   another's, and the collar alone leaves long sleeves off the arms;
 3. **rest-pose transfer**: sleeves modelled at another arm angle (a T-pose top on an A-posed body, or the
    other way round) turn the body's arms to the sleeves, the garment takes the skinning weights of the posed
    body where it lies (sleeves follow the arms), and is skinned back to the body's rest pose; a sleeve that
@@ -58,7 +61,7 @@ class Placement:
     unit: float  # metres per file unit
     unit_name: str  # the named unit, or "odd scale"
     kind: str  # top / bottom
-    translation: np.ndarray  # (3,) m, the collar's (a bottom's waistband's) move after the unit
+    translation: np.ndarray  # (3,) m, the collar's (a bottom's waistband's) move after the unit, shoulders' included
     kept: bool  # the garment already sat on the body: nothing moved
     arm_turn_deg: dict = field(default_factory=dict)  # side -> degrees the body's arm was turned onto the sleeve
     distance_before: float = float("nan")  # m, median |distance| to the rest body, as the file's numbers in metres
@@ -264,6 +267,55 @@ def _band_radius(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> fl
     along, radial = _axial(points, centre, axis)
     band = (np.abs(along) < SLEEVE_BAND) & (radial < 2 * SLEEVE_BAND)
     return float(np.median(radial[band])) if band.any() else SLEEVE_BAND
+
+
+def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a: dict, pcfg) -> bool:
+    """Whether one side's sleeve (a: its `sleeve_axes` entry) is long and straight: it reaches past the body's
+    elbow by pcfg.elbow_reach along its axis from the point nearest the body's shoulder joint, and the axis of
+    its inner part (pcfg.sleeve_inner_band: fractions of its sideways reach past the body's shoulder joint) is
+    within pcfg.sleeve_straight_deg of its outer half's. False on an arm of one bone (no elbow to pass)."""
+    sk = body.skeleton
+    segs = limb_segments(sk, ARM_JOINTS[side])
+    if len(segs) < 2:
+        return False
+    joint = segs[0][0]
+    pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
+    along, radial = _axial(points, pivot, a["axis"])
+    radius = _band_radius(points, a["centre"], a["axis"])
+    reach = float(along[radial < 1.5 * radius].max(initial=0.0))
+    if reach < float(np.linalg.norm(segs[0][1] - segs[0][0])) + float(pcfg.elbow_reach):
+        return False
+    sgn = 1.0 if side == "left" else -1.0
+    sideways = sgn * points[faces].mean(1)[:, 0]
+    x0 = abs(float(joint[0]))
+    lo, hi = (x0 + float(t) * (float(sideways.max()) - x0) for t in pcfg.sleeve_inner_band)
+    inner = tube_axis(points, faces[(sideways > lo) & (sideways <= hi)])
+    if inner is None or inner[1] > TUBE_LIMIT:
+        return False
+    return float(np.degrees(np.arccos(min(abs(float(inner[0] @ a["axis"])), 1.0)))) <= float(pcfg.sleeve_straight_deg)
+
+
+def _shoulder_shift(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> np.ndarray:
+    """(3,) the move (m, up/down and back/forth: a top stays centred on the midline) that puts each long straight
+    sleeve's axis (`sleeve_axes`, `_long_sleeve`) through the body's shoulder (arm) joint, least squares over
+    both sides, the sleeve turning about that joint in the rest-pose transfer; zeros with
+    pcfg.shoulder_registration off, unless both sleeves are long and straight, or when the move is past
+    pcfg.max_anchor_error (it would take the collar, registered at its place, out of where `sits` finds it: the
+    sleeves are not where a shoulder would hold them, and the collar's registration stands). A short sleeve round
+    a real shoulder lies off the arm's bone (`sleeve_axes`): its collar places it."""
+    if not pcfg.shoulder_registration:
+        return np.zeros(3)
+    sk = body.skeleton
+    axes = {s: a for s, a in sleeve_axes(points, faces, body).items() if s in ARM_JOINTS}
+    if set(axes) != set(ARM_JOINTS) or not all(_long_sleeve(points, faces, body, s, a, pcfg) for s, a in axes.items()):
+        return np.zeros(3)
+    lhs, rhs = 1e-9 * np.eye(2), np.zeros(2)  # the move (y, z); the tiny ridge holds a direction no axis fixes
+    for side, a in axes.items():
+        off = np.eye(3) - np.outer(a["axis"], a["axis"])  # across the sleeve's axis
+        lhs += off[1:, 1:]
+        rhs += (off @ (sk.rest_heads[sk.index(ARM_JOINTS[side])].double().numpy() - a["centre"]))[1:]
+    move = np.array([0.0, *np.linalg.solve(lhs, rhs)])
+    return move if float(np.linalg.norm(move)) <= float(pcfg.max_anchor_error) else np.zeros(3)
 
 
 def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> dict:
@@ -504,6 +556,8 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             if _inside_fraction(y, body, lm) <= float(pcfg.max_inside_fraction):
                 x, unit = y, unit * s
                 break
+    shift = _shoulder_shift(x, f, body, pcfg) if kind == "top" else np.zeros(3)
+    x = x + shift
     turned: dict[str, float] = {}
     forearm: dict[str, float] = {}
     for _ in range(int(pcfg.transfer_iterations) if kind == "top" else 0):
@@ -518,7 +572,7 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             if "elbow" in turn:
                 forearm[side] = forearm.get(side, 0.0) + float(geodesic_deg(turn["fore_rot"], np.eye(3)))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
-    placement = Placement(unit, name, kind, target - _anchor(p * unit, f, kind)[0], False, turned, before,
+    placement = Placement(unit, name, kind, target + shift - _anchor(p * unit, f, kind)[0], False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
     wrong = sits(x, f, body, pcfg, kind, lm, float(gcfg.shrinkwrap.min_encircled_deg))
     if wrong is not None:
