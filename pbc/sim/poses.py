@@ -21,7 +21,9 @@ default_rng([seed, b, 1]): with every fraction 0 (the default) the poses are tho
 
 A mode may instead (or also) draw joints in a cone (`cone`): each named joint's bone direction uniform over
 the cap of `half_angle_deg` round a direction of the root frame (`around`, e.g. straight down), its twist about
-the bone uniform in `twist_deg`, both in the swing-twist chart (pbc.geometry.body.skeleton.swing_twist_angles).
+the bone uniform in `twist_deg`, both in the swing-twist chart (pbc.geometry.body.skeleton.swing_twist_angles);
+with `clear` an arm the cone puts inside the torso is raised out of it (`clear_arms`, as a clip's arms are)
+instead of pruned, so the data holds arms along the torso's surface, where retargeted clips put them.
 Why: Euler limits are boxes whose corners turn meaningless where an arm hangs (z near -90: x and y turn about
 one axis), so shares of them cannot say "hanging, swung forward or back, any twist"; a walk's arms are there.
 """
@@ -74,7 +76,8 @@ class SamplingSettings:
     leg_probe_min_distance: float = 0.15  # m from the hip joint: clear of the groin, where the legs meet
     leg_torso_joints: tuple[str, ...] = ()  # the primitives (by joint, `root` included) a leg must not enter
     # the active modes (fraction > 0): (name, fraction, ((joint, axis, low share, high share), ...), cone),
-    # cone None or (joints, around (3,), half_angle_deg, (twist low, twist high)); see the module docstring.
+    # cone None or (joints, around (3,), half_angle_deg, (twist low, twist high), clear None or (step, max));
+    # see the module docstring.
     # A mode at fraction 0 is left out, so the default equals a config with every mode off
     modes: tuple = ()
 
@@ -127,10 +130,10 @@ def _parse_cone(cone: Mapping | None, key: str) -> tuple | None:
     """A mode's `cone` node -> (joints, around (3,) unit, half_angle_deg, (twist low, twist high)), or None."""
     if not cone:
         return None
-    unknown = set(cone) - {"joints", "around", "half_angle_deg", "twist_deg"}
+    unknown = set(cone) - {"joints", "around", "half_angle_deg", "twist_deg", "clear"}
     if unknown:
         raise ValueError(f"{key}: unknown keys {sorted(unknown)}; a cone has joints, around, half_angle_deg, "
-                         "twist_deg")
+                         "twist_deg and clear")
     around = np.asarray(cone.get("around", ()), dtype=np.float64)
     half = float(cone.get("half_angle_deg", 0.0))
     twist = [float(t) for t in cone.get("twist_deg", ())]
@@ -145,7 +148,14 @@ def _parse_cone(cone: Mapping | None, key: str) -> tuple | None:
     if len(twist) != 2 or not -180.0 <= twist[0] <= twist[1] <= 180.0:
         raise ValueError(f"{key}.twist_deg={twist}: give [low, high] degrees of twist about the bone, "
                          "-180 <= low <= high <= 180")
-    return joints, tuple(around / np.linalg.norm(around)), half, (twist[0], twist[1])
+    clear = cone.get("clear")
+    if clear:
+        step, most = float(clear.get("step_deg", 0.0)), float(clear.get("max_deg", 0.0))
+        if set(clear) - {"step_deg", "max_deg"} or not 0.0 < step <= most:
+            raise ValueError(f"{key}.clear={dict(clear)}: give step_deg and max_deg, 0 < step_deg <= max_deg "
+                             "(as conf/motion/sequence.yaml's clear_arms), or null to prune such arms")
+        clear = (step, most)
+    return joints, tuple(around / np.linalg.norm(around)), half, (twist[0], twist[1]), clear or None
 
 
 def modes_record(settings: SamplingSettings) -> dict:
@@ -155,9 +165,11 @@ def modes_record(settings: SamplingSettings) -> dict:
     for name, f, ranges, cone in settings.modes:
         out[name] = {"fraction": f, "range": [[j, "xyz"[a], lo, hi] for j, a, lo, hi in ranges]}
         if cone is not None:
-            joints, around, half, twist = cone
+            joints, around, half, twist, clear = cone
             out[name]["cone"] = {"joints": list(joints), "around": list(around), "half_angle_deg": half,
                                  "twist_deg": list(twist)}
+            if clear is not None:
+                out[name]["cone"]["clear"] = {"step_deg": clear[0], "max_deg": clear[1]}
     return out
 
 
@@ -183,13 +195,15 @@ def cone_rotations(u: np.ndarray, around_local: np.ndarray, half_angle_deg: floa
     return swing_twist_to_matrix(torch.from_numpy(angles)).numpy()
 
 
-def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, settings: SamplingSettings) -> None:
+def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator,
+                settings: SamplingSettings) -> list[tuple[np.ndarray, float, float]]:
     """Put candidates (n, J, 3) degrees, in place, into the modes: candidate i falls in mode k with its
     fraction, and that mode's joint axes are redrawn uniformly in their share of the limits, its cone joints
     in their cone (`cone_rotations`, written back as Euler angles). Joints the sampler keeps at rest
-    (`posed_joints`) stay there."""
+    (`posed_joints`) stay there. Returns, per cone that clears arms out of the torso, its candidates (n,) bool
+    and its (step, max) degrees (`sample_poses` raises them out; `clear_arms`)."""
     if not settings.modes:
-        return
+        return []
     n = len(angles)
     lim = skel.limits_deg.double().numpy()
     pick = rng.random(n)
@@ -199,7 +213,7 @@ def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, se
     u_cone = rng.random((n, sum(len(c[0]) for c in cones), 3)) if cones else None
     posed = set(settings.posed_joints)
     frames = skel.frames().double().numpy()
-    start, col, ccol = 0.0, 0, 0
+    start, col, ccol, clearing = 0.0, 0, 0, []
     for name, fraction, ranges, cone in settings.modes:
         rows = (pick >= start) & (pick < start + fraction)
         start += fraction
@@ -212,12 +226,15 @@ def apply_modes(angles: np.ndarray, skel: Skeleton, rng: np.random.Generator, se
             col += 1
         if cone is None:
             continue
-        joints, around, half, twist = cone
+        joints, around, half, twist, clear = cone
         for joint, j in zip(joints, skel.indices(joints, f"sampling.modes.{name}.cone.joints"), strict=True):
             if (not posed or joint in posed) and rows.any():
                 local = frames[j].T @ np.asarray(around)  # the root-frame direction in the joint's rest frame
                 angles[rows, j] = xzy_angles(cone_rotations(u_cone[rows, ccol], local, half, twist))
             ccol += 1
+        if clear is not None:
+            clearing.append((rows, *clear))
+    return clearing
 
 
 def _axis_rotation(angles_rad: Tensor, axis: int) -> Tensor:
@@ -418,9 +435,15 @@ def sample_poses(
                 f"({pruned} pruned); the limits or pruning are too strict"
             )
         angles = sample_angles(skel, settings.block_size, np.random.default_rng([seed, block]), settings)
-        apply_modes(angles, skel, np.random.default_rng([seed, block, 1]), settings)
+        clearing = apply_modes(angles, skel, np.random.default_rng([seed, block, 1]), settings)
         block += 1
         if probes is not None:
+            for rows, step, most in clearing:  # arms the cone put inside the torso: raised out, as a clip's are
+                if rows.any():
+                    with torch.no_grad():
+                        raised, _ = clear_arms(body, euler_xzy_to_matrix(torch.from_numpy(angles[rows])), settings,
+                                               step, most, probes)
+                    angles[rows] = xzy_angles(raised.numpy())
             with torch.no_grad():
                 rot = euler_xzy_to_matrix(torch.from_numpy(angles))
                 bad = probes_inside_torso(body, rot, probes, settings)
