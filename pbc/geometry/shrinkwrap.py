@@ -34,13 +34,13 @@ from pbc.geometry.garment.checks import (
     check_far,
     check_sleeves,
     check_stretch,
+    cloth_encircled_degrees,
     face_patches,
     patch_stretch,
     sleeve_axes,
 )
 from pbc.geometry.meshops import (
     closest_on_mesh,
-    encircled_degrees,
     face_areas,
     face_charts,
     face_normals,
@@ -148,9 +148,10 @@ def _regions(faces: np.ndarray, cage, points: np.ndarray, surface: _RestSurface,
     torso's (the torso measured on its own triangles, outside every limb), averaged over the garment out to
     ``smoothing`` m (`smooth_over_mesh`), so the inner side of a sleeve, a few centimetres from the torso's side
     under a hanging arm, goes with the rest of its sleeve, and the chest beside a sleeve with the chest; a vertex
-    nearer a limb on that average is on its nearest limb, kept only where the garment on that limb surrounds it
-    (`encircled_degrees` >= ``min_encircled_deg``: a sleeve or a trouser leg, not a skirt's side beside a leg or
-    a cape over an arm). ``limbs`` False (garment.shrinkwrap.arm_parts: the skirt, the trousers): all torso.
+    nearer a limb on that average is on its nearest limb, kept only where the garment's faces on that limb surround
+    it (`cloth_encircled_degrees`, the sleeve check's measure, >= ``min_encircled_deg``: a sleeve or a trouser
+    leg, not a skirt's side beside a leg or a cape over an arm). ``limbs`` False (garment.shrinkwrap.arm_parts:
+    the skirt, the trousers): all torso.
 
     Returns the regions (V,) and, where measured, the region each cage patch lies nearest on median (P,) (for
     the stretch check's words), else None."""
@@ -184,16 +185,20 @@ def _regions(faces: np.ndarray, cage, points: np.ndarray, surface: _RestSurface,
     nearer = np.clip(dist[0] - dist[1:].min(0), -1.0, 1.0)  # m nearer a limb than the torso
     on_limb = smooth_over_mesh(nearer, faces, smoothing, pts) > 0.0
     region[on_limb] = limb[on_limb]
+    face_region = region[np.asarray(faces)]
     for r in reached:
         on = region == r
         if not on.any():
             continue
-        deg = encircled_degrees(pts[on], limb_segments(body.skeleton, LIMB_JOINTS[r]))
+        # measured on the faces wholly on the limb, not on its vertices: a coarse sleeve's rings (8 vertices, 4.5 cm
+        # apart, skewed to the bone) read 199 degrees round A-posed Anny's arm on their vertices, 280 on their faces
+        deg = cloth_encircled_degrees(pts, np.asarray(faces)[(face_region == r).all(1)],
+                                      limb_segments(body.skeleton, LIMB_JOINTS[r]))
         if deg >= min_encircled_deg:
             continue
         # cloth along a limb that does not close round it goes on the torso: a skirt beside the legs, and a short
-        # loose sleeve over the shoulder (180-230 degrees round the arm's bone on Anny) alike; a cape's flap along
-        # the arm measures the same (~200), so it is wrapped on the torso too rather than refused
+        # loose sleeve over the shoulder (155-265 degrees round the arm's bones on Anny) alike; a cape's flap along
+        # the arm measures less (140-150), so it is wrapped on the torso too rather than refused
         region[on] = 0
     nearest = np.array([int(np.argmin(np.median(dist[:, p.vertices], axis=1))) if len(p.vertices) else 0
                         for p in cage.patches], np.int64)

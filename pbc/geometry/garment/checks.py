@@ -282,12 +282,21 @@ def along_forearm(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
     return (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (np.linalg.norm(points - q, axis=1) < FLAP_REACH)
 
 
+def cloth_encircled_degrees(points: np.ndarray, faces: np.ndarray, segs: np.ndarray) -> float:
+    """How far round a limb's bones segs (S, 2, 3) the cloth of faces (F, 3) at points (V, 3) reaches, in degrees:
+    `encircled_degrees` of the faces' centres. A coarse sleeve's ring of vertices, skewed to the bone, falls partly
+    in each of the measure's slices and reads as cloth on one side; the centres of the faces between two rings fill
+    the slices between them. The one measure of the sleeve check (`sleeves_inside`) and of the shrink-wrap's
+    regions (pbc.geometry.shrinkwrap)."""
+    return encircled_degrees(np.asarray(points, np.float64)[np.asarray(faces)].mean(1), segs)
+
+
 def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
     """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow, or past it along
     the forearm within FLAP_REACH of its bones) on a body with forearms, and a sleeve there does not surround the
-    forearm: then which, in words (`encircled_degrees` of the centres of the faces past the elbow about the
-    forearm's bones; a sleeve that passes the elbow nowhere near
-    the forearm reaches a few degrees round it, or too few faces to say: refused too). A short sleeve is not
+    forearm: then which, in words (`cloth_encircled_degrees` of the faces past the elbow about the forearm's
+    bones; a sleeve that passes the elbow nowhere near the forearm reaches a few degrees round it, or too few faces
+    to say: refused too). A short sleeve is not
     measured: round a real shoulder it lies off the arm's bone (180-230 degrees round it on Anny) and wraps well."""
     if kind != "top":
         return None
@@ -303,7 +312,7 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
         past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE) | along_forearm(centre, segs)
         if past.sum() < 8:
             continue
-        deg = encircled_degrees(centre[past], segs[1:])
+        deg = cloth_encircled_degrees(p, np.asarray(faces)[past], segs[1:])
         if not deg >= min_deg:  # NaN: cloth past the elbow in no slice round the forearm
             reach = ("too little of it lies round it to measure" if np.isnan(deg)
                      else f"it reaches {deg:.0f} degrees round it")
@@ -330,4 +339,4 @@ def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_de
                 f"forearm, past the elbow, but close round no arm (less than garment.shrinkwrap.min_encircled_deg = "
                 f"{min_deg:g} degrees round it): a cape's or poncho's flap, or a sleeve cut open, would be wrapped on "
                 "the torso and caught by the arm in every drape. Give it sleeves that close round the arms, cut what "
-                "passes the elbow, or lower garment.shrinkwrap.min_encircled_deg (e.g. to 150) to wrap it on the arms")
+                "passes the elbow, or lower garment.shrinkwrap.min_encircled_deg (e.g. to 120) to wrap it on the arms")
