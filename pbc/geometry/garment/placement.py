@@ -39,10 +39,17 @@ from scipy.spatial import cKDTree
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
 from pbc.geometry.body.skeleton import descendants, geodesic_deg, limb_segments
-from pbc.geometry.garment.checks import ARM_JOINTS, TUBE_LIMIT, sleeve_axes, sleeves_inside, tube_axis
+from pbc.geometry.garment.checks import (
+    ARM_JOINTS,
+    TUBE_LIMIT,
+    cloth_encircled_degrees,
+    sleeve_axes,
+    sleeves_inside,
+    tube_axis,
+)
 from pbc.geometry.garment.obj_import import drop_loose, projected_charts
 from pbc.geometry.meshio import ObjMesh, read_obj
-from pbc.geometry.meshops import boundary_loops, encircled_degrees, mesh_pieces, push_out
+from pbc.geometry.meshops import boundary_loops, mesh_pieces, push_out
 from pbc.geometry.units import UNITS, metres_per_unit
 
 log = logging.getLogger(__name__)
@@ -478,10 +485,11 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
 
 def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
     """None unless the garment is trousers (a bottom with three openings or more) on a body with legs and a trouser
-    leg does not surround its leg: then which, in words. Measured with `encircled_degrees` on the face centres of
-    each trouser leg below mid-thigh about the leg's bones: a ring round the leg reaches 360 degrees, cloth
-    beside it (trousers registered a leg's width off) much less. (A top's sleeves are not measured so: a short
-    sleeve round a real shoulder lies off the arm's bone, as `sleeve_axes` says.)"""
+    leg does not surround its leg: then which, in words. Measured with `cloth_encircled_degrees` (the sleeve
+    check's measure) on the faces of each trouser leg below mid-thigh about the leg's bones: a ring round the leg
+    reaches 360 degrees, cloth beside it (trousers registered a leg's width off) much less. (A top's short
+    sleeves are not measured so: round a real shoulder a short sleeve lies off the arm's bone, as `sleeve_axes`
+    says.)"""
     p = np.asarray(points, np.float64)
     f = np.asarray(faces)
     names = list(body.skeleton.names)
@@ -493,10 +501,10 @@ def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: floa
         hip = heads[names.index(f"{side[0]}_hip")]
         knee = f"{side[0]}_knee"
         low = hip[1] if knee not in names else 0.5 * (hip[1] + heads[names.index(knee)][1])  # mid-thigh
-        pts = centre[(centre[:, 1] < low) & (sgn * centre[:, 0] > 0.0)]
-        if len(pts) < 8:
+        leg = (centre[:, 1] < low) & (sgn * centre[:, 0] > 0.0)
+        if leg.sum() < 8:
             continue
-        deg = encircled_degrees(pts, limb_segments(body.skeleton, f"{side[0]}_hip"))
+        deg = cloth_encircled_degrees(p, f[leg], limb_segments(body.skeleton, f"{side[0]}_hip"))
         if deg < min_deg:
             return (f"its {side} trouser leg does not surround the body's {side} leg (it reaches {deg:.0f} degrees "
                     f"round it; garment.shrinkwrap.min_encircled_deg = {min_deg:g})")
