@@ -239,14 +239,18 @@ class RunRecord:
         return block.get(scoped_name(name, self.kind) if self.kind is not None else name)
 
 
+# the charts a pose range record's angles may be in (pbc.motion.ranges reads them); a record without one: the first
+POSE_CHARTS = ("euler_xzy", "swing_twist")
+
+
 def check_pose_range(record) -> None:
     """A ValueError unless `record` is a pose range record: {"split", "poses", "deg": {joint: {"x" | "y" |
     "z": [min, max]}}} with finite min <= max degrees (pbc.motion.ranges.range_record writes it)."""
     deg = record.get("deg") if isinstance(record, Mapping) else None
     if not isinstance(deg, Mapping) or not deg:
         raise ValueError(f"pose_range is not a joint-angle range record (no 'deg' table of joints): {record!r:.80}")
-    if record.get("chart", "euler_xzy") not in ("euler_xzy", "swing_twist"):  # pbc.motion.ranges' charts
-        raise ValueError(f"pose_range/chart: {record['chart']!r} is not a joint-angle chart (euler_xzy, swing_twist)")
+    if record.get("chart", POSE_CHARTS[0]) not in POSE_CHARTS:
+        raise ValueError(f"pose_range/chart: {record['chart']!r} is not a joint-angle chart ({', '.join(POSE_CHARTS)})")
     for joint, axes in deg.items():
         for ax, lo_hi in (axes.items() if isinstance(axes, Mapping) else [(None, axes)]):
             ok = (ax in ("x", "y", "z") and isinstance(lo_hi, list | tuple) and len(lo_hi) == 2

@@ -24,10 +24,11 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from pbc.core.runs import POSE_CHARTS
 from pbc.geometry.body.skeleton import AXES, geodesic_deg, swing_twist_angles, swing_twist_to_matrix, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
 
-EULER, SWING_TWIST = "euler_xzy", "swing_twist"
+EULER, SWING_TWIST = POSE_CHARTS  # a record without a chart is EULER's: runs recorded those first
 CHART_TEXT = {
     EULER: "the body's Euler angles x, y, z, R = Rx Rz Ry about the joint's rest frame (conf/body)",
     SWING_TWIST: "swing and twist about the joint's rest frame: x and z the swing turning the bone (local y) from "
@@ -195,5 +196,6 @@ def range_from_record(record: dict | None, names: Sequence[str]) -> PoseRange | 
     if not deg or any(n not in deg for n in names):
         return None
     chart = record.get("chart", EULER)
-    joint_angles(np.eye(3), chart)  # an unknown chart: one clear error here
+    if chart not in CHART_TEXT:
+        raise ValueError(f"pose_range/chart: {chart!r} is not a joint-angle chart ({', '.join(CHART_TEXT)})")
     return PoseRange(np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64), chart)
