@@ -160,6 +160,7 @@ def range_summary(report: dict) -> str:
     return (f"{n} of {total} frames have joint angles outside the training poses' range (the network "
             f"extrapolates there; frames in predict.json 'pose_range'): "
             + ", ".join(f"{k} in {v} frames" for k, v in worst)
+            + (" (swing-twist axes: x, z the swing, y the twist)" if report.get("chart") == SWING_TWIST else "")
             + ("" if report.get("clamped") else "; --clamp-to-range clamps them"))
 
 
