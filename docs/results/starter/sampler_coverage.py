@@ -3,11 +3,12 @@ the swing-twist range of N poses the config's sampler draws (pruned as generatio
 setting, side by side. Seconds, where a generation is an hour: it says which sampler to drape.
 
     python docs/results/starter/sampler_coverage.py --model tshirt --n 1650 \
-        --variant "" --variant "body.sampling.modes.swinging_arms.fraction=0.2"
+        --variant "" --variant "body.sampling.modes.swinging_arms.fraction=0"
 
 Each --variant is a space-separated list of overrides on the model's data config (`data=tshirt_anny` for the
-shirt; `data.seed=1` draws other poses). Prints a table and, last, one JSON line. A drape keeps about two thirds of these poses and mirroring
-adds their mirror images, so a shipped model's own range (bench/starter.py) is close to, not equal to, this.
+shirt; `data.seed=1` draws other poses). Prints a table and, last, one JSON line. A drape keeps about two
+thirds of these poses and mirroring adds their mirror images, so a shipped model's own range (bench/starter.py)
+is close to, not equal to, this.
 """
 
 from __future__ import annotations
