@@ -47,6 +47,7 @@ from pbc.geometry.body.skeleton import (  # noqa: E402
     Skeleton,
     forward_kinematics,
     linear_blend_skinning,
+    swing_to,
     swing_twist_to_matrix,
     xzy_angles,
 )
@@ -187,11 +188,8 @@ def cone_rotations(u: np.ndarray, around_local: np.ndarray, half_angle_deg: floa
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(a, e1)
     d = cos_t[:, None] * a + sin_t[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-    twist = twist_deg[0] + u[:, 2] * (twist_deg[1] - twist_deg[0])
-    theta = np.degrees(np.arccos(np.clip(d[:, 1], -1.0, 1.0)))
-    h = np.hypot(d[:, 0], d[:, 2])
-    scale = np.where(h > 1e-12, theta / np.maximum(h, 1e-12), 0.0)
-    angles = np.stack([d[:, 2] * scale, twist, -d[:, 0] * scale], -1)  # the swing-twist chart's (x, y, z)
+    angles = swing_to(d)  # the swing-twist chart's (x, 0, z), then its twist
+    angles[:, 1] = twist_deg[0] + u[:, 2] * (twist_deg[1] - twist_deg[0])
     return swing_twist_to_matrix(torch.from_numpy(angles)).numpy()
 
 

@@ -197,35 +197,27 @@ def xzy_angles(poses) -> np.ndarray:
 def swing_twist_angles(poses) -> np.ndarray:
     """Rotations (..., 3, 3) of joints whose bone runs along local y -> angles (..., 3) in degrees, per axis
     (x, y, z): x and z the swing (the turn taking the bone's rest direction onto its posed one, as axis times
-    angle; its axis lies in the x-z plane), y the twist about the bone after it. The inverse of
+    angle; its axis lies in the x-z plane: `swing_to`), y the twist about the bone after it. The inverse of
     `swing_twist_to_matrix`.
 
     Why a second chart: the body's Euler angles (`xzy_angles`) are singular where a T-posed arm hangs down
     (z = -90, x and y turn about one axis), so a box of them holds or misses hanging arms by accident. The swing
     is singular only for a bone turned fully about (180 degrees), which no joint reaches."""
     r = np.asarray(poses, dtype=np.float64)
-    d = r[..., :, 1]  # the bone's posed direction in its rest frame
-    theta = np.arccos(np.clip(d[..., 1], -1.0, 1.0))
+    angles = swing_to(r[..., :, 1])  # the bone's posed direction in its rest frame; twist 0
+    twist = np.swapaxes(swing_twist_to_matrix(angles).numpy(), -1, -2) @ r  # a turn about y alone
+    angles[..., 1] = np.degrees(np.arctan2(twist[..., 0, 2], twist[..., 0, 0]))
+    return angles
+
+
+def swing_to(directions) -> np.ndarray:
+    """Unit directions (..., 3) in a joint's rest frame -> (..., 3) swing-twist angles in degrees (x, 0, z) of
+    the swing taking the bone (local y) onto each: the axis (in the x-z plane) times the angle."""
+    d = np.asarray(directions, dtype=np.float64)
+    theta = np.degrees(np.arccos(np.clip(d[..., 1], -1.0, 1.0)))
     h = np.hypot(d[..., 0], d[..., 2])
-    scale = np.where(h > 1e-12, theta / np.maximum(h, 1e-12), 1.0)  # theta / sin(theta), 1 at no swing
-    sx, sz = d[..., 2] * scale, -d[..., 0] * scale
-    swing = _rodrigues_np(np.stack([sx, np.zeros_like(sx), sz], -1))
-    twist = np.swapaxes(swing, -1, -2) @ r  # a turn about y alone
-    y = np.arctan2(twist[..., 0, 2], twist[..., 0, 0])
-    return np.degrees(np.stack([sx, y, sz], -1))
-
-
-def _rodrigues_np(v: np.ndarray) -> np.ndarray:
-    """Axis-angle vectors (..., 3) radians -> rotations (..., 3, 3)."""
-    t = np.linalg.norm(v, axis=-1)[..., None, None]
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k = k - np.swapaxes(k, -1, -2)
-    small = t < 1e-8
-    ts = np.where(small, 1.0, t)
-    a = np.where(small, 1.0 - t**2 / 6.0, np.sin(ts) / ts)
-    b = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
-    return np.eye(3) + a * k + b * (k @ k)
+    scale = np.where(h > 1e-12, theta / np.maximum(h, 1e-12), 0.0)  # no swing (or a half turn): no axis to take
+    return np.stack([d[..., 2] * scale, np.zeros_like(theta), -d[..., 0] * scale], -1)
 
 
 def swing_twist_to_matrix(angles_deg) -> Tensor:
