@@ -276,6 +276,19 @@ def _band_radius(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> fl
     return float(np.median(radial[band])) if band.any() else SLEEVE_BAND
 
 
+def _nearest_on_axis(point: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(3,) the point of the line through centre (3,) along the unit axis (3,) nearest point (3,): a sleeve's
+    pivot, the point of its axis level with the body's shoulder joint."""
+    return centre + axis * float((point - centre) @ axis)
+
+
+def _sleeve_reach(points: np.ndarray, pivot: np.ndarray, axis: np.ndarray, radius: float) -> float:
+    """How far (m) along the unit axis (3,) from pivot (3,) the sleeve's cloth (points (P, 3) within 1.5 of its
+    radius of the axis) reaches: past the body's upper arm, a long sleeve."""
+    along, radial = _axial(points, pivot, axis)
+    return float(along[radial < 1.5 * radius].max(initial=0.0))
+
+
 def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a: dict, pcfg) -> bool:
     """Whether one side's sleeve (a: its `sleeve_axes` entry) is long and straight: it reaches past the body's
     elbow by pcfg.elbow_reach along its axis from the point nearest the body's shoulder joint, and the axis of
@@ -286,10 +299,8 @@ def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a
     if len(segs) < 2:
         return False
     joint = segs[0][0]
-    pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
-    along, radial = _axial(points, pivot, a["axis"])
-    radius = _band_radius(points, a["centre"], a["axis"])
-    reach = float(along[radial < 1.5 * radius].max(initial=0.0))
+    reach = _sleeve_reach(points, _nearest_on_axis(joint, a["centre"], a["axis"]), a["axis"],
+                          _band_radius(points, a["centre"], a["axis"]))
     if reach < float(np.linalg.norm(segs[0][1] - segs[0][0])) + float(pcfg.elbow_reach):
         return False
     sgn = 1.0 if side == "left" else -1.0
@@ -336,7 +347,7 @@ def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> 
     for side, a in sleeve_axes(points, faces, body).items():
         if side in ARM_JOINTS and a["angle_deg"] > float(pcfg.transfer_min_deg):
             joint = sk.rest_heads[sk.index(ARM_JOINTS[side])].double().numpy()
-            pivot = a["centre"] + a["axis"] * float((joint - a["centre"]) @ a["axis"])
+            pivot = _nearest_on_axis(joint, a["centre"], a["axis"])
             out[side] = {"rot": _rotation_between(a["arm"], a["axis"]), "pivot": pivot, "axis": a["axis"],
                          "radius": _band_radius(points, a["centre"], a["axis"])}
             if pcfg.forearm_turn:
@@ -395,8 +406,7 @@ def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, tu
     heads = sk.rest_heads.double().cpu().numpy()
     segs = limb_segments(sk, ARM_JOINTS[side])  # shoulder -> elbow -> wrist (-> ...)
     upper_len, fore_len = (float(np.linalg.norm(s[1] - s[0])) for s in segs[:2])
-    along, radial = _axial(points, turn["pivot"], turn["axis"])
-    reach = float(along[radial < 1.5 * turn["radius"]].max(initial=0.0))
+    reach = _sleeve_reach(points, turn["pivot"], turn["axis"], turn["radius"])
     if reach < upper_len + float(pcfg.elbow_reach):
         return None
     ub, fb = pcfg.upper_band, pcfg.forearm_band
@@ -411,7 +421,7 @@ def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, tu
     fore_axis = (segs[1][1] - segs[1][0]) / fore_len if fore_axis is None else fore_axis
     (g1, c1), (g2, c2) = upper, lower
     joint = heads[sk.index(ARM_JOINTS[side])]
-    pivot = c1 + g1 * float((joint - c1) @ g1)
+    pivot = _nearest_on_axis(joint, c1, g1)
     rot = _rotation_between(arm_axis, g1)
     # the garment's elbow: as far down its upper sleeve from its shoulder as the body's elbow down its upper arm
     elbow = pivot + g1 * float((heads[sk.index(fore)] - joint) @ arm_axis)
