@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from helpers.ecosystems import ECOSYSTEMS, LOOSE, shirt
 from helpers.long_sleeves import long_sleeve_shirt
+from omegaconf import OmegaConf
 from scipy.spatial import cKDTree
 
 from pbc.cli.garment import run
@@ -57,17 +58,18 @@ def test_each_garment_lands_within_a_few_centimetres_of_pbcs_shirt(world):
     assert 0.2 < placement.translation[1] < 0.35
 
 
-def _any_sleeve(gcfg):
-    """gcfg without the check that long sleeves surround the forearms (to measure what placement did)."""
-    out = gcfg.copy()
-    out.shrinkwrap.min_encircled_deg = 0
-    return out
+# garment settings changed to measure what one step of placement did (`_with`)
+ANY_SLEEVE = {"shrinkwrap.min_encircled_deg": 0}  # no check that long sleeves surround the forearms
+COLLAR_ONLY = {"placement.shoulder_registration": False}  # tops registered by their collar alone, as before
+ONE_TURN = {"placement.forearm_turn": False}  # every arm turned as one bone (no second turn at the elbow)
 
 
-def _collar_only(gcfg):
-    """gcfg with tops registered by their collar alone (no move onto the shoulders), as placement was before."""
+def _with(gcfg, *changes: dict):
+    """A copy of the garment config gcfg with each change ({dotted key: value}) made."""
     out = gcfg.copy()
-    out.placement.shoulder_registration = False
+    for change in changes:
+        for key, value in change.items():
+            OmegaConf.update(out, key, value)
     return out
 
 
@@ -76,7 +78,7 @@ def test_long_sleeves_that_miss_the_forearms_are_refused_in_one_line(world):
     # above Anny's arms (T-pose: the arm along the sleeve's lower edge) or off its bent forearms (A-pose)
     name, body, gcfg, folder = world
     with pytest.raises(ValueError) as err:
-        placed_mesh(folder / "smpl_top.obj", _collar_only(gcfg), body)
+        placed_mesh(folder / "smpl_top.obj", _with(gcfg, COLLAR_ONLY), body)
     msg = str(err.value)
     assert "sleeve passes the elbow but does not surround the body's" in msg and "forearm (it reaches" in msg
     assert "\n" not in msg
@@ -87,7 +89,7 @@ def test_sleeves_are_turned_onto_the_rest_arms(world):
     name, body, gcfg, folder = world
     # the T-pose top on the A-posed body, the A-pose shirt on the T-posed one: off by 35-50 degrees as given
     garment = "smpl_top" if name == "anny" else "a_pose_shirt"
-    mesh, placement = placed_mesh(folder / f"{garment}.obj", _any_sleeve(gcfg), body)
+    mesh, placement = placed_mesh(folder / f"{garment}.obj", _with(gcfg, ANY_SLEEVE), body)
     assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
     axes = sleeve_axes(mesh.vertices, mesh.faces, body)
     assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
@@ -118,7 +120,7 @@ def test_long_straight_sleeves_are_registered_on_the_shoulders(world):
     name, body, gcfg, folder = world
     given = read_obj(folder / "smpl_top.obj", "garment OBJ").vertices
     top, placement = placed_mesh(folder / "smpl_top.obj", gcfg, body)  # refused if it did not sit
-    before, _ = placed_mesh(folder / "smpl_top.obj", _any_sleeve(_collar_only(gcfg)), body)
+    before, _ = placed_mesh(folder / "smpl_top.obj", _with(gcfg, ANY_SLEEVE, COLLAR_ONLY), body)
     gaps, gaps_before = (_shoulder_gaps(given, m.vertices, m.faces, body) for m in (top, before))
     assert max(gaps) < 0.015 and min(gaps_before) > 0.035, (name, gaps, gaps_before)  # 0.1-0.6 cm; 4.4-5.6 before
     need = float(gcfg.shrinkwrap.min_encircled_deg)
@@ -130,20 +132,13 @@ def test_long_straight_sleeves_are_registered_on_the_shoulders(world):
     assert np.linalg.norm(collar - openings(rig, faces)[0]["centre"]) < 0.02  # 1.0 cm
 
 
-def _one_turn(gcfg):
-    """gcfg with every arm turned as one bone (no second turn at the elbow), as placement was before."""
-    out = gcfg.copy()
-    out.placement.forearm_turn = False
-    return out
-
-
 def test_short_sleeves_are_turned_as_one_bone_as_before(world):
     # a sleeve that ends before the elbow gets no second turn: placed bit for bit as by the one-turn transfer
     name, body, gcfg, folder = world
     turned = []
     for garment in ("pattern_tee", "no_uv_shirt", "a_pose_shirt"):
         mesh, placement = placed_mesh(folder / f"{garment}.obj", gcfg, body)
-        before, _ = placed_mesh(folder / f"{garment}.obj", _one_turn(gcfg), body)
+        before, _ = placed_mesh(folder / f"{garment}.obj", _with(gcfg, ONE_TURN), body)
         assert np.array_equal(mesh.vertices, before.vertices), (name, garment)
         assert not placement.forearm_turn_deg
         turned += list(placement.arm_turn_deg.values())
@@ -152,14 +147,15 @@ def test_short_sleeves_are_turned_as_one_bone_as_before(world):
 
 @pytest.fixture(scope="module")
 def long_t_pose_shirt():
-    """(A-posed Anny, garment config (`_any_sleeve`: see the last assertions below), the long-sleeved shirt
+    """(A-posed Anny, garment config (`ANY_SLEEVE`: see the last assertions below), the long-sleeved shirt
     modelled on T-posed Anny (V, 3) m and its faces, the same shirt posed by the helper's rig onto A-posed Anny's
     arms ((V', 3) m, faces): where the transfer should put it)."""
     tpose = body_from_config(load_config(["body=anny_tpose"]).body)
     p, f, _, _ = long_sleeve_shirt(tpose)
     body = body_from_config(load_config(["body=anny"]).body)
     truth = long_sleeve_shirt(body)[:2]
-    gcfg = _any_sleeve(load_config(["body=anny", "garment=obj", "garment.obj=x", "garment.position_unit=dm"]).garment)
+    gcfg = _with(load_config(["body=anny", "garment=obj", "garment.obj=x", "garment.position_unit=dm"]).garment,
+                 ANY_SLEEVE)
     # its collar registered where it was modelled (the neck is where it was): what is measured is the transfer
     neck = tpose.skeleton.rest_heads[tpose.skeleton.index("neck")].double().numpy()
     gcfg.placement.collar_offset = (openings(p, f)[0]["centre"] - neck).tolist()
@@ -174,7 +170,7 @@ def _forearm_degrees(x, f, body) -> int:
 def test_a_long_t_pose_sleeve_is_turned_at_the_shoulder_and_at_the_elbow(long_t_pose_shirt):
     body, gcfg, p, f, truth = long_t_pose_shirt
     x, placement = place_garment(10.0 * p, f, body, gcfg)  # decimetres, as an asset's file
-    x1, placement1 = place_garment(10.0 * p, f, body, _one_turn(gcfg))
+    x1, placement1 = place_garment(10.0 * p, f, body, _with(gcfg, ONE_TURN))
     # the upper arm turned onto the upper sleeve (~50 degrees), the forearm ~36 more about the elbow; one turn of
     # the whole arm laid the sleeve along the forearm, bent forward, and left the upper sleeve off the upper arm
     assert set(placement.forearm_turn_deg) == {"left", "right"} and min(placement.forearm_turn_deg.values()) > 20
