@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from pbc.core.runs import POSE_CHARTS
+from pbc.core.runs import POSE_CHARTS, check_pose_range
 from pbc.geometry.body.skeleton import AXES, geodesic_deg, swing_twist_angles, swing_twist_to_matrix, xzy_angles
 from pbc.sim.poses import euler_xzy_to_matrix
 
@@ -196,7 +196,6 @@ def range_from_record(record: dict | None, names: Sequence[str]) -> PoseRange | 
     deg = (record or {}).get("deg") or {}
     if not deg or any(n not in deg for n in names):
         return None
-    chart = record.get("chart", EULER)
-    if chart not in CHART_TEXT:
-        raise ValueError(f"pose_range/chart: {chart!r} is not a joint-angle chart ({', '.join(CHART_TEXT)})")
-    return PoseRange(np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64), chart)
+    check_pose_range(record)  # the run record's own check: its chart among POSE_CHARTS, finite [min, max]
+    return PoseRange(np.array([[deg[n][ax] for ax in AXES] for n in names], dtype=np.float64),
+                     record.get("chart", EULER))

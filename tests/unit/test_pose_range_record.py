@@ -58,6 +58,13 @@ def test_train_records_the_training_splits_range(dataset_dir, tmp_path):
     (run / "metrics.json").write_text(json.dumps(bad))
     with pytest.raises(ValueError, match=r"pose_range/deg/l_arm/z: \[10.0, -10.0\] is not a \[min, max\]"):
         RunRecord.read(run)
+    # so is a chart no reader knows, on the record and on the table alone
+    with pytest.raises(ValueError, match=r"pose_range/chart: 'quaternion' is not a joint-angle chart \(euler_xzy, "):
+        range_from_record({**rec, "chart": "quaternion"}, names)
+    bad["pose_range"] = {**rec, "chart": "quaternion"}
+    (run / "metrics.json").write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match=r"pose_range/chart: 'quaternion'"):
+        RunRecord.read(run)
 
 
 def test_a_run_whose_dataset_is_gone_still_flags_the_frames(dataset_dir, tmp_path, monkeypatch):
