@@ -36,10 +36,12 @@ def rot(*angles) -> np.ndarray:
     return euler_xzy_to_matrix(torch.tensor(angles, dtype=torch.float64)).numpy()[:, None]
 
 
-def brute_force_distance(r: np.ndarray, box: np.ndarray, n: int = 41) -> float:
-    """The naive reference: the smallest geodesic distance (deg) from r (3, 3) to an n^3 grid over box (3, 2)."""
+def brute_force_distance(r: np.ndarray, box: np.ndarray, chart: str = EULER, n: int = 41) -> float:
+    """The naive reference: the smallest geodesic distance (deg) from r (3, 3) to an n^3 grid over box (3, 2) of
+    angles in chart."""
     grid = np.array(list(itertools.product(*(np.linspace(lo, hi, n) for lo, hi in box))))
-    return float(geodesic_deg(euler_xzy_to_matrix(torch.from_numpy(grid)).numpy(), r[None]).min())
+    to_matrix = euler_xzy_to_matrix if chart == EULER else swing_twist_to_matrix
+    return float(geodesic_deg(to_matrix(torch.from_numpy(grid)).numpy(), r[None]).min())
 
 
 def test_other_angles_are_the_same_rotation():
@@ -135,8 +137,7 @@ def test_nearest_in_a_swing_twist_range_matches_a_brute_force_search_of_the_box(
     assert np.all((found[0, 0] >= box[:, 0] - 1e-9) & (found[0, 0] <= box[:, 1] + 1e-9))
     assert geodesic_deg(swing_twist_to_matrix(torch.from_numpy(found[0, 0])).numpy(), r[0, 0]) == pytest.approx(
         dist[0, 0], abs=1e-6)
-    grid = np.array(list(itertools.product(*(np.linspace(lo, hi, 41) for lo, hi in box))))
-    reference = float(geodesic_deg(swing_twist_to_matrix(torch.from_numpy(grid)).numpy(), r[0, 0][None]).min())
+    reference = brute_force_distance(r[0, 0], box, SWING_TWIST)
     assert reference - 0.5 <= dist[0, 0] <= reference + 1e-6
     c = clamp_to_range(r, HANGING_ST, 1e-3)
     assert range_report(c, HANGING_ST, ["l_arm"], 1e-3)["frames_outside"] == []
