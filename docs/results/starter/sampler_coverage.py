@@ -27,6 +27,7 @@ sys.path.insert(0, str(REPO))
 from bench.starter import CLIPS, clip_frames, open_model  # noqa: E402
 from pbc.geometry.body import body_from_config  # noqa: E402
 from pbc.motion.ranges import PoseRange, angle_range, range_report  # noqa: E402
+from pbc.motion.retarget import motion_settings  # noqa: E402
 from pbc.sim.poses import sample_poses, sampling_settings_from_config  # noqa: E402
 
 DATA = {"tshirt": "tshirt_anny", "trousers": "trousers_anny"}
@@ -42,6 +43,7 @@ def main(argv: list[str] | None = None) -> dict:
     names = list(pred.dataset.body.skeleton.names)
     unread = [j for j in range(len(names)) if j not in pred.read_joints()]
     clips = {p.name: clip_frames(pred, p, 10)[0].astype(np.float64) for p in CLIPS}
+    tol = float(motion_settings().range_tolerance_deg)  # as pbc predict and bench/starter.py flag
     out = {}
     print(f"| variant (on data={DATA[args.model]}) | pruned / drawn | " + " | ".join(f"{c} flagged" for c in clips)
           + " | worst (deg) |\n| --- | --- |" + " --- |" * (len(clips) + 1))
@@ -55,7 +57,7 @@ def main(argv: list[str] | None = None) -> dict:
         deg = rng.deg.copy()
         deg[unread, :, 0], deg[unread, :, 1] = -180.0, 180.0  # as predict: joints the model ignores never flag
         rng = PoseRange(deg, rng.chart)
-        rep = {c: range_report(p, rng, names, 1e-3) for c, p in clips.items()}
+        rep = {c: range_report(p, rng, names, tol) for c, p in clips.items()}
         worst = max((d for r in rep.values() for f in r["distance_deg"].values() for d in f.values()), default=0.0)
         out[variant or "(config as is)"] = {"pruned": stats["pruned"], "drawn": stats["candidates"],
                                             "worst_deg": round(worst, 2),
