@@ -21,7 +21,7 @@ and the mean/max distance in mm of the batched drapes from the single drapes of 
 Extra `key=value` arguments are config overrides
 (e.g. sim.max_frames=100).
 
-    python bench/drape.py compare [poses=6] [real=6] [batch=8] [data=tshirt_small] [overrides...]
+    python bench/drape.py compare [poses=6] [real=6] [batch=8] [data=tshirt_small] [old=KEY=VALUE,...] [overrides...]
 
 Kept drapes per CPU-hour, the settings before the real-motion fixes (`OLD_SIM`: Style3D's untangling force
 on, newton's value; the shear stiffness at 10; a clip's frames as retargeted) against the config's (and a
@@ -29,7 +29,9 @@ clip's arms fitted to the body, pbc.motion.fit), side by side in one run on the 
 first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
 each pose draped old then new so both share the machine's load alike, then (batch=K > 1) each pose set
 again with the new settings in one batched model of K worlds (pbc/sim/batched.py, what `sim.batch_size=K`
-generates with; its one-off build reported apart). Per setting and pose set: keep rate, discard reasons,
+generates with; its one-off build reported apart). `old=KEY=VALUE,...` puts those settings in place of
+`OLD_SIM` (a change's own before and after; both then take a clip's frames with the arms fitted).
+Per setting and pose set: keep rate, discard reasons,
 mean frames, CPU seconds a drape and kept drapes per CPU-hour; the ratios to old.
 """
 
@@ -302,32 +304,34 @@ def compare_main(argv: list[str]) -> dict:
     args = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith(("sim.", "body.", "garment.", "+")))
     overrides = [a for a in argv if a.startswith(("sim.", "body.", "garment.", "+"))]
     base = [f"data={args.get('data', 'tshirt_small')}", *overrides]
-    cfg_new, cfg_old = load_config(base), load_config([*base, *OLD_SIM])
+    # old=KEY=VALUE,...: the settings a change replaced, against the config's, both on clips with fitted arms
+    old_sim = args["old"].split(",") if "old" in args else OLD_SIM
+    cfg_new, cfg_old = load_config(base), load_config([*base, *old_sim])
     scene, _ = build_scene(cfg_new)
     garment, body, emb = scene.garment, scene.body, scene.embedding
     n_sampled, n_real = int(args.get("poses", 6)), int(args.get("real", 6))
     sampled, _ = sample_poses(body.skeleton, n_sampled, int(cfg_new.data.seed), body,
                               sampling_settings_from_config(cfg_new.body.sampling))
-    real, real_names = real_motion_poses(body.skeleton, n_real)
-    sets = [("sampled", np.asarray(sampled)[:n_sampled], [f"sample {i}" for i in range(n_sampled)]),
-            ("real", real, real_names)]
+    sets = [("sampled", np.asarray(sampled)[:n_sampled], [f"sample {i}" for i in range(n_sampled)])]
+    if n_real > 0:
+        sets.append(("real", *real_motion_poses(body.skeleton, n_real)))
     device = device_name(cfg_new.sim.kernel_cache_dir)
     print(f"# device: {device}; {cfg_new.data.name}: garment {garment.vertices.shape[0]} vertices; "
-          f"old = {' '.join(OLD_SIM)}", flush=True)
+          f"old = {' '.join(old_sim)}", flush=True)
     bv = pose_body(body, torch.from_numpy(np.asarray(sets[0][1][:1])).float())
     t0 = time.perf_counter()  # warm-up: load (or compile) the kernels outside the timings
     drape_garment(garment, embedded_points(bv, body.faces, emb)[0].numpy(), bv[0].numpy(), body, emb, cfg_new.sim)
     print(f"# warm-up: {time.perf_counter() - t0:.1f} s", flush=True)
 
+    # the new pipeline takes a clip's frames with their arms fitted to the body (pbc.motion.fit), the old one as
+    # retargeted; a sampled pose is the same for both
+    fitted_sets = {name: (clear_clip_arms(np.asarray(poses), body, motion_settings().clear_arms)[0]
+                          if name == "real" else np.asarray(poses)) for name, poses, _ in sets}
     rows = []
     for set_name, poses, names in sets:
-        for pose, name in zip(poses, names, strict=True):
-            # the new pipeline takes a clip's frame with its arms fitted to the body (pbc.motion.fit), the old
-            # one as retargeted; a sampled pose is the same for both
-            fitted = (clear_clip_arms(np.asarray(pose)[None], body, motion_settings().clear_arms)[0][0]
-                      if set_name == "real" else np.asarray(pose))
+        for pose, fitted, name in zip(poses, fitted_sets[set_name], names, strict=True):
             for setting, cfg in (("old", cfg_old), ("new", cfg_new)):
-                use = np.asarray(pose) if setting == "old" else fitted
+                use = np.asarray(pose) if setting == "old" and "old" not in args else fitted
                 bv = pose_body(body, torch.from_numpy(np.asarray(use, np.float32))[None])
                 start = embedded_points(bv, body.faces, emb)[0].numpy()
                 res = drape_garment(garment, start, bv[0].numpy(), body, emb, cfg.sim)
@@ -346,8 +350,8 @@ def compare_main(argv: list[str]) -> dict:
 
         setting = f"new_k{batch}"
         settings.append(setting)
-        for set_name, poses, names in sets:
-            bvs = pose_body(body, torch.from_numpy(np.asarray(poses)).float())
+        for set_name, _, names in sets:
+            bvs = pose_body(body, torch.from_numpy(np.asarray(fitted_sets[set_name])).float())
             starts = embedded_points(bvs, body.faces, emb).numpy()
             c0, t0 = time.process_time(), time.perf_counter()
             bd = batched_drape_for_garment(garment, body, emb, cfg_new.sim, min(batch, len(poses)), starts[0],
@@ -380,6 +384,8 @@ def compare_main(argv: list[str]) -> dict:
             summary.setdefault(set_name, {})[setting] = s
             print(f"{set_name:8s} {setting:8s} {s['n']:3d} {kept:5d} {s['keep_rate']:9.2f} {s['mean_frames']:11.1f} "
                   f"{s['cpu_s_per_drape']:11.2f} {s['kept_per_cpu_hour']:10.1f}  {reasons}")
+        if set_name not in summary:  # real=0
+            continue
         old = summary[set_name]["old"]
         for setting in settings[1:]:
             new = summary[set_name][setting]
@@ -388,7 +394,7 @@ def compare_main(argv: list[str]) -> dict:
             summary[set_name][f"kept_per_cpu_hour_{setting}_over_old"] = (
                 round(new["kept_per_cpu_hour"] / old["kept_per_cpu_hour"], 2) if old["kept_per_cpu_hour"] else None)
     figures = {"device": device, "data": str(cfg_new.data.name), "vertices": int(garment.vertices.shape[0]),
-               "old": OLD_SIM, "overrides": overrides, "summary": summary, "rows": rows}
+               "old": old_sim, "overrides": overrides, "summary": summary, "rows": rows}
     print(json.dumps(figures))
     return figures
 

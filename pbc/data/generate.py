@@ -134,8 +134,11 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
 def sim_fingerprint(sim: DictConfig) -> dict:
     """The simulation settings that change the data: machine-specific keys (where kernels are cached,
     which device) and how often the host polls do not."""
-    return {k: v for k, v in OmegaConf.to_container(sim, resolve=True).items()
+    keys = {k: v for k, v in OmegaConf.to_container(sim, resolve=True).items()
             if k not in ("kernel_cache_dir", "device", *_unfingerprinted_batch_keys(sim))}
+    if not keys.get("fold_frames"):  # off: the stop rule datasets were made with before it existed
+        keys.pop("fold_frames", None)
+    return keys
 
 
 def config_mismatch(cfg: DictConfig, manifest: dict, full: bool = False) -> list[str]:

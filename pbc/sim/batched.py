@@ -64,6 +64,7 @@ from pbc.sim.drape import (
     init_warp,
     part_meshes,
     pattern_triangles,
+    rest_triangle_areas,
     scene_builder,
     stepping,
 )
@@ -205,6 +206,9 @@ def _decide(
     n_below: wp.array(dtype=wp.int32),
     below_max: wp.array(dtype=wp.float32),
     above_min: wp.array(dtype=wp.float32),
+    fold_frames: int,
+    settled_frame: wp.array(dtype=wp.int32),
+    area_fail: wp.array(dtype=wp.int32),
 ):
     w = wp.tid()
     if status[w] == 0:
@@ -229,7 +233,13 @@ def _decide(
                         value = a + (b - a) * q_frac
                 ok = value < tol
             wf = frame - start_frame[w]  # this world's own frame count (worlds are refilled mid-run)
+            settled = False
             if wf >= min_frames and ok:
+                if settled_frame[w] < 0:
+                    settled_frame[w] = frame
+                # as `drape`: a face past the D.6 area limits is judged settled again, up to fold_frames later
+                settled = area_fail[w] == 0 or frame - settled_frame[w] >= fold_frames
+            if settled:
                 status[w] = 1
                 done_frame[w] = frame
             elif wf >= max_frames:
@@ -239,6 +249,34 @@ def _decide(
     n_below[w] = 0
     below_max[w] = -1.0
     above_min[w] = 3.4e38
+    area_fail[w] = 0
+
+
+@wp.kernel
+def _area_fail(
+    faces_per_world: int,
+    particles_per_world: int,
+    min_ratio: float,
+    max_ratio: float,
+    tri: wp.array(dtype=wp.vec3i),
+    rest_area: wp.array(dtype=wp.float32),
+    status: wp.array(dtype=wp.int32),
+    q: wp.array(dtype=wp.vec3),
+    area_fail: wp.array(dtype=wp.int32),
+):
+    # flags each active world with a face past the D.6 area limits (`check_sample`'s area rule)
+    t = wp.tid()
+    w = t / faces_per_world
+    if status[w] != 0:
+        return
+    f = t - w * faces_per_world
+    base = w * particles_per_world
+    i = tri[f]
+    a = q[base + i[0]]
+    area = 0.5 * wp.length(wp.cross(q[base + i[1]] - a, q[base + i[2]] - a))
+    ratio = area / wp.max(rest_area[f], 1.0e-20)
+    if ratio < min_ratio or ratio > max_ratio:
+        area_fail[w] = 1
 
 
 @wp.kernel
@@ -521,6 +559,11 @@ class BatchedDrape:
         self.n_below = wp_.zeros(k, dtype=wp_.int32, device=dev)
         self.below_max = wp_.zeros(k, dtype=wp_.float32, device=dev)
         self.above_min = wp_.zeros(k, dtype=wp_.float32, device=dev)
+        self.settled_frame = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.area_fail = wp_.zeros(k, dtype=wp_.int32, device=dev)
+        self.tri = wp_.array(faces.astype(np.int32), dtype=wp_.vec3i, device=dev)
+        self.rest_area = wp_.array(rest_triangle_areas(rest_pattern_triangles).astype(np.float32), dtype=wp_.float32,
+                                   device=dev)
         self._meshes: list = []
 
     def _set_body(self, k: int, body: np.ndarray) -> None:
@@ -548,6 +591,7 @@ class BatchedDrape:
             arr[a:b].assign(q)
         state.particle_qd[a:b].zero_()
         self.model.particle_flags[a:b].assign(self.flags0[a:b])
+        self.settled_frame[k:k + 1].fill_(-1)
 
     # --- stepping ------------------------------------------------------------------------------------
     def run(self, starts, bodies, on_frame=None) -> list[DrapeResult]:
@@ -595,6 +639,8 @@ class BatchedDrape:
         self.out_speed.fill_(float("nan"))
         self.status.assign(np.where(np.arange(k) < b, ACTIVE, IDLE).astype(np.int32))
         self.start_frame.zero_()
+        self.settled_frame.fill_(-1)
+        self.area_fail.zero_()
         self.done_frame.fill_(-1)
         self.nan_flag.zero_()
         self.n_below.zero_()
@@ -608,6 +654,11 @@ class BatchedDrape:
         q_index = int(math.floor(h))
         q_frac = float(h - q_index)
         every = max(1, int(config_value(cfg, "batch_check_every", 10)))
+        fold_frames = int(config_value(cfg, "fold_frames", 0))
+        discard = config_value(cfg, "discard", cfg)
+        area_limits = (1.0 - float(config_value(discard, "max_area_compression", 0.75)),
+                       1.0 + float(config_value(discard, "max_area_expansion", 1.0)))
+        n_faces = len(self.faces)
         dev = model.device
         n = model.particle_count
         pose_of = np.array([j if j < b else -1 for j in range(k)])  # the pose each world drapes now
@@ -629,9 +680,14 @@ class BatchedDrape:
                       inputs=[frame_dt, keep, int(keep < 1.0), tol, self.world, self.status, self.pin,
                               s0.particle_q, s0.particle_qd, self.q_prev, self.speed, self.nan_flag,
                               self.n_below, self.below_max, self.above_min])
+            if fold_frames > 0:
+                wp.launch(_area_fail, dim=k * n_faces, device=dev,
+                          inputs=[n_faces, n_per, *area_limits, self.tri, self.rest_area, self.status, s0.particle_q,
+                                  self.area_fail])
             wp.launch(_decide, dim=k, device=dev,
                       inputs=[frame, min_frames, max_frames, q_index, q_frac, tol, self.start_frame, self.status,
-                              self.done_frame, self.nan_flag, self.n_below, self.below_max, self.above_min])
+                              self.done_frame, self.nan_flag, self.n_below, self.below_max, self.above_min,
+                              fold_frames, self.settled_frame, self.area_fail])
             wp.launch(_retire, dim=n, device=dev,
                       inputs=[frame, self.world, self.status, self.done_frame, s0.particle_q, s0.particle_qd,
                               self.q_prev, self.speed, self.out_q, self.out_speed, self.pin, model.particle_flags])

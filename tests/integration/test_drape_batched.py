@@ -13,7 +13,7 @@ import pytest
 from pbc.core.config import load_config
 from pbc.data.generate import build_scene, drape_batch, drape_pose, generate
 from pbc.sim import batched as batched_mod
-from pbc.sim.drape import check_garment_result
+from pbc.sim.drape import check_garment_result, drape_garment
 from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
 N_POSES = 3
@@ -85,6 +85,27 @@ def test_batched_drape_is_the_single_drape(single_and_batched):
         assert abs(s["iterations"] - b["iterations"]) <= 1
         if s["ok"]:
             assert b["residual"] < float(tiny_cfg().sim.tolerance)
+
+
+def test_a_world_judged_past_the_area_limits_runs_on_as_the_single_drape_does(scene_and_poses):
+    """sim.fold_frames: with every face past the area limits (compression limit 0: any face smaller than its
+    pattern), each world, single or batched, runs on fold_frames frames past where the speed rule first held,
+    and stops there (the rule holding again): the same frame count, to one, and the same shape."""
+    scene, poses = scene_and_poses
+    starts, bodies = skin(scene, poses)
+    plain = tiny_cfg("sim.fold_frames=0").sim  # judged where the speed rule first holds
+    folded = tiny_cfg("sim.fold_frames=6", "sim.discard.max_area_compression=0.0").sim
+    args = (scene.garment, scene.body, scene.embedding)
+    first = batched_mod.batched_drape_for_garment(*args, plain, N_POSES, starts[0], bodies[0]).run(starts, bodies)
+    sim = batched_mod.batched_drape_for_garment(*args, folded, N_POSES, starts[0], bodies[0])
+    batched = sim.run(starts, bodies)
+    for j, (b, f) in enumerate(zip(batched, first, strict=True)):
+        single = drape_garment(*args[:1], starts[j], bodies[j], *args[1:], folded)
+        assert f.converged and b.converged and single.converged
+        assert b.iterations >= f.iterations + 6 and abs(b.iterations - single.iterations) <= 1
+        dist_mm = 1000 * np.linalg.norm(single.positions.astype(np.float64) - b.positions, axis=1)
+        assert dist_mm.mean() < 0.01 and dist_mm.max() < 0.25, (dist_mm.mean(), dist_mm.max())
+        assert check_garment_result(b, scene.garment, folded) == (False, "area_compressed")
 
 
 def test_a_world_that_blows_up_loses_only_its_sample(scene_and_poses):
