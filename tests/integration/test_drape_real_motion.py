@@ -58,7 +58,7 @@ def test_hanging_arms_settle_without_untangling(walk_frame):
 def test_the_walk_frame_with_its_arms_fitted_to_the_body_is_kept(walk_frame):
     """The frame as every door takes a clip (its arm raised out of the torso, pbc.motion.fit) passes the D.6
     check with the config's drape; as retargeted, the arm inside the torso pulls the cloth at the shoulder past
-    twice its pattern area (docs/results/real_motion_drapes: 0 of 18 kept that way, 16 of 18 fitted)."""
+    twice its pattern area (docs/results/real_motion_drapes: 0 of 18 kept that way, 18 of 18 fitted)."""
     cfg, scene, _, _ = walk_frame
     bvh = read_bvh(WALK)
     pose = np.asarray(bvh_to_poses(bvh, scene.body.skeleton, choose_joint_map(bvh, "auto"), parse_frames("1:2")).poses)
