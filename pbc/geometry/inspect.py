@@ -25,6 +25,7 @@ from pbc.core.io import atomic_path
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.cage.auto import auto_cage
 from pbc.geometry.garment.checks import (
+    LimbCloth,
     body_region,
     droop_deg,
     face_patches,
@@ -135,7 +136,7 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     else:
         unit = "auto" if uv_range <= 1.0 else name_unit(fit_all)
     charts = {r.name: int(r.facing == "back") for r in rows}
-    sleeves = sleeve_axes(p, f, body)
+    sleeves = sleeve_axes(p, f, body, LimbCloth.from_config(gcfg.shrinkwrap))
     # the rest arms as the sleeves are compared with them (their skin there), else the arm bones
     arm_droop = (float(np.mean([a["arm_droop_deg"] for a in sleeves.values()])) if sleeves
                  else droop_deg(rest_arm_directions(body)["left"]))

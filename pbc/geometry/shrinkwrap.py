@@ -29,6 +29,7 @@ from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.skeleton import MIDPLANE_TOL, descendants, limb_segments
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
+    LimbCloth,
     chart_names_from_cage,
     check_arm_flaps,
     check_far,
@@ -607,15 +608,16 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     # the checks before any drape (pbc.geometry.garment.checks): each names the part, the number and the fix, where a
     # drape would only say minutes later that every sample was discarded
     far = sw.get("max_start_distance")
+    limb = LimbCloth.from_config(sw)
     if far is not None:
         check_far(surface.sdf(x0), x0, faces, body, float(far), chart_names, face_chart)
     if bool(sw.get("arm_parts", True)) and far is not None:
         # cloth along a forearm that closes round no arm (a cape's flap) would be wrapped on the torso and caught by
         # the arm in every drape
-        check_arm_flaps(x0, region == REGIONS.index("torso"), body, float(sw.min_encircled_deg))
+        check_arm_flaps(x0, region == REGIONS.index("torso"), body, float(sw.min_encircled_deg), limb)
     max_angle = sw.get("max_sleeve_angle_deg")
-    sleeves = (sleeve_axes(x0, faces, body) if max_angle is None
-               else check_sleeves(x0, faces, body, float(max_angle)))
+    sleeves = (sleeve_axes(x0, faces, body, limb) if max_angle is None
+               else check_sleeves(x0, faces, body, float(max_angle), limb))
     # (a) cage-guided Laplace morph of the displacements
     ids, targets = cage_targets(garment, cage, body, surface, part, int(sw.ray_bisection_steps))
     lap = pattern_laplacian(garment)

@@ -18,7 +18,7 @@ from pbc.cli import COMMANDS  # noqa: E402
 from pbc.core.config import load_config  # noqa: E402
 from pbc.data.generate import discard_summary  # noqa: E402
 from pbc.geometry.garment import garment_from_config  # noqa: E402
-from pbc.geometry.garment.checks import sleeve_axes
+from pbc.geometry.garment.checks import LimbCloth, sleeve_axes
 from pbc.geometry.garment.outfit import split_outfit
 from pbc.geometry.inspect import inspect_garment  # noqa: E402
 from pbc.geometry.shrinkwrap import shrinkwrap  # noqa: E402
@@ -60,7 +60,8 @@ def test_a_posed_sleeves_are_refused_with_the_angle_and_the_setting(tmp_path, bo
     # the T-posed shirt's sleeves lie along the rest arms
     cfg = load_config(IMPORT + [f"garment.obj={_write(tmp_path, 't.obj', outfit_obj(0.0, trousers=False))}"])
     g, _ = garment_from_config(cfg.garment)
-    axes = sleeve_axes(g.vertices.double().numpy(), g.faces.numpy(), body)
+    limb = LimbCloth.from_config(cfg.garment.shrinkwrap)
+    axes = sleeve_axes(g.vertices.double().numpy(), g.faces.numpy(), body, limb)
     assert set(axes) == {"left", "right"} and max(a["angle_deg"] for a in axes.values()) < 2.0
 
 

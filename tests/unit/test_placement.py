@@ -21,7 +21,7 @@ from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.skeleton import limb_segments
 from pbc.geometry.garment import garment_from_config
-from pbc.geometry.garment.checks import sleeve_axes, sleeves_inside, tube_axis
+from pbc.geometry.garment.checks import LimbCloth, sleeve_axes, sleeves_inside, tube_axis
 from pbc.geometry.garment.placement import openings, place_garment, placed_mesh, sits
 from pbc.geometry.meshio import read_obj
 
@@ -91,7 +91,7 @@ def test_sleeves_are_turned_onto_the_rest_arms(world):
     garment = "smpl_top" if name == "anny" else "a_pose_shirt"
     mesh, placement = placed_mesh(folder / f"{garment}.obj", _with(gcfg, ANY_SLEEVE), body)
     assert placement.arm_turn_deg and min(placement.arm_turn_deg.values()) > 20
-    axes = sleeve_axes(mesh.vertices, mesh.faces, body)
+    axes = sleeve_axes(mesh.vertices, mesh.faces, body, LimbCloth.from_config(gcfg.shrinkwrap))
     assert all(a["angle_deg"] < float(gcfg.shrinkwrap.max_sleeve_angle_deg) for a in axes.values()), axes
 
 
@@ -123,9 +123,9 @@ def test_long_straight_sleeves_are_registered_on_the_shoulders(world):
     before, _ = placed_mesh(folder / "smpl_top.obj", _with(gcfg, ANY_SLEEVE, COLLAR_ONLY), body)
     gaps, gaps_before = (_shoulder_gaps(given, m.vertices, m.faces, body) for m in (top, before))
     assert max(gaps) < 0.015 and min(gaps_before) > 0.035, (name, gaps, gaps_before)  # 0.1-0.6 cm; 4.4-5.6 before
-    need = float(gcfg.shrinkwrap.min_encircled_deg)
-    assert _forearm_degrees(top.vertices, top.faces, body) >= need  # 291-292 degrees; 246 (A), 224 (T) before
-    assert _forearm_degrees(before.vertices, before.faces, body) < need
+    need, limb = float(gcfg.shrinkwrap.min_encircled_deg), LimbCloth.from_config(gcfg.shrinkwrap)
+    assert _forearm_degrees(top.vertices, top.faces, body, limb) >= need  # 291-292 degrees; 246 (A), 224 (T) before
+    assert _forearm_degrees(before.vertices, before.faces, body, limb) < need
     assert abs(placement.translation[0]) < 1e-9  # moved up and down, back and forth: never off the midline
     rig, faces, _, _ = long_sleeve_shirt(body)
     collar = openings(top.vertices, top.faces)[0]["centre"]
@@ -162,9 +162,9 @@ def long_t_pose_shirt():
     return body, gcfg, p, f, truth
 
 
-def _forearm_degrees(x, f, body) -> int:
+def _forearm_degrees(x, f, body, limb: LimbCloth) -> int:
     """How far round the left forearm its sleeve's cloth past the elbow reaches (`sleeves_inside`'s measure)."""
-    return int(sleeves_inside(x, f, body, 361.0, "top").split("it reaches ")[1].split(" degrees")[0])
+    return int(sleeves_inside(x, f, body, 361.0, "top", limb).split("it reaches ")[1].split(" degrees")[0])
 
 
 def test_a_long_t_pose_sleeve_is_turned_at_the_shoulder_and_at_the_elbow(long_t_pose_shirt):
@@ -180,15 +180,17 @@ def test_a_long_t_pose_sleeve_is_turned_at_the_shoulder_and_at_the_elbow(long_t_
     near, near1 = (cKDTree(truth[0]).query(y[sleeve])[0] for y in (x, x1))  # the sleeves against the rig's
     assert near.mean() < 0.02 and near.max() < 0.06, (near.mean(), near.max())  # 1.3 cm, 4.6 cm
     assert near1.mean() > 0.04  # 5 cm, 21 cm at most
-    axes = sleeve_axes(x, f, body)  # the sleeves' outer halves along the forearms' skin
+    limb = LimbCloth.from_config(gcfg.shrinkwrap)
+    axes = sleeve_axes(x, f, body, limb)  # the sleeves' outer halves along the forearms' skin
     assert all(a["angle_deg"] < 10.0 for a in axes.values()), axes
     # round the forearm about as far as the rig's own shirt (287 and 296 degrees; one turn: 32): the sleeve now sits,
     # where one turn is refused
-    assert _forearm_degrees(x, f, body) > _forearm_degrees(*truth, body) - 30
-    assert _forearm_degrees(x1, f, body) < 90
-    need = float(load_config(["body=anny", "garment=obj", "garment.obj=x"]).garment.shrinkwrap.min_encircled_deg)
-    assert sits(x, f, body, gcfg.placement, "top", None, need) is None
-    assert "does not surround the body's left forearm" in sits(x1, f, body, gcfg.placement, "top", None, need)
+    assert _forearm_degrees(x, f, body, limb) > _forearm_degrees(*truth, body, limb) - 30
+    assert _forearm_degrees(x1, f, body, limb) < 90
+    wrap = (float(load_config(["body=anny", "garment=obj", "garment.obj=x"]).garment.shrinkwrap.min_encircled_deg),
+            limb)
+    assert sits(x, f, body, gcfg.placement, "top", None, wrap) is None
+    assert "does not surround the body's left forearm" in sits(x1, f, body, gcfg.placement, "top", None, wrap)
 
 
 def test_loose_vertices_are_dropped_and_counted_and_a_mesh_without_uvs_gets_front_and_back(world, caplog):

@@ -4,7 +4,8 @@ rest arms, and the shrink-wrap's stretch per chart.
 
 One job: measure, and turn a measurement past its threshold into one ValueError naming the chart or part,
 the number, the setting and the fix. The thresholds live in conf/ (``garment.uv_unit_tolerance``,
-``garment.shrinkwrap.max_start_distance`` / ``max_sleeve_angle_deg`` / ``max_patch_stretch``); the import
+``garment.shrinkwrap.max_start_distance`` / ``max_sleeve_angle_deg`` / ``max_patch_stretch`` / ``limb_cloth``);
+the import
 (`obj_import`) and the shrink-wrap (`shrinkwrap`) call these checks, `inspect` reports the same numbers.
 """
 
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -114,10 +116,26 @@ def tube_axis(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]
     return v[:, 0], float(w[0] / max(w[1], 1e-30))
 
 
-TUBE_LIMIT = 0.35  # `tube_axis`'s least / middle eigenvalue past which faces are no tube (a flap, a cape)
+@dataclass(frozen=True)
+class LimbCloth:
+    """What the checks and the placement count as a limb's cloth (conf: garment.shrinkwrap.limb_cloth).
+
+    tube_limit: `tube_axis`'s least / middle eigenvalue past which faces are no tube (a flap, a cape);
+    elbow_clearance: m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's;
+    flap_reach: m from a forearm's bones: cloth this near it past the elbow lies along the forearm."""
+
+    tube_limit: float
+    elbow_clearance: float
+    flap_reach: float
+
+    @classmethod
+    def from_config(cls, shrinkwrap) -> LimbCloth:
+        """From the garment's ``shrinkwrap`` node."""
+        c = shrinkwrap.limb_cloth
+        return cls(float(c.tube_limit), float(c.elbow_clearance), float(c.flap_reach))
 
 
-def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dict]:
+def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body, limb: LimbCloth) -> dict[str, dict]:
     """The axis of each sleeve of a garment at its rest positions (V, 3), against the body's rest arm.
 
     A sleeve is the garment's surface beyond its side's arm joint, above the root, outer half of that
@@ -145,24 +163,26 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body) -> dict[str, dic
         lo, hi = x0 + 0.5 * (reach.max() - x0), reach.max()
         sel = (reach > lo) & (centre[:, 1] > 0.0)
         sleeve = tube_axis(p, f[sel])
-        if sleeve is None or sleeve[1] > TUBE_LIMIT:  # not a tube (a flat flap, a cape): no axis to compare
+        if sleeve is None or sleeve[1] > limb.tube_limit:  # not a tube (a flat flap, a cape): no axis to compare
             continue
         axis = sleeve[0] * (1.0 if sgn * sleeve[0][0] >= 0 else -1.0)  # pointing away from the body
         body_reach = sgn * body_centre[:, 0]
         skin = tube_axis(bv, bf[body.parts[row].cpu().numpy()[bf].all(1) & (body_reach > lo) & (body_reach <= hi)
                                 & (body_centre[:, 1] > 0.0)])
-        arm = arms[side] if skin is None or skin[1] > TUBE_LIMIT else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0)
+        arm = (arms[side] if skin is None or skin[1] > limb.tube_limit
+               else skin[0] * (1.0 if sgn * skin[0][0] >= 0 else -1.0))
         angle = float(np.degrees(np.arccos(np.clip(abs(axis @ arm), 0.0, 1.0))))
         out[side] = {"axis": axis, "arm": arm, "angle_deg": angle, "droop_deg": droop_deg(axis),
                      "arm_droop_deg": droop_deg(arm), "faces": int(sel.sum()), "centre": centre[sel].mean(0)}
     return out
 
 
-def check_sleeves(positions: np.ndarray, faces: np.ndarray, body, max_angle_deg: float) -> dict[str, dict]:
+def check_sleeves(positions: np.ndarray, faces: np.ndarray, body, max_angle_deg: float, limb: LimbCloth
+                  ) -> dict[str, dict]:
     """`sleeve_axes`, refused when a sleeve's axis is more than ``max_angle_deg`` off the body's rest arm:
     the shrink-wrap pulls the sleeve onto the rest arm and stretches it (an A-posed sleeve on the T-posed
     mannequin: 7x), and every drape is then discarded minutes later."""
-    axes = sleeve_axes(positions, faces, body)
+    axes = sleeve_axes(positions, faces, body, limb)
     bad = {s: a for s, a in axes.items() if a["angle_deg"] > max_angle_deg}
     if bad:
         side, a = max(bad.items(), key=lambda kv: kv[1]["angle_deg"])
@@ -268,18 +288,15 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
 
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}
-ELBOW_CLEARANCE = 0.03  # m sideways past the elbow joint: cloth there is a long sleeve's, not the torso's
-FLAP_REACH = 0.12  # m from a forearm's bones: cloth this near it past the elbow lies along the forearm
-
-
-def along_forearm(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
-    """(P,) bool: points (P, 3) past the elbow by ELBOW_CLEARANCE along the line from the elbow to the limb's end
-    and within FLAP_REACH of that segment. segs (S, 2, 3): the arm's bone segments (`limb_segments`, S >= 2)."""
+def along_forearm(points: np.ndarray, segs: np.ndarray, limb: LimbCloth) -> np.ndarray:
+    """(P,) bool: points (P, 3) past the elbow by limb.elbow_clearance along the line from the elbow to the limb's
+    end and within limb.flap_reach of that segment. segs (S, 2, 3): the arm's bone segments (`limb_segments`,
+    S >= 2)."""
     a, b = segs[1, 0], segs[-1, 1]  # elbow -> the limb's end
     ab = b - a
     t = (points - a) @ ab / max(float(ab @ ab), 1e-12)
     q = a + np.clip(t, 0.0, 1.0)[:, None] * ab
-    return (t * np.linalg.norm(ab) > ELBOW_CLEARANCE) & (np.linalg.norm(points - q, axis=1) < FLAP_REACH)
+    return (t * np.linalg.norm(ab) > limb.elbow_clearance) & (np.linalg.norm(points - q, axis=1) < limb.flap_reach)
 
 
 def cloth_encircled_degrees(points: np.ndarray, faces: np.ndarray, segs: np.ndarray) -> float:
@@ -291,9 +308,10 @@ def cloth_encircled_degrees(points: np.ndarray, faces: np.ndarray, segs: np.ndar
     return encircled_degrees(np.asarray(points, np.float64)[np.asarray(faces)].mean(1), segs)
 
 
-def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str) -> str | None:
+def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: float, kind: str, limb: LimbCloth
+                   ) -> str | None:
     """None unless the garment is a top with long sleeves (cloth reaching sideways past the elbow, or past it along
-    the forearm within FLAP_REACH of its bones) on a body with forearms, and a sleeve there does not surround the
+    the forearm within limb.flap_reach of its bones) on a body with forearms, and a sleeve there does not surround the
     forearm: then which, in words (`cloth_encircled_degrees` of the faces past the elbow about the forearm's
     bones; a sleeve that passes the elbow nowhere near the forearm reaches a few degrees round it, or too few faces
     to say: refused too). A short sleeve is not
@@ -309,7 +327,7 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
         sgn = 1.0 if side == "left" else -1.0
         # past the elbow: sideways (a sleeve modelled on another arm, in the air) or along the forearm's bones
         # near them (an A-posed forearm points forward and down: a sideways bound cuts its sleeve's inner half)
-        past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + ELBOW_CLEARANCE) | along_forearm(centre, segs)
+        past = (sgn * centre[:, 0] > abs(segs[1, 0, 0]) + limb.elbow_clearance) | along_forearm(centre, segs, limb)
         if past.sum() < 8:
             continue
         deg = cloth_encircled_degrees(p, np.asarray(faces)[past], segs[1:])
@@ -322,9 +340,9 @@ def sleeves_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: f
     return None
 
 
-def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_deg: float) -> None:
+def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_deg: float, limb: LimbCloth) -> None:
     """Refuse cloth wrapped on the torso (on_torso (V,) bool: it closes round no arm) that lies along a forearm:
-    within FLAP_REACH of the forearm's bones and past the elbow by ELBOW_CLEARANCE along them (a cape's or a
+    within limb.flap_reach of the forearm's bones and past the elbow by limb.elbow_clearance along them (a cape's or a
     poncho's flap, a sleeve cut open). In every drape the arm would catch it. One ValueError naming the side, how
     much cloth, and what to set; a body whose arm is one bone (no forearm) is not checked."""
     p = np.asarray(points, np.float64)
@@ -332,7 +350,7 @@ def check_arm_flaps(points: np.ndarray, on_torso: np.ndarray, body: Body, min_de
         segs = limb_segments(body.skeleton, joint)
         if len(segs) < 2:
             continue
-        along = on_torso & along_forearm(p, segs)
+        along = on_torso & along_forearm(p, segs, limb)
         if along.sum() >= 8:
             raise ValueError(
                 f"the garment cannot be wrapped: {int(along.sum())} of its vertices lie along the body's {side} "

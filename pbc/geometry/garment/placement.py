@@ -41,7 +41,7 @@ from pbc.geometry.body.measure import girth, measurements, torso_mesh
 from pbc.geometry.body.skeleton import descendants, geodesic_deg, limb_segments
 from pbc.geometry.garment.checks import (
     ARM_JOINTS,
-    TUBE_LIMIT,
+    LimbCloth,
     cloth_encircled_degrees,
     sleeve_axes,
     sleeves_inside,
@@ -289,7 +289,8 @@ def _sleeve_reach(points: np.ndarray, pivot: np.ndarray, axis: np.ndarray, radiu
     return float(along[radial < 1.5 * radius].max(initial=0.0))
 
 
-def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a: dict, pcfg) -> bool:
+def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a: dict, pcfg, limb: LimbCloth
+                 ) -> bool:
     """Whether one side's sleeve (a: its `sleeve_axes` entry) is long and straight: it reaches past the body's
     elbow by pcfg.elbow_reach along its axis from the point nearest the body's shoulder joint, and the axis of
     its inner part (pcfg.sleeve_inner_band: fractions of its sideways reach past the body's shoulder joint) is
@@ -308,12 +309,12 @@ def _long_sleeve(points: np.ndarray, faces: np.ndarray, body: Body, side: str, a
     x0 = abs(float(joint[0]))
     lo, hi = (x0 + float(t) * (float(sideways.max()) - x0) for t in pcfg.sleeve_inner_band)
     inner = tube_axis(points, faces[(sideways > lo) & (sideways <= hi)])
-    if inner is None or inner[1] > TUBE_LIMIT:
+    if inner is None or inner[1] > limb.tube_limit:
         return False
     return float(np.degrees(np.arccos(min(abs(float(inner[0] @ a["axis"])), 1.0)))) <= float(pcfg.sleeve_straight_deg)
 
 
-def _shoulder_shift(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> np.ndarray:
+def _shoulder_shift(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, limb: LimbCloth) -> np.ndarray:
     """(3,) the move (m, up/down and back/forth: a top stays centred on the midline) that puts each long straight
     sleeve's axis (`sleeve_axes`, `_long_sleeve`) through the body's shoulder (arm) joint, least squares over
     both sides, the sleeve turning about that joint in the rest-pose transfer; zeros with
@@ -324,8 +325,9 @@ def _shoulder_shift(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> 
     if not pcfg.shoulder_registration:
         return np.zeros(3)
     sk = body.skeleton
-    axes = {s: a for s, a in sleeve_axes(points, faces, body).items() if s in ARM_JOINTS}
-    if set(axes) != set(ARM_JOINTS) or not all(_long_sleeve(points, faces, body, s, a, pcfg) for s, a in axes.items()):
+    axes = {s: a for s, a in sleeve_axes(points, faces, body, limb).items() if s in ARM_JOINTS}
+    if set(axes) != set(ARM_JOINTS) or not all(_long_sleeve(points, faces, body, s, a, pcfg, limb)
+                                               for s, a in axes.items()):
         return np.zeros(3)
     lhs, rhs = 1e-9 * np.eye(2), np.zeros(2)  # the move (y, z); the tiny ridge holds a direction no axis fixes
     for side, a in axes.items():
@@ -336,7 +338,7 @@ def _shoulder_shift(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> 
     return move if float(np.linalg.norm(move)) <= float(pcfg.max_anchor_error) else np.zeros(3)
 
 
-def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> dict:
+def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, limb: LimbCloth) -> dict:
     """Per side whose sleeve is more than pcfg.transfer_min_deg off the rest arm (`sleeve_axes`: like with like,
     the arm's skin in the sleeve's band): {rot (3, 3) turning the rest arm onto the sleeve, pivot (3,) the point
     of the sleeve's axis nearest the body's shoulder joint, axis (3,), radius (m) of the sleeve round it}, with
@@ -344,18 +346,18 @@ def _transfer_turns(points: np.ndarray, faces: np.ndarray, body: Body, pcfg) -> 
     no sleeve is off."""
     sk = body.skeleton
     out = {}
-    for side, a in sleeve_axes(points, faces, body).items():
+    for side, a in sleeve_axes(points, faces, body, limb).items():
         if side in ARM_JOINTS and a["angle_deg"] > float(pcfg.transfer_min_deg):
             joint = sk.rest_heads[sk.index(ARM_JOINTS[side])].double().numpy()
             pivot = _nearest_on_axis(joint, a["centre"], a["axis"])
             out[side] = {"rot": _rotation_between(a["arm"], a["axis"]), "pivot": pivot, "axis": a["axis"],
                          "radius": _band_radius(points, a["centre"], a["axis"])}
             if pcfg.forearm_turn:
-                out[side] = _elbow_turn(points, faces, body, side, out[side], pcfg) or out[side]
+                out[side] = _elbow_turn(points, faces, body, side, out[side], pcfg, limb) or out[side]
     return out
 
 
-def _skin_band_axis(body: Body, side: str, bone: np.ndarray, band) -> np.ndarray | None:
+def _skin_band_axis(body: Body, side: str, bone: np.ndarray, band, limb: LimbCloth) -> np.ndarray | None:
     """(3,) the axis of the body's arm skin (its part's faces) whose centres lie over the fraction ``band``
     (lo, hi) of the bone (2, 3) (rest heads, m), pointing down the bone; None where that is no tube. Like with
     like: a sleeve's band is compared with the skin it covers, not the bone's line."""
@@ -367,12 +369,13 @@ def _skin_band_axis(body: Body, side: str, bone: np.ndarray, band) -> np.ndarray
     t = (centre - bone[0]) @ d / max(float(d @ d), 1e-12)
     sel = body.parts[row].cpu().numpy()[bf].all(1) & (t >= float(band[0])) & (t <= float(band[1]))
     skin = tube_axis(bv, bf[sel])
-    if skin is None or skin[1] > TUBE_LIMIT:
+    if skin is None or skin[1] > limb.tube_limit:
         return None
     return skin[0] * (1.0 if skin[0] @ d >= 0 else -1.0)
 
 
-def _sleeve_band_axis(points: np.ndarray, faces: np.ndarray, turn: dict, reach) -> tuple[np.ndarray, np.ndarray] | None:
+def _sleeve_band_axis(points: np.ndarray, faces: np.ndarray, turn: dict, reach, limb: LimbCloth
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
     """(3,) the axis and (3,) the centre of the sleeve's band of faces whose centres are ``reach`` (lo, hi) m
     from its pivot, within 1.5 sleeve radii of its axis (turn's, `_transfer_turns`): the axis points away from
     the pivot. None where that is no tube. The distance from the pivot, not the reach along the axis, holds a
@@ -382,13 +385,14 @@ def _sleeve_band_axis(points: np.ndarray, faces: np.ndarray, turn: dict, reach) 
     dist = np.linalg.norm(centre - turn["pivot"], axis=1)
     sel = (radial < 1.5 * turn["radius"]) & (along > 0.0) & (dist >= float(reach[0])) & (dist <= float(reach[1]))
     tube = tube_axis(points, faces[sel])
-    if tube is None or tube[1] > TUBE_LIMIT:
+    if tube is None or tube[1] > limb.tube_limit:
         return None
     axis = tube[0] * (1.0 if tube[0] @ (centre[sel].mean(0) - turn["pivot"]) >= 0 else -1.0)
     return axis, centre[sel].mean(0)
 
 
-def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, turn: dict, pcfg) -> dict | None:
+def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, turn: dict, pcfg, limb: LimbCloth
+                ) -> dict | None:
     """The arm turned in two for a sleeve that reaches past the body's elbow by pcfg.elbow_reach m (along its
     axis from its pivot, `_transfer_turns`' one turn): the upper arm's skin over pcfg.upper_band (fractions of
     the upper arm) onto the sleeve's band as far from its shoulder, then the forearm's skin over
@@ -410,11 +414,11 @@ def _elbow_turn(points: np.ndarray, faces: np.ndarray, body: Body, side: str, tu
     if reach < upper_len + float(pcfg.elbow_reach):
         return None
     ub, fb = pcfg.upper_band, pcfg.forearm_band
-    upper = _sleeve_band_axis(points, faces, turn, [upper_len * float(ub[0]), upper_len * float(ub[1])])
+    upper = _sleeve_band_axis(points, faces, turn, [upper_len * float(ub[0]), upper_len * float(ub[1])], limb)
     lower = _sleeve_band_axis(points, faces, turn, [upper_len + fore_len * float(fb[0]),
-                                                    min(upper_len + fore_len * float(fb[1]), reach)])
-    arm_axis = _skin_band_axis(body, side, segs[0], ub)
-    fore_axis = _skin_band_axis(body, side, segs[1], fb)
+                                                    min(upper_len + fore_len * float(fb[1]), reach)], limb)
+    arm_axis = _skin_band_axis(body, side, segs[0], ub, limb)
+    fore_axis = _skin_band_axis(body, side, segs[1], fb, limb)
     if upper is None or lower is None:
         return None
     arm_axis = (segs[0][1] - segs[0][0]) / upper_len if arm_axis is None else arm_axis
@@ -466,10 +470,10 @@ def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kin
 
 
 def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None,
-         min_encircled_deg: float | None = None) -> str | None:
+         wrap: tuple[float, LimbCloth] | None = None) -> str | None:
     """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words; with
-    ``min_encircled_deg`` (garment.shrinkwrap's) long sleeves must surround the forearms (`sleeves_inside`) and
-    trouser legs the legs (`legs_inside`)."""
+    ``wrap`` (garment.shrinkwrap's min_encircled_deg and limb cloth) long sleeves must surround the forearms
+    (`sleeves_inside`) and trouser legs the legs (`legs_inside`)."""
     lm = lm or _landmarks(body)
     d = _sdf(body, points)
     anchor, _ = _anchor(points, faces, kind)
@@ -487,9 +491,10 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
     if median > float(pcfg.max_median_distance):
         return (f"half its cloth is more than {median:.2f} m from the body (garment.placement.max_median_distance "
                 f"= {pcfg.max_median_distance} m)")
-    if min_encircled_deg is None:
+    if wrap is None:
         return None
-    return (sleeves_inside(points, faces, body, min_encircled_deg, kind)
+    min_encircled_deg, limb = wrap
+    return (sleeves_inside(points, faces, body, min_encircled_deg, kind, limb)
             or legs_inside(points, faces, body, min_encircled_deg, kind))
 
 
@@ -574,13 +579,14 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             if _inside_fraction(y, body, lm) <= float(pcfg.max_inside_fraction):
                 x, unit = y, unit * s
                 break
-    shift = _shoulder_shift(x, f, body, pcfg) if kind == "top" else np.zeros(3)
+    limb = LimbCloth.from_config(gcfg.shrinkwrap)
+    shift = _shoulder_shift(x, f, body, pcfg, limb) if kind == "top" else np.zeros(3)
     x = x + shift
     turned: dict[str, float] = {}
     forearm: dict[str, float] = {}
     for _ in range(int(pcfg.transfer_iterations) if kind == "top" else 0):
         # each pass takes what the last left: a long sleeve's band follows the forearm, not the upper arm turned
-        turns = _transfer_turns(x, f, body, pcfg)
+        turns = _transfer_turns(x, f, body, pcfg, limb)
         if not turns:
             break
         x = _unpose(x, body, turns, int(pcfg.skin_neighbours), float(pcfg.sleeve_ramp),
@@ -592,7 +598,7 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
     placement = Placement(unit, name, kind, target + shift - _anchor(p * unit, f, kind)[0], False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
-    wrong = sits(x, f, body, pcfg, kind, lm, float(gcfg.shrinkwrap.min_encircled_deg))
+    wrong = sits(x, f, body, pcfg, kind, lm, (float(gcfg.shrinkwrap.min_encircled_deg), limb))
     if wrong is not None:
         raise ValueError(f"{where}: placed on the body ({placement.unit_name}, shifted by "
                          f"{np.round(placement.translation, 2).tolist()} m), the garment does not sit on it: {wrong}. "
