@@ -7,7 +7,9 @@ fit skips every finished step.
 
 Tiny settings: coarse shirts (425 vertices) on the coarse mannequin, a few drapes, trainer=smoke, 64/128 px
 images; the coarse shirt's triangles fold below the drape's 0.25x area check in most drapes (the full shirt
-keeps 3 of 4), so these smoke runs turn that check off (`sim.discard.max_area_compression=1.0`)."""
+keeps 3 of 4), so these smoke runs turn that check off (`sim.discard.max_area_compression=1.0`), and judge a drape
+where it first stops (`sim.fold_frames=0`: a discarded smoke drape would run 40 frames more; the fold rule has its
+own tests in test_drape_real_motion.py and test_drape_batched.py)."""
 
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ from pbc.geometry.meshops import surface_distance  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 # appended to every pbc command that takes Hydra overrides (the README's commands too)
 TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4",
-        "sim.discard.max_area_compression=1.0"]
+        "sim.discard.max_area_compression=1.0", "sim.fold_frames=0"]
 MANNEQUIN = ["body.mesh.voxel_size=0.03"]  # the coarse mannequin of the unit tier
 README_SAMPLES = "4"
 SKIRT_SAMPLES = "7"  # Anny's posed legs: 4 of the first 7 drapes converge (3: one pose per split)
