@@ -57,6 +57,7 @@ from newton.solvers import SolverStyle3D
 
 from pbc.sim.drape import (
     DrapeResult,
+    area_limits,
     as_numpy,
     check_drape_inputs,
     config_value,
@@ -655,9 +656,7 @@ class BatchedDrape:
         q_frac = float(h - q_index)
         every = max(1, int(config_value(cfg, "batch_check_every", 10)))
         fold_frames = int(config_value(cfg, "fold_frames", 0))
-        discard = config_value(cfg, "discard", cfg)
-        area_limits = (1.0 - float(config_value(discard, "max_area_compression", 0.75)),
-                       1.0 + float(config_value(discard, "max_area_expansion", 1.0)))
+        limits = area_limits(cfg)
         n_faces = len(self.faces)
         dev = model.device
         n = model.particle_count
@@ -682,7 +681,7 @@ class BatchedDrape:
                               self.n_below, self.below_max, self.above_min])
             if fold_frames > 0:
                 wp.launch(_area_fail, dim=k * n_faces, device=dev,
-                          inputs=[n_faces, n_per, *area_limits, self.tri, self.rest_area, self.status, s0.particle_q,
+                          inputs=[n_faces, n_per, *limits, self.tri, self.rest_area, self.status, s0.particle_q,
                                   self.area_fail])
             wp.launch(_decide, dim=k, device=dev,
                       inputs=[frame, min_frames, max_frames, q_index, q_frac, tol, self.start_frame, self.status,

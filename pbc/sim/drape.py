@@ -114,6 +114,14 @@ def triangle_area_ratios(positions: np.ndarray, faces: np.ndarray, rest_areas: n
     return area / np.maximum(np.asarray(rest_areas, dtype=np.float64), 1e-20)
 
 
+def area_limits(cfg) -> tuple[float, float]:
+    """The D.6 area ratios (lowest, highest) a face may have: 1 - cfg.discard.max_area_compression and
+    1 + cfg.discard.max_area_expansion (cfg: the `sim` node, or its `discard` node)."""
+    d = config_value(cfg, "discard", cfg)
+    return (1.0 - float(config_value(d, "max_area_compression", 0.75)),
+            1.0 + float(config_value(d, "max_area_expansion", 1.0)))
+
+
 def check_sample(positions, faces, rest_areas, cfg, converged: bool = True) -> tuple[bool, str]:
     """D.6 discard rule. Returns (ok, reason); reason in {"", "nan", "not_converged",
     "area_compressed", "area_stretched"}, checked in that order.
@@ -127,11 +135,11 @@ def check_sample(positions, faces, rest_areas, cfg, converged: bool = True) -> t
         return False, "nan"
     if not converged:
         return False, "not_converged"
-    d = config_value(cfg, "discard", cfg)
+    lo, hi = area_limits(cfg)
     ratio = triangle_area_ratios(p, faces, rest_areas)
-    if np.any(ratio < 1.0 - float(config_value(d, "max_area_compression", 0.75))):
+    if np.any(ratio < lo):
         return False, "area_compressed"
-    if np.any(ratio > 1.0 + float(config_value(d, "max_area_expansion", 1.0))):
+    if np.any(ratio > hi):
         return False, "area_stretched"
     return True, ""
 
