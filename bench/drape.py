@@ -193,8 +193,9 @@ def batched_main(argv: list[str]) -> dict:
     from pbc.sim.batched import batched_drape_for_garment
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
-    args = dict(a.split("=", 1) for a in argv if "=" in a and not a.startswith(("sim.", "body.", "+")))
-    overrides = [a for a in argv if a.startswith(("sim.", "body.", "+"))]
+    own = ("batch=", "single=", "poses=", "garment=")  # every other KEY=VALUE is a config override
+    args = dict(a.split("=", 1) for a in argv if a.startswith(own))
+    overrides = [a for a in argv if "=" in a and not a.startswith(own)]
     ks = [int(k) for k in args["batch"].split(",")]
     n_single = int(args.get("single", 4))
     n_poses = args.get("poses")
