@@ -4,7 +4,7 @@ MakeHuman shirt (tests/helpers/long_sleeves.py) on Anny A-posed and T-posed, at 
 discard checks on. CI fits one of them (tests/integration); this runs all ten, resumable (a finished fit is
 skipped by `pbc garment fit` itself), and writes results.json and the table in README.md.
 
-    python docs/results/ecosystem_fits/run.py --work /tmp/ecofits [--samples 6]
+    python docs/results/ecosystem_fits/run.py --work /tmp/ecofits [--samples 6] [--results results.json]
 """
 
 from __future__ import annotations
@@ -72,15 +72,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--samples", type=int, default=6)
+    ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parent / "results.json",
+                    help="where the rows go (rewritten after each fit)")
     args = ap.parse_args()
-    here = Path(__file__).resolve().parent
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     rows = []
     for body in BODIES:
         for name, path in garments(args.work, body).items():
             row = fit(path, body, args.work / "fits" / body / name, args.samples)
+            row["commit"] = commit.stdout.strip()
             rows.append(row)
             print(json.dumps(row), flush=True)
-            (here / "results.json").write_text(json.dumps(rows, indent=1) + "\n")
+            args.results.write_text(json.dumps(rows, indent=1) + "\n")
 
 
 if __name__ == "__main__":
