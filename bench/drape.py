@@ -21,7 +21,8 @@ and the mean/max distance in mm of the batched drapes from the single drapes of 
 Extra `key=value` arguments are config overrides
 (e.g. sim.max_frames=100).
 
-    python bench/drape.py compare [poses=6] [real=6] [batch=8] [data=tshirt_small] [old=KEY=VALUE,...] [overrides...]
+    python bench/drape.py compare [poses=6] [real=6] [batch=8] [worlds=K] [data=tshirt_small] [old=KEY=VALUE,...]
+                                  [overrides...]
 
 Kept drapes per CPU-hour, the settings before the real-motion fixes (`OLD_SIM`: Style3D's untangling force
 on, newton's value; the shear stiffness at 10; 20 frames a second; no fold rule; a clip's frames as
@@ -29,8 +30,9 @@ retargeted) against the config's (and a
 clip's arms fitted to the body, pbc.motion.fit), side by side in one run on the same poses: the data config's
 first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
 each pose draped old then new so both share the machine's load alike, then (batch=K > 1) each pose set
-again with the new settings in one batched model of K worlds (pbc/sim/batched.py, what `sim.batch_size=K`
-generates with; its one-off build reported apart). `old=KEY=VALUE,...` puts those settings in place of
+again with the new settings in one batched model of K worlds, or `worlds` (1: one model reused for the poses
+in turn) (pbc/sim/batched.py, what `sim.batch_size=K sim.batch_worlds=W` generates with; its one-off build
+reported apart). `old=KEY=VALUE,...` puts those settings in place of
 `OLD_SIM` (a change's own before and after; both then take a clip's frames with the arms fitted).
 Any other KEY=VALUE is a config override of both (an imported garment: `garment=obj garment.obj=PATH
 garment.uv_unit=m 'garment.charts={front:0,back:1}'`). Per setting and pose set: keep rate, discard reasons,
@@ -307,7 +309,7 @@ def compare_main(argv: list[str]) -> dict:
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
     # the bench's own arguments; every other KEY=VALUE is a config override (garment=obj, garment.obj=PATH, sim.fps=10)
-    own = ("poses=", "real=", "batch=", "data=", "old=")
+    own = ("poses=", "real=", "batch=", "worlds=", "data=", "old=")
     args = dict(a.split("=", 1) for a in argv if a.startswith(own))
     overrides = [a for a in argv if "=" in a and not a.startswith(own)]
     base = [f"data={args.get('data', 'tshirt_small')}", *overrides]
@@ -351,17 +353,19 @@ def compare_main(argv: list[str]) -> dict:
                       f"wall={r['wall_s']:6.2f}s {r['reason']}", flush=True)
 
     batch = int(args.get("batch", 8))
+    # worlds=1: one world reused for the set's poses in turn (a worker's model built once, not per drape)
+    worlds = int(args.get("worlds", batch))
     settings = ["old", "new"]
-    if batch > 1:  # the new settings through the batched model: one model of `batch` worlds for each pose set
+    if batch > 1:  # the new settings through the batched model: one model of `worlds` worlds for each pose set
         from pbc.sim.batched import batched_drape_for_garment
 
-        setting = f"new_k{batch}"
+        setting = f"new_k{worlds}"
         settings.append(setting)
-        for set_name, _, names in sets:
+        for set_name, set_poses, names in sets:
             bvs = pose_body(body, torch.from_numpy(np.asarray(fitted_sets[set_name])).float())
             starts = embedded_points(bvs, body.faces, emb).numpy()
             c0, t0 = time.process_time(), time.perf_counter()
-            bd = batched_drape_for_garment(garment, body, emb, cfg_new.sim, min(batch, len(poses)), starts[0],
+            bd = batched_drape_for_garment(garment, body, emb, cfg_new.sim, min(worlds, len(set_poses)), starts[0],
                                            bvs[0].numpy())
             build_cpu = time.process_time() - c0
             results = bd.run(starts, bvs.numpy())
