@@ -189,15 +189,21 @@ def device_name(cache_dir=None) -> str:
     return f"cpu ({model}, {os.cpu_count()} cores visible)"
 
 
+def bench_args(argv: list[str], own: tuple[str, ...]) -> tuple[dict[str, str], list[str]]:
+    """Split KEY=VALUE arguments into the bench's own (keys in `own`) and config overrides (every other one:
+    sim.fps=10, garment=obj, garment.obj=PATH)."""
+    mine = tuple(f"{k}=" for k in own)
+    return (dict(a.split("=", 1) for a in argv if a.startswith(mine)),
+            [a for a in argv if "=" in a and not a.startswith(mine)])
+
+
 def batched_main(argv: list[str]) -> dict:
     """Single-world vs batched drape, side by side (see the module docstring)."""
     from pbc.data.generate import build_scene
     from pbc.sim.batched import batched_drape_for_garment
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
-    own = ("batch=", "single=", "poses=", "garment=")  # every other KEY=VALUE is a config override
-    args = dict(a.split("=", 1) for a in argv if a.startswith(own))
-    overrides = [a for a in argv if "=" in a and not a.startswith(own)]
+    args, overrides = bench_args(argv, ("batch", "single", "poses", "garment"))
     ks = [int(k) for k in args["batch"].split(",")]
     n_single = int(args.get("single", 4))
     n_poses = args.get("poses")
@@ -308,10 +314,7 @@ def compare_main(argv: list[str]) -> dict:
     from pbc.motion.retarget import motion_settings
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
-    # the bench's own arguments; every other KEY=VALUE is a config override (garment=obj, garment.obj=PATH, sim.fps=10)
-    own = ("poses=", "real=", "batch=", "worlds=", "data=", "old=")
-    args = dict(a.split("=", 1) for a in argv if a.startswith(own))
-    overrides = [a for a in argv if "=" in a and not a.startswith(own)]
+    args, overrides = bench_args(argv, ("poses", "real", "batch", "worlds", "data", "old"))
     base = [f"data={args.get('data', 'tshirt_small')}", *overrides]
     # old=KEY=VALUE,...: the settings a change replaced, against the config's, both on clips with fitted arms
     old_sim = args["old"].split(",") if "old" in args else OLD_SIM
