@@ -25,8 +25,9 @@ Extra `key=value` arguments are config overrides
                                   [overrides...]
 
 Kept drapes per CPU-hour, the settings before the real-motion fixes (`OLD_SIM`: Style3D's untangling force
-on, newton's value; the shear stiffness at 10; 20 frames a second; no fold rule; a clip's frames as
-retargeted) against the config's (and a
+on, newton's value; the shear stiffness at 10; 20 frames a second; no fold rule; a model built for every
+drape; a clip's frames as retargeted) against the config's (with `sim.reuse_model`, one model per setting
+reused for the poses in turn, as a generation worker drapes, its build's CPU counted in the first drape; and a
 clip's arms fitted to the body, pbc.motion.fit), side by side in one run on the same poses: the data config's
 first `poses` sampled poses and `real` frames of the CMU clips in tests/data/bvh (arms hanging, walking),
 each pose draped old then new so both share the machine's load alike, then (batch=K > 1) each pose set
@@ -287,7 +288,7 @@ def batched_main(argv: list[str]) -> dict:
 # the drape before the real-motion fixes (docs/results/real_motion_drapes): untangling on, the soft shear, 20
 # frames a second, judged where the speed rule first holds
 OLD_SIM = ["sim.self_collision_stiffness.untangle=1.0", "sim.stretch_ke=[100.0,100.0,10.0]", "sim.fps=20",
-           "sim.fold_frames=0"]
+           "sim.fold_frames=0", "sim.reuse_model=false"]
 REAL_CLIPS = ("tests/data/bvh/cmu_mb_02_01_walk.bvh", "tests/data/bvh/cmu_mb_01_01_lfingers.bvh")
 
 
@@ -309,9 +310,10 @@ def real_motion_poses(skeleton, n: int) -> tuple[np.ndarray, list[str]]:
 
 def compare_main(argv: list[str]) -> dict:
     """Old against new drape settings on sampled and real-motion poses (see the module docstring)."""
-    from pbc.data.generate import build_scene
+    from pbc.data.generate import build_scene, reuses_model
     from pbc.motion.fit import clear_clip_arms
     from pbc.motion.retarget import motion_settings
+    from pbc.sim.batched import batched_drape_for_garment
     from pbc.sim.poses import sample_poses, sampling_settings_from_config
 
     args, overrides = bench_args(argv, ("poses", "real", "batch", "worlds", "data", "old"))
@@ -333,12 +335,28 @@ def compare_main(argv: list[str]) -> dict:
     bv = pose_body(body, torch.from_numpy(np.asarray(sets[0][1][:1])).float())
     t0 = time.perf_counter()  # warm-up: load (or compile) the kernels outside the timings
     drape_garment(garment, embedded_points(bv, body.faces, emb)[0].numpy(), bv[0].numpy(), body, emb, cfg_new.sim)
+    if reuses_model(cfg_new.sim):  # and the batched model's own
+        batched_drape_for_garment(garment, body, emb, cfg_new.sim, 1, embedded_points(bv, body.faces, emb)[0].numpy(),
+                                  bv[0].numpy()).run(embedded_points(bv, body.faces, emb).numpy(), bv.numpy())
     print(f"# warm-up: {time.perf_counter() - t0:.1f} s", flush=True)
 
     # the new pipeline takes a clip's frames with their arms fitted to the body (pbc.motion.fit), the old one as
     # retargeted; a sampled pose is the same for both
     fitted_sets = {name: (clear_clip_arms(np.asarray(poses), body, motion_settings().clear_arms)[0]
                           if name == "real" else np.asarray(poses)) for name, poses, _ in sets}
+    models = {}  # setting -> its reused model (sim.reuse_model), built by its first drape
+
+    def drape(setting, sim, start, body_v):
+        """One drape as generation makes it with `sim`: in the setting's reused model, or a model of its own."""
+        if not reuses_model(sim):
+            return drape_garment(garment, start, body_v, body, emb, sim)
+        c0, t0 = time.process_time(), time.perf_counter()
+        if setting not in models:
+            models[setting] = batched_drape_for_garment(garment, body, emb, sim, 1, start, body_v)
+        res = models[setting].run(start[None], body_v[None])[0]
+        res.cpu_seconds, res.seconds = time.process_time() - c0, time.perf_counter() - t0
+        return res
+
     rows = []
     for set_name, poses, names in sets:
         for pose, fitted, name in zip(poses, fitted_sets[set_name], names, strict=True):
@@ -346,7 +364,7 @@ def compare_main(argv: list[str]) -> dict:
                 use = np.asarray(pose) if setting == "old" and "old" not in args else fitted
                 bv = pose_body(body, torch.from_numpy(np.asarray(use, np.float32))[None])
                 start = embedded_points(bv, body.faces, emb)[0].numpy()
-                res = drape_garment(garment, start, bv[0].numpy(), body, emb, cfg.sim)
+                res = drape(setting, cfg.sim, start, bv[0].numpy())
                 ok, reason = check_garment_result(res, garment, cfg.sim)
                 rows.append({"set": set_name, "pose": name, "setting": setting, "frames": int(res.iterations),
                              "cpu_s": round(res.cpu_seconds, 2), "wall_s": round(res.seconds, 2), "ok": ok,
@@ -360,8 +378,6 @@ def compare_main(argv: list[str]) -> dict:
     worlds = int(args.get("worlds", batch))
     settings = ["old", "new"]
     if batch > 1:  # the new settings through the batched model: one model of `worlds` worlds for each pose set
-        from pbc.sim.batched import batched_drape_for_garment
-
         setting = f"new_k{worlds}"
         settings.append(setting)
         for set_name, set_poses, names in sets:

@@ -246,6 +246,8 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     want("data.seed", nonneg_int, "an integer >= 0")
     want("data.workers", pos_int, "a positive integer")
     want("data.num_shards", pos_int, "a positive integer")
+    want("sim.batch_size", pos_int, "a positive integer (1: one pose at a time)")
+    want("sim.reuse_model", lambda v: isinstance(v, bool), "true (one model a process, reused) or false (one a drape)")
     want("seed", nonneg_int, "an integer >= 0")
     for key in ("whole_resolution", "patch_resolution", "reference_resolution", "crop_size"):
         want(f"image.{key}", pos_int, "a positive integer (pixels)")

@@ -4,14 +4,14 @@ Pipeline: build the body, read (or make) the garment and its cage, shrink-wrap t
 sample all poses up front from the seed, then drape every pose independently and keep the ones that pass
 the distortion check (appendix D.6).
 
-Why it survives SIGKILL: every drape result goes to `work/samples/NNNNNN.npz` via a temp file and a
-rename, so a sample is either complete or absent. A re-run skips the samples that exist. Pose i depends
-only on the seed, and the drape is deterministic, so the merged arrays are byte-identical to an
-uninterrupted run. Shards (`data.shard=i data.num_shards=n`) take every n-th pose; the merge (any run
-with `data.shard=null`) collects them. With `sim.batch_size=k > 1` poses are draped k at a time in one
-model (`pbc.sim.batched`): fixed batches of k consecutive poses are the unit of resume and of sharding.
-Timings go to `timings.json`, apart from the manifest, so that the
-manifest is byte-identical too.
+Why it survives SIGKILL: every drape result goes to `work/samples/NNNNNN.npz` via a temp file and a rename, so
+a sample is either complete or absent. A re-run skips the samples that exist. Pose i depends only on the seed,
+and the drape is deterministic (in a worker's reused model too: a drape there depends on its pose alone), so
+the merged arrays are byte-identical to an uninterrupted run. Shards (`data.shard=i data.num_shards=n`) take
+every n-th pose; the merge (any run with `data.shard=null`) collects them. With `sim.batch_size=k > 1` poses
+are draped k at a time in one model (`pbc.sim.batched`): fixed batches of k consecutive poses are the unit of
+resume and of sharding. Timings go to `timings.json`, apart from the manifest, so that the manifest is byte-
+identical too.
 """
 
 from __future__ import annotations
@@ -75,7 +75,9 @@ class Scene:
     cage: Cage
     embedding: Embedding
     sim: DictConfig
-    batched: object | None = None  # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch
+    # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch (or drape, with sim.reuse_model)
+    batched: object | None = None
+    batched_worlds: int = 0  # the worlds it was built for (a changed sim.batch_size builds it again)
     # `data.body_shape`: the K people (full bodies, for the drapes' collisions) and their rest shapes
     people: list[Body] | None = None
     shapes: BodyShapes | None = None
@@ -176,13 +178,22 @@ def batch_worlds(sim: DictConfig) -> int:
     return min(batch_size(sim), int(sim.get("batch_worlds") or batch_size(sim)))
 
 
+def reuses_model(sim: DictConfig) -> bool:
+    """Whether single drapes go through the process's one reused model (`sim.reuse_model`; absent, as in
+    the configs of datasets made before it existed: the per-drape model)."""
+    return batch_size(sim) == 1 and bool(sim.get("reuse_model", False))
+
+
 def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
     """With batch_size 1 no batch key changes the data, so a single-world dataset keeps the
     fingerprint (and manifest bytes) it had before batching existed. In a batched run they all do,
-    to rounding: which poses share the model and when a stopped world takes the next one."""
+    to rounding: which poses share the model and when a stopped world takes the next one.
+    `reuse_model` counts only when it is on and drapes are single (batches always reuse their model),
+    so a dataset made before it existed matches `sim.reuse_model=false`."""
     if batch_size(sim) == 1:
-        return ("batch_size", "batch_worlds", "batch_check_every", "batch_world_spacing")
-    return ()
+        return ("batch_size", "batch_worlds", "batch_check_every", "batch_world_spacing",
+                *(() if reuses_model(sim) else ("reuse_model",)))
+    return ("reuse_model",)
 
 
 def _body_if_needed(cfg: DictConfig) -> Body | None:
@@ -203,7 +214,10 @@ def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
 
 def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:
     """Skin the embedded garment onto the posed body (of generation sample `index`'s person, when the data
-    spans several) and drape it. Returns the per-sample record."""
+    spans several) and drape it, in the scene's reused one-world model with `sim.reuse_model` (built on the
+    first call), else in a model built for this drape. Returns the per-sample record."""
+    if reuses_model(scene.sim):
+        return drape_batch(scene, pose[None], [index])[0]
     t0 = time.perf_counter()
     body = scene.body_for(index)
     rot = torch.from_numpy(pose)[None].float()
@@ -247,12 +261,13 @@ def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
         starts.append(start_points(body_v, body.faces, scene.embedding, float(scene.sim.thickness))[0].numpy())
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
-    if scene.batched is None:
+    if scene.batched is None or scene.batched_worlds != batch_worlds(scene.sim):
 
         from pbc.sim.batched import batched_drape_for_garment  # noqa: PLC0415 - the simulator only to drape
 
+        scene.batched_worlds = batch_worlds(scene.sim)  # asked for (the device may fit fewer: make_batched_drape)
         scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
-                                                  batch_worlds(scene.sim), starts[0], bodies[0])
+                                                  scene.batched_worlds, starts[0], bodies[0])
     results = scene.batched.run(np.stack(starts), np.stack(bodies))
     t2 = time.perf_counter()
     return [_drape_record(scene, res, (t1 - t0) / len(poses), (t2 - t1) / len(poses)) for res in results]

@@ -1,6 +1,7 @@
-"""The batched drape (pbc/sim/batched.py) against the single-world drape it must reproduce, on the coarse
-shirt and a few sampled poses; its faults (a world that blows up, worlds that never converge, a device
-too small for K); and the batched dataset's determinism across runs, shards and resumes."""
+"""The batched drape (pbc/sim/batched.py) against the single-world drape it must reproduce, on the coarse shirt
+and a few sampled poses; the one reused model that single drapes go through by default; its faults (a world
+that blows up, worlds that never converge, a device too small for K); and the batched dataset's determinism
+across runs, shards and resumes."""
 
 from __future__ import annotations
 
@@ -24,10 +25,12 @@ N_POSES = 3
 # 1.2 mm max with shear 40; 0.18 mm mean, 2.4 mm max at 10 frames a second), still far from coupling's 4-6 mm,
 # but no longer a measure of the equivalence this file checks
 SETTINGS_OF_THE_BOUNDS = ("sim.stretch_ke=[100.0,100.0,10.0]", "sim.fps=20")
+# the reference each equivalence here is measured against: a model built for every drape (pbc/sim/drape.py)
+PER_DRAPE_MODEL = "sim.reuse_model=false"
 
 
 def tiny_cfg(*extra: str):
-    return load_config(["data=tshirt_tiny", *SETTINGS_OF_THE_BOUNDS, *extra])
+    return load_config(["data=tshirt_tiny", *SETTINGS_OF_THE_BOUNDS, PER_DRAPE_MODEL, *extra])
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +200,47 @@ def test_batched_dataset_is_byte_identical_across_runs_shards_and_resumes(tmp_pa
     m = json.loads((one / "manifest.json").read_text())
     assert m["sim"]["batch_size"] == 2 and m["sim"]["batch_check_every"] == 10
     assert m["counts"]["requested"] == 3
+
+
+def test_a_drape_in_the_reused_model_depends_on_its_pose_alone(scene_and_poses):
+    """sim.reuse_model: each pose's drape is the same bytes whichever poses the process draped before (in
+    order, reversed, or a fresh model), and the per-drape model's drape up to the worlds' rounding (the
+    bound of test_batched_drape_is_the_single_drape)."""
+    _, poses = scene_and_poses
+    cfg = load_config(["data=tshirt_tiny", *SETTINGS_OF_THE_BOUNDS])
+    assert cfg.sim.reuse_model  # the default
+    in_order, _ = build_scene(cfg)
+    forward = [drape_pose(in_order, p, i) for i, p in enumerate(poses)]
+    model = in_order.batched
+    assert model is not None and model.n_worlds == 1
+    again = drape_pose(in_order, poses[0], 0)  # after the others, in the same model
+    assert in_order.batched is model  # built once, on the first drape
+    assert np.array_equal(again["positions"], forward[0]["positions"])
+    reversed_scene, _ = build_scene(cfg)
+    backward = [drape_pose(reversed_scene, poses[i], i) for i in reversed(range(N_POSES))][::-1]
+    fresh = []
+    for i, p in enumerate(poses):
+        scene, _ = build_scene(cfg)
+        fresh.append(drape_pose(scene, p, i))
+    per_drape, _ = build_scene(tiny_cfg())
+    assert per_drape.sim.reuse_model is False
+    for i, (f, b, n) in enumerate(zip(forward, backward, fresh, strict=True)):
+        for other in (b, n):
+            assert np.array_equal(f["positions"], other["positions"]), i
+            assert (f["ok"], f["reason"], f["iterations"]) == (other["ok"], other["reason"], other["iterations"])
+        ref = drape_pose(per_drape, poses[i], i)
+        assert (f["ok"], f["reason"]) == (ref["ok"], ref["reason"])
+        dist_mm = 1000 * np.linalg.norm(ref["positions"].astype(np.float64) - f["positions"], axis=1)
+        assert dist_mm.mean() < 0.01 and dist_mm.max() < 0.25, (dist_mm.mean(), dist_mm.max())
+    assert per_drape.batched is None  # the per-drape model is built and dropped in pbc.sim.drape
+
+
+def test_reuse_model_is_in_the_dataset_fingerprint_only_when_it_changes_the_drape():
+    """A dataset made before the reused model existed (no key) matches sim.reuse_model=false; the default
+    records it; a batched run always reuses its model, so the key is not its fingerprint's."""
+    from pbc.data.generate import sim_fingerprint
+
+    assert sim_fingerprint(load_config(["data=tshirt_tiny"]).sim)["reuse_model"] is True
+    assert "reuse_model" not in sim_fingerprint(load_config(["data=tshirt_tiny", "sim.reuse_model=false"]).sim)
+    batched = sim_fingerprint(load_config(["data=tshirt_tiny", "sim.batch_size=4"]).sim)
+    assert "reuse_model" not in batched and batched["batch_size"] == 4

@@ -118,6 +118,8 @@ def root_cfg():
     ("model.lr", -1, "model.lr=-1"),
     ("data.num_samples", 0, "data.num_samples=0"),
     ("data.shard", 2, r"data.shard=2 .*0\.\.0"),
+    ("sim.reuse_model", "yes", r"sim.reuse_model='yes' \(str\): expected true"),
+    ("sim.batch_size", 0, "sim.batch_size=0"),
 ])
 def test_config_values_checked_by_type(root_cfg, key, value, needle):
     cfg = root_cfg.copy()
