@@ -14,7 +14,7 @@ import argparse
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config, load_garment_config
 from pbc.core.paths import resolve_path
-from pbc.geometry.body import body_from_config
+from pbc.data.generate import made_on_body
 from pbc.geometry.cage.auto import auto_cage, cage_summary
 from pbc.geometry.cage.base import load_cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
@@ -37,7 +37,7 @@ def run(argv: list[str]) -> int:
         ap.error("give --out FILE (or --regenerate GARMENT_YAML ...)")
     cfg = load_config(args.overrides)
     gcfg = cfg.garment
-    body = body_from_config(cfg.body) if garment_needs_body(gcfg) else None
+    body = made_on_body(cfg) if garment_needs_body(gcfg) else None  # its vertex ids: the garment as made
     image = (int(gcfg.patch_resolution), int(gcfg.crop_size), int(gcfg.margin))
     own = gcfg.get("cage")
     gcfg.cage = "auto"

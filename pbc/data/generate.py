@@ -28,7 +28,7 @@ import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +51,7 @@ from pbc.core.io import (
 )
 from pbc.core.validate import check_config, identity_diff, moving_joints
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
-from pbc.data.mirror import MirrorMap, mirror_map, mirror_poses, mirror_verts
+from pbc.data.mirror import MirrorMap, mirror_map, mirror_poses, mirror_verts, symmetrised
 from pbc.data.mocap import motion_capture_poses, source_files_hash
 from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
 from pbc.geometry.body import body_from_config
@@ -127,6 +127,8 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
                              "clear_arms": OmegaConf.to_container(motion_settings().clear_arms)}
     if data.get("mirror"):
         fp["mirror"] = {"tolerance": float(data.mirror_tolerance)}
+    if cfg.garment.get("made_on_rest") is not None:  # the garment hash is the made garment's, before its drape
+        fp["garment_made_on_rest"] = OmegaConf.to_container(cfg.garment.made_on_rest)
     modes = modes_record(sampling_settings_from_config(cfg.body.sampling))
     if modes:  # the sampler's extra ranges (hanging arms, walking legs) change the poses
         fp["sampling_modes"] = modes
@@ -197,15 +199,66 @@ def _unfingerprinted_batch_keys(sim: DictConfig) -> tuple[str, ...]:
 
 
 def _body_if_needed(cfg: DictConfig) -> Body | None:
-    """The body, only for a garment built from it (sized to it): the cheap fingerprint stays cheap otherwise."""
-    return body_from_config(cfg.body) if garment_needs_body(cfg.garment) else None
+    """The body the garment is built on, only for a garment built from it (sized to it): the cheap fingerprint
+    stays cheap otherwise."""
+    return made_on_body(cfg) if garment_needs_body(cfg.garment) else None
+
+
+def made_on_body(cfg: DictConfig, body: Body | None = None) -> Body:
+    """The body the garment is made on: `body` (built when None) or, with ``garment.made_on_rest``, the
+    body turned to that rest pose (keys of ``body.rest``)."""
+    made_on = cfg.garment.get("made_on_rest")
+    if made_on is None:
+        return body if body is not None else body_from_config(cfg.body)
+    if "rest" not in cfg.body:
+        raise ValueError(f"garment.made_on_rest={OmegaConf.to_container(made_on)} turns the body's rest pose, and "
+                         f"body.kind={cfg.body.get('kind', 'mannequin')!r} has none to turn: use body=anny, or "
+                         "garment.made_on_rest=null")
+    turned = OmegaConf.merge(cfg.body, {"rest": made_on})
+    return body_from_config(turned)
+
+
+def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body, body: Body) -> Garment:
+    """The garment made on `made_on` (the body turned to ``garment.made_on_rest``) as it lies on `body`'s
+    own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle (forearms as made), and
+    draped there by the simulator; made left/right symmetric again with ``data.mirror``. A re-rest a
+    person would do by putting the shirt on and lowering the arms: the armpits fold as cloth does, where
+    re-skinning the sleeves alone leaves a wide shirt's sides round the lowered arms. One ValueError when
+    the drape is discarded."""
+    from pbc.geometry.body.anny import arm_angle_deg, rest_turn  # noqa: PLC0415 - only Anny's bodies re-rest
+
+    embedding, _ = shrinkwrap(garment, cage, made_on, cfg.garment.shrinkwrap)
+    pose = rest_turn(made_on.skeleton, arm_angle_deg(body.skeleton), None)[0].float().numpy()
+    t0 = time.perf_counter()
+    rec = drape_pose(Scene(made_on, garment, cage, embedding, cfg.sim), pose)
+    if not rec["ok"]:
+        raise ValueError(f"garment.made_on_rest: the garment made on the body's rest turned to "
+                         f"{OmegaConf.to_container(cfg.garment.made_on_rest)} was draped onto the body's own rest "
+                         f"and the drape was discarded ({rec['reason']}): make it on a rest nearer the body's "
+                         "(garment.made_on_rest) or without it (garment.made_on_rest=null)")
+    x = rec["positions"].astype(np.float64)
+    if cfg.data.get("mirror"):
+        x = symmetrised(x, garment.vertices.double().numpy(), garment.faces.numpy())
+    log.info("garment made on the body turned to %s, draped onto its own rest in %d frames (%.1f s)",
+             OmegaConf.to_container(cfg.garment.made_on_rest), rec["iterations"], time.perf_counter() - t0)
+    return replace(garment, vertices=torch.from_numpy(x).to(garment.vertices.dtype))
+
+
+def scene_garment(cfg: DictConfig, body: Body) -> tuple[Garment, Cage]:
+    """The garment and its cage on `body`'s rest pose: built on it, or made on the turned body of
+    ``garment.made_on_rest`` and draped onto it (`drape_onto_rest`)."""
+    made_on = made_on_body(cfg, body)
+    garment, cage = garment_from_config(cfg.garment, made_on)
+    if made_on is not body:
+        garment = drape_onto_rest(cfg, garment, cage, made_on, body)
+    return garment, cage
 
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
     sample_phenotypes(cfg)  # a bad data.body_shape is refused before any body is built
     body = body_from_config(cfg.body)
-    garment, cage = garment_from_config(cfg.garment, body)
+    garment, cage = scene_garment(cfg, body)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
     # the garment and its embedding are the base body's; the people share its mesh, so the embedding holds
     people, shapes = shape_bodies(cfg, body)

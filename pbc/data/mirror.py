@@ -76,6 +76,18 @@ def mirror_verts(verts: np.ndarray, mm: MirrorMap) -> np.ndarray:
     return (at @ MIRROR).astype(np.asarray(verts).dtype)
 
 
+def symmetrised(points: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """points (V, 3) of a garment whose rest vertices (V, 3) are left/right symmetric, made symmetric: the
+    mean of each vertex and its mirror vertex's mirror image (the rest shape's own mirror map). A drape of a
+    symmetric pose is symmetric but for its folds' rounding; a rest shape kept so lets `mirror_map` hold."""
+    rest = np.asarray(rest_vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    _, tri, bary = surface_points(rest @ MIRROR, rest, f)
+    x = np.asarray(points, np.float64)
+    mirrored = np.einsum("kcd,kc->kd", x[f[tri]], bary) @ MIRROR
+    return 0.5 * (x + mirrored)
+
+
 def surface_points(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of a triangle mesh to points (P, 3): distance (P,), triangle (P,) and barycentric

@@ -36,9 +36,9 @@ from pbc.core.io import read_json, require_writable_dir, write_json, write_text
 from pbc.core.runs import OK, RunRecord
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
+from pbc.data.generate import scene_garment
 from pbc.geometry.body import body_from_config
 from pbc.geometry.cage.base import save_cage
-from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.mhclo import mhclo_mesh
 from pbc.geometry.garment.outfit import TOP_Y
 from pbc.geometry.garment.placement import openings
@@ -201,7 +201,7 @@ class Fit:
 
         self.say("checks", "import, cage and shrink-wrap on the rest body (every check before a drape)")
         cfg = load_config(self.overrides)
-        garment, cage = garment_from_config(cfg.garment, body)
+        garment, cage = scene_garment(cfg, body)
         _, stats = shrinkwrap(garment, cage, body, cfg.garment)
         save_cage(cage, self.out / "cage.json", garment.num_vertices)
         self.say("checks", f"passed: {garment.num_vertices} vertices, {len(cage.patches)} cage patches "

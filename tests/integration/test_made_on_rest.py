@@ -1,0 +1,92 @@
+"""`garment.made_on_rest`: a garment made on the body turned to another rest pose (the procedural shirt, whose
+straight-out sleeves fit a T-pose) is draped onto the body's own rest (Anny's A-pose) by the simulator before it
+is wrapped. Without it the shirt is refused on A-posed Anny (its sleeves 50 degrees off the arms); re-skinning the
+sleeves alone (the placement's rest-pose transfer) leaves the wide shirt's sides round the lowered arms, and the
+wrap stretches the torso 5x (measured on the starter's shirt)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pbc.core.config import load_config
+from pbc.data.generate import build_scene, fingerprint, made_on_body, scene_mirror_map
+from pbc.data.mirror import MIRROR, surface_points, symmetrised
+from pbc.geometry.body import body_from_config
+from pbc.geometry.garment import garment_from_config
+
+T_POSE = "garment.made_on_rest={arm_angle_deg: 0.0, straight_forearms: true}"
+SHIRT_ON_ANNY = ["data=tshirt_tiny", "body=anny", "garment.size_to_body.enabled=true", "data.mirror=true",
+                 "data.num_samples=2"]
+
+
+def mirror_gap(points: np.ndarray, faces: np.ndarray) -> float:
+    """The largest distance (m) from a vertex's mirror image to the surface."""
+    return float(surface_points(points @ MIRROR, points, faces)[0].max())
+
+
+@pytest.fixture(scope="module")
+def apose_scene():
+    return build_scene(load_config([*SHIRT_ON_ANNY, T_POSE]))
+
+
+def test_the_shirt_made_on_t_posed_anny_is_draped_onto_its_a_pose_and_wraps_there(apose_scene):
+    scene, stats = apose_scene
+    made = made_on_body(load_config([*SHIRT_ON_ANNY, T_POSE]))
+    assert made is not scene.body
+    built, _ = garment_from_config(load_config([*SHIRT_ON_ANNY, T_POSE]).garment, made)
+    assert scene.garment.num_vertices == built.num_vertices  # the garment as made: its pattern, UVs and cage
+    assert np.array_equal(scene.garment.uv.numpy(), built.uv.numpy())
+    moved = np.linalg.norm(scene.garment.vertices.numpy() - built.vertices.numpy(), axis=1)
+    assert moved.max() > 0.1  # the sleeves came down with the arms
+    for side in ("left", "right"):
+        assert stats[f"sleeve_{side}_angle_deg"] < 10.0  # along A-posed Anny's arms (50 degrees off as made)
+    assert stats["patch_stretch_max"] < 1.6
+    faces = scene.garment.faces.numpy()
+    assert mirror_gap(scene.garment.vertices.double().numpy(), faces) < 1e-4  # symmetrised: data.mirror holds
+    assert scene_mirror_map(load_config([*SHIRT_ON_ANNY, T_POSE]), scene, np.eye(3)[None, None].repeat(
+        scene.body.skeleton.num_joints, 1).astype(np.float32)) is not None
+
+
+def test_without_it_the_shirt_is_refused_on_the_a_pose():
+    with pytest.raises(ValueError, match="sleeve is .* degrees off the body's rest arm"):
+        build_scene(load_config(SHIRT_ON_ANNY))
+
+
+def test_the_drape_onto_the_rest_is_in_the_dataset_fingerprint(apose_scene):
+    scene, _ = apose_scene
+    fp = fingerprint(load_config([*SHIRT_ON_ANNY, T_POSE]), scene)
+    assert fp["garment_made_on_rest"] == {"arm_angle_deg": 0.0, "straight_forearms": True}
+    assert "garment_made_on_rest" not in fingerprint(load_config(["data=tshirt_tiny"]),
+                                                      build_scene(load_config(["data=tshirt_tiny"]))[0])
+
+
+def test_a_body_without_a_rest_to_turn_and_a_discarded_drape_are_one_line_each():
+    with pytest.raises(ValueError, match=r"body.kind='mannequin' has none to turn: use body=anny"):
+        build_scene(load_config(["data=tshirt_tiny", T_POSE]))
+    # every face smaller than its pattern discards: the drape onto the rest cannot be kept
+    with pytest.raises(ValueError, match=r"made_on_rest: .* discarded \(area_compressed\)"):
+        build_scene(load_config([*SHIRT_ON_ANNY, T_POSE, "sim.discard.max_area_compression=0.0"]))
+
+
+def test_symmetrised_keeps_a_symmetric_shape_and_mirrors_an_asymmetric_one():
+    """Reference: a symmetric strip of vertices (its mirror map is vertex to vertex), checked pair by pair."""
+    x = np.linspace(-1, 1, 9)
+    rest = np.stack(np.meshgrid(x, [0.0, 0.5], indexing="ij"), -1).reshape(-1, 2)
+    rest = np.concatenate([rest, np.zeros((len(rest), 1))], 1)  # (18, 3) in the z = 0 plane
+    grid = np.arange(18).reshape(9, 2)
+    faces = np.concatenate([np.stack([grid[:-1, 0], grid[1:, 0], grid[1:, 1]], 1),
+                            np.stack([grid[:-1, 0], grid[1:, 1], grid[:-1, 1]], 1)])
+    assert np.allclose(symmetrised(rest, rest, faces), rest)
+    bent = rest + np.random.default_rng(0).normal(0, 0.01, rest.shape)
+    sym = symmetrised(bent, rest, faces)
+    pair = grid[::-1].reshape(-1)  # vertex i's mirror vertex
+    assert np.allclose(sym, sym[pair] @ MIRROR, atol=1e-12)
+    assert np.allclose(sym, 0.5 * (bent + bent[pair] @ MIRROR), atol=1e-12)
+
+
+def test_the_starter_data_config_makes_the_shirt_on_t_posed_anny_and_drapes_it_onto_anny():
+    cfg = load_config(["data=tshirt_anny"])
+    assert cfg.body.rest.arm_angle_deg is None  # Anny's own A-pose
+    assert made_on_body(cfg).skeleton.num_joints == body_from_config(cfg.body).skeleton.num_joints
+    assert dict(cfg.garment.made_on_rest) == {"arm_angle_deg": 0.0, "straight_forearms": True}
