@@ -78,6 +78,7 @@ class Scene:
     # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch (or drape, with sim.reuse_model)
     batched: object | None = None
     batched_worlds: int = 0  # the worlds it was built for (a changed sim.batch_size builds it again)
+    made: Garment | None = None  # with garment.made_on_rest: the garment as made, before its drape onto the rest
     # `data.body_shape`: the K people (full bodies, for the drapes' collisions) and their rest shapes
     people: list[Body] | None = None
     shapes: BodyShapes | None = None
@@ -94,7 +95,7 @@ def dataset_dir(cfg: DictConfig) -> Path:
 def fingerprint(cfg: DictConfig, scene: Scene) -> dict:
     """What makes two runs produce the same dataset. A directory made with another one is refused."""
     fp = {
-        **_cheap_fingerprint(cfg, scene.garment),
+        **_cheap_fingerprint(cfg, scene.made or scene.garment),  # the drape onto the rest is the embedding's
         "body_hash": hash_arrays(scene.body.vertices, scene.body.faces, scene.body.weights, scene.body.parts),
         # the rest-pose embedding and collision parts: a change to the shrink-wrap changes the data
         "embedding_hash": hash_arrays(scene.embedding.face, scene.embedding.bary, scene.embedding.part,
@@ -244,25 +245,25 @@ def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body
     return replace(garment, vertices=torch.from_numpy(x).to(garment.vertices.dtype))
 
 
-def scene_garment(cfg: DictConfig, body: Body) -> tuple[Garment, Cage]:
+def scene_garment(cfg: DictConfig, body: Body) -> tuple[Garment, Cage, Garment | None]:
     """The garment and its cage on `body`'s rest pose: built on it, or made on the turned body of
-    ``garment.made_on_rest`` and draped onto it (`drape_onto_rest`)."""
+    ``garment.made_on_rest`` and draped onto it (`drape_onto_rest`); and the garment as made (None: the same)."""
     made_on = made_on_body(cfg, body)
     garment, cage = garment_from_config(cfg.garment, made_on)
-    if made_on is not body:
-        garment = drape_onto_rest(cfg, garment, cage, made_on, body)
-    return garment, cage
+    if made_on is body:
+        return garment, cage, None
+    return drape_onto_rest(cfg, garment, cage, made_on, body), cage, garment
 
 
 def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
     """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
     sample_phenotypes(cfg)  # a bad data.body_shape is refused before any body is built
     body = body_from_config(cfg.body)
-    garment, cage = scene_garment(cfg, body)
+    garment, cage, made = scene_garment(cfg, body)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
     # the garment and its embedding are the base body's; the people share its mesh, so the embedding holds
     people, shapes = shape_bodies(cfg, body)
-    return Scene(body, garment, cage, embedding, cfg.sim, people=people, shapes=shapes), wrap_stats
+    return Scene(body, garment, cage, embedding, cfg.sim, people=people, shapes=shapes, made=made), wrap_stats
 
 
 def drape_pose(scene: Scene, pose: np.ndarray, index: int = 0) -> dict:

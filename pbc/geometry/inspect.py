@@ -70,6 +70,9 @@ class Report:
     suggest_charts: dict[str, int]
     suggest_unit: str
     suggest_pose: str
+    # the arm angle (degrees below horizontal) to make the garment on (garment.made_on_rest), where its sleeves
+    # are off a turnable rest body's arms and nothing else is: None when not needed or not possible
+    suggest_made_on_deg: int | None = None
     notes: list[str] = field(default_factory=list)
     # for the pictures
     positions: np.ndarray | None = None
@@ -150,8 +153,13 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
                                         f"{droop - arm_droop:.0f} degrees), or rotate the sleeves onto the rest arms"))
     else:
         pose = "no sleeves found beyond the body's arm joints: the body's rest pose does not matter for them"
+    made_on = _made_on_rest(gcfg, body, placement, sleeves)
+    if made_on is not None:
+        pose += (f"; it sits on the body otherwise, so make it on the body with the arms {made_on} degrees down and "
+                 f"drape it onto the rest: garment.made_on_rest={{arm_angle_deg:{made_on},straight_forearms:true}}")
     report = Report(path=path, rows=rows, sleeves=sleeves, arm_droop_deg=arm_droop, uv_range=uv_range,
                     stated_unit=stated, suggest_charts=charts, suggest_unit=unit, suggest_pose=pose,
+                    suggest_made_on_deg=made_on,
                     positions=p, faces=f, face_chart=island, uv_corners=corners,
                     body_vertices=body.vertices.double().cpu().numpy(), placement=placement,
                     mesh=replace(mesh, vertices=p))
@@ -160,6 +168,20 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     if wrap:
         _wrap_stretch(report, path, gcfg, body, charts, unit, mesh, island)
     return report
+
+
+def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict) -> int | None:
+    """The arm angle (degrees, rounded) to make a tool's garment on when its sleeves are more than the wrap allows
+    (garment.shrinkwrap.max_sleeve_angle_deg) off the rest arms of a body with a rest turn (Anny's), and it was
+    kept as given (a garment registered onto the body had its sleeves re-posed by the placement already)."""
+    limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
+    turnable = body.config is not None and "rest" in body.config
+    if (gcfg.get("kind") != "obj" or not sleeves or limit is None or not turnable or gcfg.get("made_on_rest")
+            or (placement is not None and not placement.kept)):
+        return None
+    if max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
+        return None
+    return int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()]))))
 
 
 def _number(unit: str):

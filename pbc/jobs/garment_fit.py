@@ -201,7 +201,7 @@ class Fit:
 
         self.say("checks", "import, cage and shrink-wrap on the rest body (every check before a drape)")
         cfg = load_config(self.overrides)
-        garment, cage = scene_garment(cfg, body)
+        garment, cage, _ = scene_garment(cfg, body)
         _, stats = shrinkwrap(garment, cage, body, cfg.garment)
         save_cage(cage, self.out / "cage.json", garment.num_vertices)
         self.say("checks", f"passed: {garment.num_vertices} vertices, {len(cage.patches)} cage patches "
@@ -212,7 +212,8 @@ class Fit:
 
     def derived_settings(self, report, body) -> list[str]:
         """The overrides inspect chose, for what the user's overrides leave unset: the suggested charts and UV
-        unit, and for a garment centred below the waist on a body with legs, `LOWER_BODY`."""
+        unit, the rest pose to make a garment on whose sleeves alone are off the body's rest arms
+        (garment.made_on_rest), and for a garment centred below the waist on a body with legs, `LOWER_BODY`."""
         given = {_key(o) for o in self.user}
         out = []
         charts = report.suggest_charts
@@ -220,6 +221,8 @@ class Fit:
             out.append("garment.charts={" + ",".join(f"{k}:{v}" for k, v in charts.items()) + "}")
         if "garment.uv_unit" not in given and report.suggest_unit != "auto":
             out.append(f"garment.uv_unit={report.suggest_unit}")
+        if "garment.made_on_rest" not in given and report.suggest_made_on_deg is not None:
+            out.append(f"garment.made_on_rest={{arm_angle_deg:{report.suggest_made_on_deg},straight_forearms:true}}")
         area = sum(r.area_3d for r in report.rows)
         centre_y = sum(r.centroid[1] * r.area_3d for r in report.rows) / max(area, 1e-12)
         if centre_y < TOP_Y and set(LEG_JOINTS) <= set(body.skeleton.names):

@@ -8,7 +8,9 @@ shirt re-exported the way each tool would hand it over.
 - `no_uv_shirt_obj`: a mannequin garment from a neural cloth simulator: metres, the mannequin's feet at y = 0,
   triangles with no `vt` at all;
 - `a_pose_shirt_obj`: the MakeHuman-style shirt as an OBJ in decimetres with its sleeves 40 degrees down
-  (tests/helpers/a_pose.py).
+  (tests/helpers/a_pose.py);
+- `anny_tee_obj`: a short-sleeved tee modelled on T-posed Anny in Anny's own frame (metres), UVs its pattern in
+  centimetres, as a pattern tool exports it: it sits on A-posed Anny but for its straight-out sleeves.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import numpy as np
 
 from helpers.a_pose import outfit_obj
 from pbc.core.config import load_config
+from pbc.geometry.body import body_from_config
+from pbc.geometry.garment import garment_from_config
 from pbc.geometry.garment.tshirt import make_tshirt
 
 # where each file puts pbc's shirt (its collar made for the mannequin, neck joint at y = 0.46 m): SMPL's
@@ -89,5 +93,23 @@ def a_pose_shirt_obj(garment: str = "tshirt_coarse") -> str:
     return outfit_obj(40.0, trousers=False, unit=0.1, garment=garment)
 
 
+def anny_tee_obj(garment: str = "tshirt_coarse") -> str:
+    """pbc's shirt sized to T-posed Anny, as a pattern tool (CLO, Marvelous Designer) exports it: metres in Anny's
+    frame, UVs the pattern pieces in centimetres (the back piece beside the front), `o`, `g front` / `g back`,
+    triangles `f v/vt`."""
+    cfg = load_config(["body=anny_tpose", f"garment={garment}", "garment.size_to_body.enabled=true"])
+    g, _ = garment_from_config(cfg.garment, body_from_config(cfg.body))
+    p, f, side = g.vertices.double().numpy(), g.faces.numpy(), g.face_side.numpy()
+    corners = 100.0 * g.pattern().double().numpy()  # (F, 3, 2) cm
+    corners[side == 1, :, 0] += 1.2 * np.ptp(corners[..., 0])  # the back piece laid out beside the front
+    lines = ["# Marvelous Designer export, Anny T-pose avatar (metres; UVs: pattern cm)", "o Tee", *_v(p)]
+    lines += [f"vt {u:.4f} {v:.4f}" for u, v in corners.reshape(-1, 2)]
+    for name, s in (("front", 0), ("back", 1)):
+        lines.append(f"g {name}")
+        lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}"
+                  for k, (a, b, c) in enumerate(f) if side[k] == s]
+    return "\n".join(lines) + "\n"
+
+
 ECOSYSTEMS = {"smpl_top": smpl_top_obj, "pattern_tee": pattern_tee_obj, "no_uv_shirt": no_uv_shirt_obj,
-              "a_pose_shirt": a_pose_shirt_obj}
+              "a_pose_shirt": a_pose_shirt_obj, "anny_tee": anny_tee_obj}
