@@ -25,7 +25,8 @@ from pbc.core.config import load_config  # noqa: E402
 from pbc.data.generate import build_scene, config_mismatch, fingerprint, made_on_body, scene_mirror_map
 from pbc.data.mirror import MIRROR, surface_points, symmetrised
 from pbc.geometry.body import body_from_config
-from pbc.geometry.garment import garment_from_config
+from pbc.geometry.garment import garment_from_config  # noqa: E402
+from pbc.geometry.garment.base import save_garment_obj  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # the smallest fit (tests/integration/test_garment_fit.py's, the drape's own discard checks on)
@@ -138,3 +139,20 @@ def test_a_tee_made_on_t_posed_anny_fits_a_posed_anny_through_the_commands(tmp_p
     manifest = json.loads((out / "data" / "manifest.json").read_text())
     assert manifest["garment_made_on_rest"]["straight_forearms"] is True
     assert manifest["counts"]["kept"] >= 1
+
+
+def test_and_back_the_shirt_as_it_lies_on_the_a_pose_goes_onto_t_posed_anny(apose_scene, tmp_path, capsys):
+    """The A-posed shirt (the drape above, written as pbc writes a garment) on T-posed Anny: inspect names the
+    A-pose to make it on (its sleeves' droop), and the drape raising the arms puts its sleeves on the T-posed
+    arms."""
+    path = tmp_path / "a_posed.obj"
+    save_garment_obj(apose_scene[0].garment, path)
+    assert exit_code(main, ["inspect", str(path), "body=anny_tpose", "--no-wrap"]) == 0
+    made_on = re.search(r"garment.made_on_rest=(\{arm_angle_deg:(\d+),straight_forearms:true\})",
+                        capsys.readouterr().out)
+    assert made_on and 35 <= int(made_on.group(2)) <= 60, made_on  # A-posed Anny's arms: 48 degrees down
+    _, stats = build_scene(load_config(["data=tshirt_tiny", "garment=obj", f"garment.obj={path}", "body=anny_tpose",
+                                        "data.mirror=true", f"garment.made_on_rest={made_on.group(1)}"]))
+    for side in ("left", "right"):
+        assert stats[f"sleeve_{side}_angle_deg"] < 10.0
+    assert stats["patch_stretch_max"] < 1.6

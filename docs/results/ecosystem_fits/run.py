@@ -5,6 +5,7 @@ discard checks on. CI fits one of them (tests/integration); this runs all ten, r
 skipped by `pbc garment fit` itself), and writes results.json and the table in README.md.
 
     python docs/results/ecosystem_fits/run.py --work /tmp/ecofits [--samples 6] [--results results.json]
+        [--only anny_tee,smpl_top]
 """
 
 from __future__ import annotations
@@ -74,11 +75,15 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=6)
     ap.add_argument("--results", type=Path, default=Path(__file__).resolve().parent / "results.json",
                     help="where the rows go (rewritten after each fit)")
+    ap.add_argument("--only", default=None, help="comma-separated garment names (default: all)")
     args = ap.parse_args()
+    only = None if args.only is None else set(args.only.split(","))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
     rows = []
     for body in BODIES:
         for name, path in garments(args.work, body).items():
+            if only is not None and name not in only:
+                continue
             row = fit(path, body, args.work / "fits" / body / name, args.samples)
             row["commit"] = commit.stdout.strip()
             rows.append(row)
