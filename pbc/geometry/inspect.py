@@ -173,11 +173,12 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
 def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict) -> int | None:
     """The arm angle (degrees, rounded) to make a tool's garment on when its sleeves are more than the wrap allows
     (garment.shrinkwrap.max_sleeve_angle_deg) off the rest arms of a body with a rest turn (Anny's), and it was
-    kept as given (a garment registered onto the body had its sleeves re-posed by the placement already)."""
+    kept as given by placement (a garment registered onto the body had its sleeves re-posed by the placement
+    already; with placement off or a position given by hand the garment is where the user put it)."""
     limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
     turnable = body.config is not None and "rest" in body.config
     if (gcfg.get("kind") != "obj" or not sleeves or limit is None or not turnable or gcfg.get("made_on_rest")
-            or (placement is not None and not placement.kept)):
+            or placement is None or not placement.kept):
         return None
     if max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
         return None
