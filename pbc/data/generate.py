@@ -221,15 +221,17 @@ def made_on_body(cfg: DictConfig, body: Body | None = None) -> Body:
 
 def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body, body: Body) -> Garment:
     """The garment made on `made_on` (the body turned to ``garment.made_on_rest``) as it lies on `body`'s
-    own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle (forearms as made), and
-    draped there by the simulator; made left/right symmetric again with ``data.mirror``. A re-rest a
-    person would do by putting the shirt on and lowering the arms: the armpits fold as cloth does, where
-    re-skinning the sleeves alone leaves a wide shirt's sides round the lowered arms. One ValueError when
-    the drape is discarded."""
+    own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle (forearms as made) and its
+    thighs back by the legs' difference (``legs_apart_deg``), and draped there by the simulator; made left/right
+    symmetric again with ``data.mirror``. A re-rest a person would do by putting the shirt on and lowering the
+    arms: the armpits fold as cloth does, where re-skinning the sleeves alone leaves a wide shirt's sides round
+    the lowered arms. One ValueError when the drape is discarded."""
     from pbc.geometry.body.anny import arm_angle_deg, rest_turn  # noqa: PLC0415 - only Anny's bodies re-rest
 
     embedding, _ = shrinkwrap(garment, cage, made_on, cfg.garment.shrinkwrap)
-    pose = rest_turn(made_on.skeleton, arm_angle_deg(body.skeleton), None)[0].float().numpy()
+    legs = (cfg.body.rest.get("legs_apart_deg") or 0.0, cfg.garment.made_on_rest.get("legs_apart_deg"))
+    legs_back = None if legs[1] is None else float(legs[0]) - float(legs[1])
+    pose = rest_turn(made_on.skeleton, arm_angle_deg(body.skeleton), legs_back)[0].float().numpy()
     t0 = time.perf_counter()
     rec = drape_pose(Scene(made_on, garment, cage, embedding, cfg.sim), pose)
     if not rec["ok"]:

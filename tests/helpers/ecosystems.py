@@ -111,5 +111,22 @@ def anny_tee_obj(garment: str = "tshirt_coarse") -> str:
     return "\n".join(lines) + "\n"
 
 
+def legs_apart_trousers_obj(legs_apart_deg: float = 15.0) -> str:
+    """pbc's trousers made on Anny with each thigh turned `legs_apart_deg` outward, exported as `anny_tee_obj` is
+    (metres in Anny's frame, UVs the pattern in centimetres): trousers modelled on a wider stance."""
+    cfg = load_config(["data=trousers_anny", f"body.rest.legs_apart_deg={legs_apart_deg}"])
+    g, _ = garment_from_config(cfg.garment, body_from_config(cfg.body))
+    p, f, side = g.vertices.double().numpy(), g.faces.numpy(), g.face_side.numpy()
+    corners = 100.0 * g.pattern().double().numpy()
+    corners[side == 1, :, 0] += 1.2 * np.ptp(corners[..., 0])
+    lines = ["# Marvelous Designer export, Anny avatar, legs apart (metres; UVs: pattern cm)", "o Trousers", *_v(p)]
+    lines += [f"vt {u:.4f} {v:.4f}" for u, v in corners.reshape(-1, 2)]
+    for name, s in (("front", 0), ("back", 1)):
+        lines.append(f"g {name}")
+        lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}"
+                  for k, (a, b, c) in enumerate(f) if side[k] == s]
+    return "\n".join(lines) + "\n"
+
+
 ECOSYSTEMS = {"smpl_top": smpl_top_obj, "pattern_tee": pattern_tee_obj, "no_uv_shirt": no_uv_shirt_obj,
               "a_pose_shirt": a_pose_shirt_obj, "anny_tee": anny_tee_obj}

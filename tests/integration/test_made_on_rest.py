@@ -156,3 +156,25 @@ def test_and_back_the_shirt_as_it_lies_on_the_a_pose_goes_onto_t_posed_anny(apos
     for side in ("left", "right"):
         assert stats[f"sleeve_{side}_angle_deg"] < 10.0
     assert stats["patch_stretch_max"] < 1.6
+
+
+def test_trousers_made_on_a_wider_stance_are_a_bottom_and_drape_onto_the_legs(tmp_path):
+    """Trousers modelled with the thighs 15 degrees apart: their ankles lie farther from the midline than the
+    waistband is wide, and they were taken for a top and registered at the neck (half the cloth 2.6 m from the
+    body). Their widest opening is on top: a bottom, kept as given. Made on that stance
+    (garment.made_on_rest={legs_apart_deg: 15}) and draped with the thighs turned back, they wrap on Anny's legs
+    with no patch stretched (1.9x as given)."""
+    from helpers.ecosystems import legs_apart_trousers_obj
+
+    from pbc.geometry.garment.placement import top_or_bottom
+    from pbc.geometry.meshio import read_obj
+
+    path = tmp_path / "trousers.obj"
+    path.write_text(legs_apart_trousers_obj(15.0), newline="")
+    mesh = read_obj(path, "garment OBJ", require_uv=False)
+    assert top_or_bottom(mesh.vertices, mesh.faces, str(path)) == "bottom"
+    base = ["data=trousers_anny", "garment=obj", f"garment.obj={path}", "garment.uv_unit=cm",
+            "garment.charts={front:0,back:1}"]
+    _, as_given = build_scene(load_config(base))
+    _, made_on = build_scene(load_config([*base, "garment.made_on_rest={legs_apart_deg: 15}"]))
+    assert made_on["patch_stretch_max"] < 1.2 < as_given["patch_stretch_max"]

@@ -110,8 +110,10 @@ def openings(points: np.ndarray, faces: np.ndarray) -> list[dict]:
 def top_or_bottom(points: np.ndarray, faces: np.ndarray, where: str) -> str:
     """``bottom`` (worn from the waist) or ``top`` (worn from the neck), from the garment's openings: two (a skirt,
     however flared, or a tube) is a bottom; three or more whose two lowest lie side by side under the highest
-    (trouser legs under the waistband, each within its diameter of the midline) is a bottom; any other
-    (a collar, a hem and sleeves or armholes) is a top. A closed surface is no garment."""
+    (trouser legs under the waistband) is a bottom when both lie within the waistband's diameter of the midline
+    or the highest opening is the widest (trousers modelled with the legs apart: a top's collar is narrower
+    than its hem, and a long sleeve's cuffs lie farther out); any other (a collar, a hem and sleeves or
+    armholes) is a top. A closed surface is no garment."""
     ops = openings(points, faces)
     if len(ops) < 2:
         raise ValueError(f"{where}: {'a closed surface' if not ops else 'a surface with one opening'} is not a "
@@ -121,7 +123,9 @@ def top_or_bottom(points: np.ndarray, faces: np.ndarray, where: str) -> str:
         return "bottom"
     a, b = ops[-1]["centre"], ops[-2]["centre"]
     reach = ops[0]["perimeter"] / np.pi  # twice the waistband's radius, were it round: a leg's ankle is within it
-    legs = abs(a[1] - b[1]) < 0.25 * abs(a[0] - b[0]) and a[0] * b[0] < 0 and max(abs(a[0]), abs(b[0])) < reach
+    side_by_side = abs(a[1] - b[1]) < 0.25 * abs(a[0] - b[0]) and a[0] * b[0] < 0
+    widest_on_top = all(ops[0]["perimeter"] >= o["perimeter"] for o in ops[1:])
+    legs = side_by_side and (max(abs(a[0]), abs(b[0])) < reach or widest_on_top)
     return "bottom" if legs else "top"
 
 
