@@ -34,7 +34,7 @@ from pbc.geometry.garment.checks import (
     sleeve_axes,
 )
 from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_from_mesh
-from pbc.geometry.garment.placement import Placement, placed_mesh
+from pbc.geometry.garment.placement import Placement, placed_mesh, trouser_leg_stance
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, surface_distance, uv_islands
 from pbc.geometry.shrinkwrap import REGIONS, wrap_with_regions
@@ -70,9 +70,9 @@ class Report:
     suggest_charts: dict[str, int]
     suggest_unit: str
     suggest_pose: str
-    # the arm angle (degrees below horizontal) to make the garment on (garment.made_on_rest), where its sleeves
-    # are off a turnable rest body's arms and nothing else is: None when not needed or not possible
-    suggest_made_on_deg: int | None = None
+    # the rest pose to make the garment on (garment.made_on_rest, keys of body.rest), where its sleeves or
+    # trouser legs are off a turnable rest body's limbs and nothing else is: None when not needed or not possible
+    suggest_made_on: dict | None = None
     notes: list[str] = field(default_factory=list)
     # for the pictures
     positions: np.ndarray | None = None
@@ -153,13 +153,15 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
                                         f"{droop - arm_droop:.0f} degrees), or rotate the sleeves onto the rest arms"))
     else:
         pose = "no sleeves found beyond the body's arm joints: the body's rest pose does not matter for them"
-    made_on = _made_on_rest(gcfg, body, placement, sleeves)
+    made_on = _made_on_rest(gcfg, body, placement, sleeves, p, f)
     if made_on is not None:
-        pose += (f"; it sits on the body otherwise, so make it on the body with the arms {made_on} degrees down and "
-                 f"drape it onto the rest: garment.made_on_rest={{arm_angle_deg:{made_on},straight_forearms:true}}")
+        limbs = ("with the arms {arm_angle_deg} degrees down" if "arm_angle_deg" in made_on
+                 else "with each thigh {legs_apart_deg} degrees outward").format(**made_on)
+        pose += (f"; it sits on the body otherwise, so make it on the body {limbs} and drape it onto the rest: "
+                 f"{made_on_override(made_on)}")
     report = Report(path=path, rows=rows, sleeves=sleeves, arm_droop_deg=arm_droop, uv_range=uv_range,
                     stated_unit=stated, suggest_charts=charts, suggest_unit=unit, suggest_pose=pose,
-                    suggest_made_on_deg=made_on,
+                    suggest_made_on=made_on,
                     positions=p, faces=f, face_chart=island, uv_corners=corners,
                     body_vertices=body.vertices.double().cpu().numpy(), placement=placement,
                     mesh=replace(mesh, vertices=p))
@@ -170,19 +172,36 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     return report
 
 
-def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict) -> int | None:
-    """The arm angle (degrees, rounded) to make a tool's garment on when its sleeves are more than the wrap allows
-    (garment.shrinkwrap.max_sleeve_angle_deg) off the rest arms of a body with a rest turn (Anny's), and it was
-    kept as given by placement (a garment registered onto the body had its sleeves re-posed by the placement
-    already; with placement off or a position given by hand the garment is where the user put it)."""
-    limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
+def made_on_override(made_on: dict) -> str:
+    """The override of a ``garment.made_on_rest`` node: {arm_angle_deg: 0, ...} -> garment.made_on_rest={...}."""
+    return "garment.made_on_rest={" + ",".join(f"{k}:{str(v).lower() if isinstance(v, bool) else v}"
+                                                for k, v in made_on.items()) + "}"
+
+
+def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, points: np.ndarray,
+                  faces: np.ndarray) -> dict | None:
+    """The rest pose (keys of body.rest) to make a tool's garment on, for a garment placement kept as given on a
+    body with a rest turn (Anny's) but whose limbs are not the body's: a top whose sleeves are more than the wrap
+    allows (garment.shrinkwrap.max_sleeve_angle_deg) off the rest arms (the arm angle its sleeves point at), or
+    trousers whose legs lean more than garment.placement.leg_rest_deg away from the thighs (each thigh turned as
+    far). None otherwise: a garment registered onto the body had its sleeves re-posed by the placement already;
+    with placement off or a position given by hand the garment is where the user put it."""
     turnable = body.config is not None and "rest" in body.config
-    if (gcfg.get("kind") != "obj" or not sleeves or limit is None or not turnable or gcfg.get("made_on_rest")
-            or placement is None or not placement.kept):
+    if (gcfg.get("kind") != "obj" or not turnable or gcfg.get("made_on_rest") or placement is None
+            or not placement.kept):
         return None
-    if max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
+    if placement.kind == "bottom":
+        stance = trouser_leg_stance(points, faces, body, "bottom")
+        limit = (gcfg.get("placement") or {}).get("leg_rest_deg")
+        if not stance or limit is None or max(abs(s["apart_deg"]) for s in stance.values()) <= float(limit):
+            return None
+        rest = float((body.config.get("rest") or {}).get("legs_apart_deg") or 0.0)
+        return {"legs_apart_deg": int(round(rest + float(np.mean([s["apart_deg"] for s in stance.values()]))))}
+    limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
+    if not sleeves or limit is None or max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
         return None
-    return int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()]))))
+    return {"arm_angle_deg": int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()])))),
+            "straight_forearms": True}
 
 
 def _number(unit: str):

@@ -42,7 +42,7 @@ from pbc.geometry.cage.base import save_cage
 from pbc.geometry.garment.mhclo import mhclo_mesh
 from pbc.geometry.garment.outfit import TOP_Y
 from pbc.geometry.garment.placement import openings
-from pbc.geometry.inspect import format_report, inspect_garment, save_body_picture, save_uv_picture
+from pbc.geometry.inspect import format_report, inspect_garment, made_on_override, save_body_picture, save_uv_picture
 from pbc.geometry.meshio import obj_mesh_text
 from pbc.geometry.shrinkwrap import shrinkwrap
 from pbc.jobs.sweeps import run_logged
@@ -221,8 +221,8 @@ class Fit:
             out.append("garment.charts={" + ",".join(f"{k}:{v}" for k, v in charts.items()) + "}")
         if "garment.uv_unit" not in given and report.suggest_unit != "auto":
             out.append(f"garment.uv_unit={report.suggest_unit}")
-        if "garment.made_on_rest" not in given and report.suggest_made_on_deg is not None:
-            out.append(f"garment.made_on_rest={{arm_angle_deg:{report.suggest_made_on_deg},straight_forearms:true}}")
+        if "garment.made_on_rest" not in given and report.suggest_made_on is not None:
+            out.append(made_on_override(report.suggest_made_on))
         area = sum(r.area_3d for r in report.rows)
         centre_y = sum(r.centroid[1] * r.area_3d for r in report.rows) / max(area, 1e-12)
         if centre_y < TOP_Y and set(LEG_JOINTS) <= set(body.skeleton.names):

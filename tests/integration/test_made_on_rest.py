@@ -158,7 +158,7 @@ def test_and_back_the_shirt_as_it_lies_on_the_a_pose_goes_onto_t_posed_anny(apos
     assert stats["patch_stretch_max"] < 1.6
 
 
-def test_trousers_made_on_a_wider_stance_are_a_bottom_and_drape_onto_the_legs(tmp_path):
+def test_trousers_made_on_a_wider_stance_are_a_bottom_and_drape_onto_the_legs(tmp_path, capsys):
     """Trousers modelled with the thighs 15 degrees apart: their ankles lie farther from the midline than the
     waistband is wide, and they were taken for a top and registered at the neck (half the cloth 2.6 m from the
     body). Their widest opening is on top: a bottom, kept as given. Made on that stance
@@ -178,3 +178,11 @@ def test_trousers_made_on_a_wider_stance_are_a_bottom_and_drape_onto_the_legs(tm
     _, as_given = build_scene(load_config(base))
     _, made_on = build_scene(load_config([*base, "garment.made_on_rest={legs_apart_deg: 15}"]))
     assert made_on["patch_stretch_max"] < 1.2 < as_given["patch_stretch_max"]
+    # inspect measures the stance (each trouser leg's axis against the thigh) and names it; the fit takes it
+    assert exit_code(main, ["inspect", str(path), "body=anny", "--no-wrap"]) == 0
+    stance = re.search(r"garment.made_on_rest=\{legs_apart_deg:(\d+)\}", capsys.readouterr().out)
+    assert stance and 12 <= int(stance.group(1)) <= 18, stance
+    straight = tmp_path / "straight.obj"
+    straight.write_text(legs_apart_trousers_obj(0.0), newline="")
+    assert exit_code(main, ["inspect", str(straight), "body=anny", "--no-wrap"]) == 0
+    assert "made_on_rest" not in capsys.readouterr().out  # made on Anny's own stance: nothing to do

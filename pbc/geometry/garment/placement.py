@@ -511,23 +511,58 @@ def legs_inside(points: np.ndarray, faces: np.ndarray, body: Body, min_deg: floa
     says.)"""
     p = np.asarray(points, np.float64)
     f = np.asarray(faces)
-    names = list(body.skeleton.names)
-    if kind != "bottom" or len(openings(p, f)) < 3 or not {"l_hip", "r_hip"} <= set(names):
-        return None
-    centre = p[f].mean(1)
-    heads = body.skeleton.rest_heads.double().numpy()
-    for side, sgn in (("left", 1.0), ("right", -1.0)):
-        hip = heads[names.index(f"{side[0]}_hip")]
-        knee = f"{side[0]}_knee"
-        low = hip[1] if knee not in names else 0.5 * (hip[1] + heads[names.index(knee)][1])  # mid-thigh
-        leg = (centre[:, 1] < low) & (sgn * centre[:, 0] > 0.0)
-        if leg.sum() < 8:
-            continue
+    for side, leg in trouser_legs(p, f, body, kind).items():
         deg = cloth_encircled_degrees(p, f[leg], limb_segments(body.skeleton, f"{side[0]}_hip"))
         if deg < min_deg:
             return (f"its {side} trouser leg does not surround the body's {side} leg (it reaches {deg:.0f} degrees "
                     f"round it; garment.shrinkwrap.min_encircled_deg = {min_deg:g})")
     return None
+
+
+def trouser_legs(points: np.ndarray, faces: np.ndarray, body: Body, kind: str) -> dict[str, np.ndarray]:
+    """Per side, the (F,) mask of a trouser leg's faces below the body's mid-thigh; {} unless the garment is
+    trousers (a bottom with three openings or more) on a body with legs. A side with under 8 faces is left out."""
+    p = np.asarray(points, np.float64)
+    f = np.asarray(faces)
+    names = list(body.skeleton.names)
+    if kind != "bottom" or len(openings(p, f)) < 3 or not {"l_hip", "r_hip"} <= set(names):
+        return {}
+    centre = p[f].mean(1)
+    heads = body.skeleton.rest_heads.double().numpy()
+    out = {}
+    for side, sgn in (("left", 1.0), ("right", -1.0)):
+        hip = heads[names.index(f"{side[0]}_hip")]
+        knee = f"{side[0]}_knee"
+        low = hip[1] if knee not in names else 0.5 * (hip[1] + heads[names.index(knee)][1])  # mid-thigh
+        leg = (centre[:, 1] < low) & (sgn * centre[:, 0] > 0.0)
+        if leg.sum() >= 8:
+            out[side] = leg
+    return out
+
+
+def _outward_deg(direction: np.ndarray, sgn: float) -> float:
+    """Degrees a downward direction (3,) leans outward from straight down, in the body's frontal plane."""
+    d = direction if direction[1] <= 0 else -direction
+    return float(np.degrees(np.arctan2(sgn * d[0], -d[1])))
+
+
+def trouser_leg_stance(points: np.ndarray, faces: np.ndarray, body: Body, kind: str) -> dict[str, dict]:
+    """Per trouser leg (`trouser_legs`): {"leg_deg": how far its tube's axis leans outward from straight down,
+    "thigh_deg": the same for the body's thigh (hip to knee), "apart_deg": their difference} in degrees, in the
+    body's frontal plane; a body without knees is left out."""
+    names = list(body.skeleton.names)
+    heads = body.skeleton.rest_heads.double().numpy()
+    out = {}
+    for side, leg in trouser_legs(points, faces, body, kind).items():
+        knee = f"{side[0]}_knee"
+        axis = tube_axis(np.asarray(points, np.float64), np.asarray(faces)[leg])
+        if knee not in names or axis is None:
+            continue
+        sgn = 1.0 if side == "left" else -1.0
+        leg_deg = _outward_deg(axis[0], sgn)
+        thigh_deg = _outward_deg(heads[names.index(knee)] - heads[names.index(f"{side[0]}_hip")], sgn)
+        out[side] = {"leg_deg": leg_deg, "thigh_deg": thigh_deg, "apart_deg": leg_deg - thigh_deg}
+    return out
 
 
 def has_legs(body: Body) -> bool:
