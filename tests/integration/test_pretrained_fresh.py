@@ -38,14 +38,13 @@ def test_the_shipped_tshirt_beats_the_mean_shape_on_fresh_poses(tmp_path, monkey
     pred = ClothPredictor.from_pretrained("tshirt")
     shipped = pred.dataset.manifest
     source = shipped["trimmed_from"]["fingerprint"]
-    made = RunRecord.read(pretrained_run("tshirt")).config
-    name = made["data"]["name"]  # the data config it trained on
+    made = RunRecord.read(pretrained_run("tshirt")).config  # the run's whole config, its data node resolved
     assert FRESH_SEED != source["seed"]
     t0 = time.time()
-    cfg = load_config([f"data={name}", f"paths.data_dir={tmp_path}", f"data.seed={FRESH_SEED}",
-                       f"data.num_samples={FRESH_POSES}"])
-    with open_dict(cfg):  # drape as its dataset was draped, whatever conf/ says today: its body, garment and sim
-        cfg.body, cfg.garment = made["body"], made["garment"]
+    cfg = load_config([f"paths.data_dir={tmp_path}"])
+    with open_dict(cfg):  # drape as its dataset was draped, whatever conf/ says today: its data, body, garment, sim
+        cfg.data, cfg.body, cfg.garment = made["data"], made["body"], made["garment"]
+        cfg.data.dir, cfg.data.seed, cfg.data.num_samples = str(tmp_path / "fresh"), FRESH_SEED, FRESH_POSES
         for key in set(sim_fingerprint(cfg.sim)) - set(source["sim"]):
             del cfg.sim[key]
         for key, value in source["sim"].items():
