@@ -93,39 +93,35 @@ def a_pose_shirt_obj(garment: str = "tshirt_coarse") -> str:
     return outfit_obj(40.0, trousers=False, unit=0.1, garment=garment)
 
 
-def anny_tee_obj(garment: str = "tshirt_coarse") -> str:
-    """pbc's shirt sized to T-posed Anny, as a pattern tool (CLO, Marvelous Designer) exports it: metres in Anny's
-    frame, UVs the pattern pieces in centimetres (the back piece beside the front), `o`, `g front` / `g back`,
-    triangles `f v/vt`."""
-    cfg = load_config(["body=anny_tpose", f"garment={garment}", "garment.size_to_body.enabled=true"])
-    g, _ = garment_from_config(cfg.garment, body_from_config(cfg.body))
+def _pattern_tool_obj(g, header: str, name: str) -> str:
+    """A pbc Garment as a pattern tool (CLO, Marvelous Designer) exports it: metres as placed, UVs the pattern
+    pieces in centimetres (the back piece beside the front), `o`, `g front` / `g back`, triangles `f v/vt`."""
     p, f, side = g.vertices.double().numpy(), g.faces.numpy(), g.face_side.numpy()
     corners = 100.0 * g.pattern().double().numpy()  # (F, 3, 2) cm
     corners[side == 1, :, 0] += 1.2 * np.ptp(corners[..., 0])  # the back piece laid out beside the front
-    lines = ["# Marvelous Designer export, Anny T-pose avatar (metres; UVs: pattern cm)", "o Tee", *_v(p)]
+    lines = [header, f"o {name}", *_v(p)]
     lines += [f"vt {u:.4f} {v:.4f}" for u, v in corners.reshape(-1, 2)]
-    for name, s in (("front", 0), ("back", 1)):
-        lines.append(f"g {name}")
+    for group, s in (("front", 0), ("back", 1)):
+        lines.append(f"g {group}")
         lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}"
                   for k, (a, b, c) in enumerate(f) if side[k] == s]
     return "\n".join(lines) + "\n"
+
+
+def anny_tee_obj(garment: str = "tshirt_coarse") -> str:
+    """pbc's shirt sized to T-posed Anny, as a pattern tool exports it (`_pattern_tool_obj`), in Anny's frame."""
+    cfg = load_config(["body=anny_tpose", f"garment={garment}", "garment.size_to_body.enabled=true"])
+    g, _ = garment_from_config(cfg.garment, body_from_config(cfg.body))
+    return _pattern_tool_obj(g, "# Marvelous Designer export, Anny T-pose avatar (metres; UVs: pattern cm)", "Tee")
 
 
 def legs_apart_trousers_obj(legs_apart_deg: float = 15.0) -> str:
-    """pbc's trousers made on Anny with each thigh turned `legs_apart_deg` outward, exported as `anny_tee_obj` is
-    (metres in Anny's frame, UVs the pattern in centimetres): trousers modelled on a wider stance."""
+    """pbc's trousers made on Anny with each thigh turned `legs_apart_deg` outward, as a pattern tool exports them
+    (`_pattern_tool_obj`), in Anny's frame: trousers modelled on a wider stance."""
     cfg = load_config(["data=trousers_anny", f"body.rest.legs_apart_deg={legs_apart_deg}"])
     g, _ = garment_from_config(cfg.garment, body_from_config(cfg.body))
-    p, f, side = g.vertices.double().numpy(), g.faces.numpy(), g.face_side.numpy()
-    corners = 100.0 * g.pattern().double().numpy()
-    corners[side == 1, :, 0] += 1.2 * np.ptp(corners[..., 0])
-    lines = ["# Marvelous Designer export, Anny avatar, legs apart (metres; UVs: pattern cm)", "o Trousers", *_v(p)]
-    lines += [f"vt {u:.4f} {v:.4f}" for u, v in corners.reshape(-1, 2)]
-    for name, s in (("front", 0), ("back", 1)):
-        lines.append(f"g {name}")
-        lines += [f"f {a + 1}/{3 * k + 1} {b + 1}/{3 * k + 2} {c + 1}/{3 * k + 3}"
-                  for k, (a, b, c) in enumerate(f) if side[k] == s]
-    return "\n".join(lines) + "\n"
+    return _pattern_tool_obj(g, "# Marvelous Designer export, Anny avatar, legs apart (metres; UVs: pattern cm)",
+                             "Trousers")
 
 
 ECOSYSTEMS = {"smpl_top": smpl_top_obj, "pattern_tee": pattern_tee_obj, "no_uv_shirt": no_uv_shirt_obj,
