@@ -334,10 +334,10 @@ def compare_main(argv: list[str]) -> dict:
           f"old = {' '.join(old_sim)}", flush=True)
     bv = pose_body(body, torch.from_numpy(np.asarray(sets[0][1][:1])).float())
     t0 = time.perf_counter()  # warm-up: load (or compile) the kernels outside the timings
-    drape_garment(garment, embedded_points(bv, body.faces, emb)[0].numpy(), bv[0].numpy(), body, emb, cfg_new.sim)
+    start = embedded_points(bv, body.faces, emb).numpy()
+    drape_garment(garment, start[0], bv[0].numpy(), body, emb, cfg_new.sim)
     if reuses_model(cfg_new.sim):  # and the batched model's own
-        batched_drape_for_garment(garment, body, emb, cfg_new.sim, 1, embedded_points(bv, body.faces, emb)[0].numpy(),
-                                  bv[0].numpy()).run(embedded_points(bv, body.faces, emb).numpy(), bv.numpy())
+        batched_drape_for_garment(garment, body, emb, cfg_new.sim, 1, start[0], bv[0].numpy()).run(start, bv.numpy())
     print(f"# warm-up: {time.perf_counter() - t0:.1f} s", flush=True)
 
     # the new pipeline takes a clip's frames with their arms fitted to the body (pbc.motion.fit), the old one as

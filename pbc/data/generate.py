@@ -77,7 +77,6 @@ class Scene:
     sim: DictConfig
     # the worker's `pbc.sim.batched.BatchedDrape`, built on its first batch (or drape, with sim.reuse_model)
     batched: object | None = None
-    batched_worlds: int = 0  # the worlds it was built for (a changed sim.batch_size builds it again)
     made: Garment | None = None  # with garment.made_on_rest: the garment as made, before its drape onto the rest
     # `data.body_shape`: the K people (full bodies, for the drapes' collisions) and their rest shapes
     people: list[Body] | None = None
@@ -317,13 +316,12 @@ def drape_batch(scene: Scene, poses: np.ndarray, indices=None) -> list[dict]:
         starts.append(start_points(body_v, body.faces, scene.embedding, float(scene.sim.thickness))[0].numpy())
         bodies.append(body_v[0].numpy())
     t1 = time.perf_counter()
-    if scene.batched is None or scene.batched_worlds != batch_worlds(scene.sim):
+    if scene.batched is None:
 
         from pbc.sim.batched import batched_drape_for_garment  # noqa: PLC0415 - the simulator only to drape
 
-        scene.batched_worlds = batch_worlds(scene.sim)  # asked for (the device may fit fewer: make_batched_drape)
         scene.batched = batched_drape_for_garment(scene.garment, scene.body, scene.embedding, scene.sim,
-                                                  scene.batched_worlds, starts[0], bodies[0])
+                                                  batch_worlds(scene.sim), starts[0], bodies[0])
     results = scene.batched.run(np.stack(starts), np.stack(bodies))
     t2 = time.perf_counter()
     return [_drape_record(scene, res, (t1 - t0) / len(poses), (t2 - t1) / len(poses)) for res in results]
