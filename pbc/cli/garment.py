@@ -7,10 +7,10 @@ cut into its pieces, and a garment file to a trained model in one command.
         --out writes uv_layout.png, on_body.png and fitted.obj (the garment as placed on the rest body)
     pbc garment split outfit.obj --out DIR [--position-unit dm]
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
-    pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E]
+    pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E] [--until STEP]
         inspect, the checks before any drape, the cage, data, a whole-garment model and a preview of the
-        test poses, each step skipped when done (a second call resumes); default DIR runs/fit/<name> (an
-        outfit's piece: runs/fit/<name>_<piece>)
+        test poses, each step skipped when done (a second call resumes; --until data stops after the drapes);
+        default DIR runs/fit/<name> (an outfit's piece: runs/fit/<name>_<piece>)
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pbc.core.config import load_config
 from pbc.geometry.body import body_from_config
 from pbc.geometry.garment.outfit import split_outfit
 from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture
-from pbc.jobs.garment_fit import Fit, default_out, garment_overrides, inspect_file
+from pbc.jobs.garment_fit import STEPS, Fit, default_out, garment_overrides, inspect_file
 
 
 def run(argv: list[str]) -> int:
@@ -48,6 +48,9 @@ def run(argv: list[str]) -> int:
     fit.add_argument("--out", help="folder of the fit (default $PBC_ROOT/runs/fit/<garment name>)")
     fit.add_argument("--samples", type=int, help="poses to drape (data.num_samples; default the data set's: 200)")
     fit.add_argument("--epochs", type=int, help="training epochs (trainer.max_epochs; default the trainer's: 20)")
+    fit.add_argument("--until", choices=STEPS[1:], default=STEPS[-1],
+                     help="stop after this step (checks: every check before a drape; data: the drapes); the same "
+                          "command without it goes on")
     # overrides may also follow the options (`fit my.obj --samples 4 trainer=smoke`): argparse's subparsers
     # leave them over instead of collecting them
     args, rest = ap.parse_known_args(argv)
@@ -58,7 +61,7 @@ def run(argv: list[str]) -> int:
         raise FileNotFoundError(f"{path}: no such garment file")
     if args.command == "fit":
         out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")), [*args.overrides, *rest])
-        print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs).run())
+        print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs, until=args.until).run())
         return 0
     if args.command == "split":
         if path.suffix.lower() == ".mhclo":

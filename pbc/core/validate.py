@@ -249,6 +249,7 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     want("sim.batch_size", pos_int, "a positive integer (1: one pose at a time)")
     want("sim.reuse_model", lambda v: isinstance(v, bool), "true (one model a process, reused) or false (one a drape)")
     want("seed", nonneg_int, "an integer >= 0")
+    choice("garment.made_on_forearms", ("to_rest", "as_made"))
     for key in ("whole_resolution", "patch_resolution", "reference_resolution", "crop_size"):
         want(f"image.{key}", pos_int, "a positive integer (pixels)")
     for key in ("margin", "pad"):

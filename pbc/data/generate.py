@@ -129,6 +129,8 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
         fp["mirror"] = {"tolerance": float(data.mirror_tolerance)}
     if cfg.garment.get("made_on_rest") is not None:  # the garment hash is the made garment's, before its drape
         fp["garment_made_on_rest"] = OmegaConf.to_container(cfg.garment.made_on_rest)
+        if forearms_to_rest(cfg.garment):  # datasets made before kept the forearms as made
+            fp["garment_forearms_to_rest"] = True
     modes = modes_record(sampling_settings_from_config(cfg.body.sampling))
     if modes:  # the sampler's extra ranges (hanging arms, walking legs) change the poses
         fp["sampling_modes"] = modes
@@ -218,19 +220,30 @@ def made_on_body(cfg: DictConfig, body: Body | None = None) -> Body:
     return body_from_config(turned)
 
 
+def forearms_to_rest(gcfg: DictConfig) -> bool:
+    """Whether the drape onto the rest (``garment.made_on_rest``) also turns each forearm to the body's rest
+    elbow (``garment.made_on_forearms: to_rest``, conf/garment/tshirt.yaml's) or leaves it as made (``as_made``,
+    and a run's config recorded before the key: its data was made so)."""
+    return gcfg.get("made_on_rest") is not None and gcfg.get("made_on_forearms", "as_made") == "to_rest"
+
+
 def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body, body: Body) -> Garment:
     """The garment made on `made_on` (the body turned to ``garment.made_on_rest``) as it lies on `body`'s
-    own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle (forearms as made) and its
-    thighs back by the legs' difference (``legs_apart_deg``), and draped there by the simulator; made left/right
+    own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle, its forearms to `body`'s rest
+    elbow (``garment.made_on_forearms``) and its thighs back by the legs' difference (``legs_apart_deg``), and
+    draped there by the simulator; made left/right
     symmetric again with ``data.mirror``. A re-rest a person would do by putting the shirt on and lowering the
     arms: the armpits fold as cloth does, where re-skinning the sleeves alone leaves a wide shirt's sides round
     the lowered arms. One ValueError when the drape is discarded."""
-    from pbc.geometry.body.anny import arm_angle_deg, rest_turn  # noqa: PLC0415 - only Anny's bodies re-rest
+    from pbc.geometry.body.anny import arm_angle_deg, forearms_like, rest_turn  # noqa: PLC0415 - only Anny re-rests
 
     embedding, _ = shrinkwrap(garment, cage, made_on, cfg.garment.shrinkwrap)
     legs = (cfg.body.rest.get("legs_apart_deg") or 0.0, cfg.garment.made_on_rest.get("legs_apart_deg"))
     legs_back = None if legs[1] is None else float(legs[0]) - float(legs[1])
-    pose = rest_turn(made_on.skeleton, arm_angle_deg(body.skeleton), legs_back)[0].float().numpy()
+    pose = rest_turn(made_on.skeleton, arm_angle_deg(body.skeleton), legs_back)
+    if forearms_to_rest(cfg.garment):  # each joint is turned by one of the two at most: their product is both
+        pose = pose @ forearms_like(made_on.skeleton, body.skeleton)
+    pose = pose[0].float().numpy()
     t0 = time.perf_counter()
     rec = drape_pose(Scene(made_on, garment, cage, embedding, cfg.sim), pose)
     if not rec["ok"]:
@@ -246,21 +259,26 @@ def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body
     return replace(garment, vertices=torch.from_numpy(x).to(garment.vertices.dtype))
 
 
-def scene_garment(cfg: DictConfig, body: Body) -> tuple[Garment, Cage, Garment | None]:
+def scene_garment(cfg: DictConfig, body: Body, rested: np.ndarray | None = None
+                  ) -> tuple[Garment, Cage, Garment | None]:
     """The garment and its cage on `body`'s rest pose: built on it, or made on the turned body of
-    ``garment.made_on_rest`` and draped onto it (`drape_onto_rest`); and the garment as made (None: the same)."""
+    ``garment.made_on_rest`` and draped onto it (`drape_onto_rest`; `rested` (V, 3): that drape's positions, made
+    already); and the garment as made (None: the same)."""
     made_on = made_on_body(cfg, body)
     garment, cage = garment_from_config(cfg.garment, made_on)
     if made_on is body:
         return garment, cage, None
+    if rested is not None:
+        return replace(garment, vertices=torch.as_tensor(rested, dtype=garment.vertices.dtype)), cage, garment
     return drape_onto_rest(cfg, garment, cage, made_on, body), cage, garment
 
 
-def build_scene(cfg: DictConfig) -> tuple[Scene, dict]:
-    """Body, garment, cage and rest-pose embedding from the config. Returns the scene and wrap stats."""
+def build_scene(cfg: DictConfig, rested: np.ndarray | None = None) -> tuple[Scene, dict]:
+    """Body, garment, cage and rest-pose embedding from the config (`rested`: see `scene_garment`). Returns the
+    scene and wrap stats."""
     sample_phenotypes(cfg)  # a bad data.body_shape is refused before any body is built
     body = body_from_config(cfg.body)
-    garment, cage, made = scene_garment(cfg, body)
+    garment, cage, made = scene_garment(cfg, body, rested)
     embedding, wrap_stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
     # the garment and its embedding are the base body's; the people share its mesh, so the embedding holds
     people, shapes = shape_bodies(cfg, body)
@@ -332,14 +350,16 @@ _INIT_ERROR: BaseException | None = None  # a worker's failed start, raised by i
 _SAMPLE_FIX = "free space there or set paths.data_dir to a disk with room, then run the same command again"
 
 
-def _init_worker(cfg_yaml: str, threads: int) -> None:
-    """A drape worker's start: its scene, once. An error is kept and raised by the worker's first job, so the
-    parent gets the exception itself (a failing initializer would only print it and break the pool)."""
+def _init_worker(cfg_yaml: str, threads: int, rested: np.ndarray | None = None) -> None:
+    """A drape worker's start: its scene, once (with the parent's garment as draped onto the rest, `rested`,
+    when it was made on another: the same bytes, without that drape again). An error is kept and raised by the
+    worker's first job, so the parent gets the exception itself (a failing initializer would only print it and
+    break the pool)."""
     global _SCENE, _INIT_ERROR
     try:
         torch.set_num_threads(threads)
         cfg = OmegaConf.create(cfg_yaml)
-        _SCENE, _ = build_scene(cfg)
+        _SCENE, _ = build_scene(cfg, rested)
     except Exception as err:  # re-raised in _scene() by the first job, then the parent stops every worker
         _INIT_ERROR = err
 
@@ -665,7 +685,8 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
         results = map(work_fn, jobs)
     else:
         # unresolved: run-dir keys (${hydra:...}) exist only in the parent; workers never read them
-        results = map_in_workers(work_fn, jobs, workers, _init_worker, (OmegaConf.to_yaml(cfg), 1))
+        rested = None if scene.made is None else scene.garment.vertices.numpy()
+        results = map_in_workers(work_fn, jobs, workers, _init_worker, (OmegaConf.to_yaml(cfg), 1, rested))
     try:
         for result in results:
             for _, ok, _reason in result if batched else [result]:

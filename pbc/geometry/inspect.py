@@ -22,6 +22,7 @@ from matplotlib.collections import PolyCollection
 from omegaconf import OmegaConf
 
 from pbc.core.io import atomic_path
+from pbc.geometry.body.anny import long_sleeves_rest
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.cage.auto import auto_cage
 from pbc.geometry.garment.checks import (
@@ -34,7 +35,7 @@ from pbc.geometry.garment.checks import (
     sleeve_axes,
 )
 from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_from_mesh
-from pbc.geometry.garment.placement import Placement, placed_mesh, trouser_leg_stance
+from pbc.geometry.garment.placement import Placement, has_rest_turn, placed_mesh, trouser_leg_stance
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, surface_distance, uv_islands
 from pbc.geometry.shrinkwrap import REGIONS, wrap_with_regions
@@ -186,8 +187,7 @@ def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, 
     trousers whose legs lean more than garment.placement.leg_rest_deg away from the thighs (each thigh turned as
     far). None otherwise: a garment registered onto the body had its sleeves re-posed by the placement already;
     with placement off or a position given by hand the garment is where the user put it."""
-    turnable = body.config is not None and "rest" in body.config
-    if (gcfg.get("kind") != "obj" or not turnable or gcfg.get("made_on_rest") or placement is None
+    if (gcfg.get("kind") != "obj" or not has_rest_turn(body) or gcfg.get("made_on_rest") or placement is None
             or not placement.kept):
         return None
     if placement.kind == "bottom":
@@ -200,8 +200,9 @@ def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, 
     limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
     if not sleeves or limit is None or max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
         return None
-    return {"arm_angle_deg": int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()])))),
-            "straight_forearms": True}
+    return long_sleeves_rest(body, points, float(gcfg.placement.elbow_reach)) or {
+        "arm_angle_deg": int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()])))),
+        "straight_forearms": True}
 
 
 def _number(unit: str):

@@ -232,6 +232,18 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
+def nearest_segment(points: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For points (N, 3) and segments segs (S, 2, 3): the index (N,) of each point's nearest segment, where on it
+    (N,) (0 at its start, 1 at its end) and the nearest point (N, 3)."""
+    a, b = segs[:, 0], segs[:, 1]
+    ab = b - a
+    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+    q = a[None] + t[..., None] * ab[None]  # (N, S, 3)
+    k = np.linalg.norm(points[:, None] - q, axis=2).argmin(1)
+    n = np.arange(len(points))
+    return k, t[n, k], q[n, k]
+
+
 def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0.03) -> float:
     """How far round the segments segs (S, 2, 3) (a limb's bones) the points (N, 3) reach, in degrees: each point
     goes to its nearest segment; the median over slices ``slice_len`` m long along each segment of 360 minus
@@ -239,11 +251,8 @@ def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0
     slice holds three points (nothing to measure: a comparison with it is False, so nothing is decided on it)."""
     if len(segs) == 0 or len(points) < 3:
         return float("nan")
-    a, b = segs[:, 0], segs[:, 1]
-    ab = b - a
-    t = np.clip(np.einsum("nsk,sk->ns", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
-    q = a[None] + t[..., None] * ab[None]
-    k = np.linalg.norm(points[:, None] - q, axis=2).argmin(1)  # the bone of each point
+    ab = segs[:, 1] - segs[:, 0]
+    k, t, q = nearest_segment(points, segs)  # the bone of each point
     cover = []
     for s in np.unique(k):
         d = ab[s] / max(np.linalg.norm(ab[s]), 1e-12)
@@ -251,9 +260,9 @@ def encircled_degrees(points: np.ndarray, segs: np.ndarray, slice_len: float = 0
         ref /= np.linalg.norm(ref)
         other = np.cross(d, ref)
         sel = k == s
-        r = points[sel] - q[sel, s]
+        r = points[sel] - q[sel]
         ang = np.degrees(np.arctan2(r @ other, r @ ref))
-        along = t[sel, s] * np.linalg.norm(ab[s])
+        along = t[sel] * np.linalg.norm(ab[s])
         for sl in np.unique(np.floor(along / slice_len)):
             angles = np.sort(ang[np.floor(along / slice_len) == sl])
             if len(angles) < 3:

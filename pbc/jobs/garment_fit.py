@@ -13,7 +13,9 @@ resumes where the first stopped:
   4. whole    python -m pbc.train +experiment=whole with the SAME overrides -> whole/
   5. preview  python -m pbc.predict whole/ --poses test -> preview/ (meshes, contact sheet)
 
-then a summary: where everything is, and the test error beside the training mean shape's. Steps 3-5 are the
+then a summary: where everything is, and the test error beside the training mean shape's. ``--until STEP`` stops
+after that step (`checks`: every check before a drape; `data`: the drapes, to train by hand or in a sweep); the same
+command without it goes on from there. Steps 3-5 are the
 commands a user would type, each its own process with its own Hydra run dir (as the main job's steps), run by
 the sweep runner's `run_logged`: the whole output goes to logs/<step>.log, and only the progress lines (the
 drapes done with their ETA, one line per epoch with its ETA) are echoed. fit.json records what the fit was
@@ -137,7 +139,7 @@ class Fit:
     """One `pbc garment fit`: its out dir, the overrides every step shares, and the steps (`run`)."""
 
     def __init__(self, garment, overrides: list[str], out, samples: int | None = None, epochs: int | None = None,
-                 python: str = sys.executable):
+                 python: str = sys.executable, until: str = STEPS[-1]):
         self.garment = Path(garment).resolve()
         if not self.garment.is_file():
             raise FileNotFoundError(f"{garment}: no such garment file")
@@ -145,6 +147,9 @@ class Fit:
             raise ValueError(f"--samples {samples}: give at least 3 (80/10/10 train/validation/test splits)")
         if epochs is not None and epochs < 1:
             raise ValueError(f"--epochs {epochs}: give at least 1")
+        if until not in STEPS[1:]:
+            raise ValueError(f"--until {until}: one of {', '.join(STEPS[1:])}")
+        self.until = until  # not asked of the fit's outputs: a later call without it goes on
         self.user = list(overrides)
         self.out = Path(out).resolve()
         self.asked = {"garment": str(self.garment), "sha256": sha256(self.garment), "overrides": self.user,
@@ -313,9 +318,24 @@ class Fit:
             f"the overrides of every step (patch models: python -m pbc.train $G +experiment=patches): G=\"{g}\"",
         ])
 
+    def stopped(self) -> str:
+        """The summary of a fit stopped by --until: what is there, and how to go on."""
+        o = self.out
+        lines = [f"pbc garment fit: stopped after {self.until} (--until) in {duration(time.time() - self.t0)}; "
+                 f"everything so far is under {o}; the same command without --until goes on from there",
+                 f"  {o / 'inspect'}/  report.txt, uv_layout.png, on_body.png; {o / 'cage.json'}  the automatic cage"]
+        if STEPS.index(self.until) >= STEPS.index("data"):
+            counts = read_json(self.data_dir / "manifest.json", "dataset manifest").get("counts", {})
+            lines.append(f"  {self.data_dir}/  the dataset: {counts.get('kept')} drapes kept of "
+                         f"{counts.get('requested')}")
+        if STEPS.index(self.until) >= STEPS.index("whole"):
+            lines.append(f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)")
+        return "\n".join([*lines, f"the overrides of every step: G=\"{' '.join(self.overrides)}\""])
+
     def run(self) -> str:
         self.inspect_and_check()
-        self.data()
-        self.whole()
-        self.preview()
+        for step, go in (("data", self.data), ("whole", self.whole), ("preview", self.preview)):
+            if STEPS.index(step) > STEPS.index(self.until):
+                return self.stopped()
+            go()
         return self.summary()

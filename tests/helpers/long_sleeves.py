@@ -44,9 +44,10 @@ def _ramp(t: np.ndarray) -> np.ndarray:
     return x * x * (3 - 2 * x)
 
 
-def long_sleeve_shirt(body: Body, garment: str = "tshirt_coarse"):
+def long_sleeve_shirt(body: Body, garment: str = "tshirt_coarse", cuff: float = 1.0):
     """(positions (V, 3) m, faces (F, 3), uv atlas (T, 2) in [0, 1], face_uv (F, 3)): the shirt sized to `body`,
-    sleeves to the wrists, posed onto the body's rest arms (any rest pose: T or A)."""
+    sleeves to the wrists, narrowed to `cuff` times their width at the wrist (1: the short sleeve's opening all the
+    way, a bell sleeve), posed onto the body's rest arms (any rest pose: T or A)."""
     gcfg = load_config([f"garment={garment}", "garment.size_to_body.enabled=true"]).garment
     sk = body.skeleton
     heads = sk.rest_heads.double().numpy()
@@ -64,6 +65,10 @@ def long_sleeve_shirt(body: Body, garment: str = "tshirt_coarse"):
         # the sleeve, and the panel's shoulder above the underarm out from the shoulder joint
         sel = (sgn * p[:, 0] > half) | ((sgn * p[:, 0] > abs(s[0])) & (p[:, 1] > underarm))
         t = sgn * p[sel, 0] - abs(s[0])  # along the T-pose sleeve from the shoulder joint
+        if cuff != 1.0:  # about the T-pose sleeve's axis, from the side seam (1) to the wrist (cuff)
+            axis_yz = np.array([float(sized.shoulder_height), float(sized.center_z)])
+            k = 1.0 + (cuff - 1.0) * np.clip((sgn * p[sel, 0] - half) / (abs(s[0]) + upper + fore - half), 0.0, 1.0)
+            p[np.ix_(np.flatnonzero(sel), [1, 2])] = axis_yz + k[:, None] * (p[sel][:, [1, 2]] - axis_yz)
         out = np.array([sgn, 0.0, 0.0])
         d1 = (e - s) / np.linalg.norm(e - s)
         w = heads[sk.index(f"{'l' if sgn > 0 else 'r'}_hand")]
@@ -96,15 +101,23 @@ def _sleeve_charts(g, half: float) -> tuple[np.ndarray, np.ndarray]:
     return out, new_fuv.reshape(-1, 3)
 
 
-def obj_text(p: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.ndarray, unit: float = 0.1) -> str:
+def obj_text(p: np.ndarray, faces: np.ndarray, uv: np.ndarray, face_uv: np.ndarray, unit: float = 0.1,
+             header: str = "# MakeClothes") -> str:
     """The OBJ as a MakeHuman asset: positions in `unit` metres (decimetres), one atlas, no groups."""
-    lines = ["# MakeClothes", "mtllib blouse.mtl", "o blouse"]
+    lines = [header, "mtllib blouse.mtl", "o blouse"]
     lines += [f"v {x / unit:.6f} {y / unit:.6f} {z / unit:.6f}" for x, y, z in p]
     lines += [f"vt {u:.6f} {v:.6f}" for u, v in uv]
     lines += ["usemtl cloth", "s off"]
     lines += ["f " + " ".join(f"{a + 1}/{b + 1}" for a, b in zip(f, t, strict=True))
               for f, t in zip(faces, face_uv, strict=True)]
     return "\n".join(lines) + "\n"
+
+
+def bent_elbow_blouse_obj(body: Body, cuff: float = 0.55) -> str:
+    """A long-sleeved blouse modelled on `body`'s rest (Anny's own A-pose: its elbows bent forward), its sleeves
+    narrowing to the wrist, as a pattern tool exports it: metres in the body's frame, one [0, 1] atlas."""
+    p, f, uv, fuv = long_sleeve_shirt(body, "tshirt", cuff=cuff)
+    return obj_text(p, f, uv, fuv, unit=1.0, header="# Marvelous Designer export, Anny avatar in its own A-pose")
 
 
 def cape_sleeves(p: np.ndarray, f: np.ndarray, uv: np.ndarray, fuv: np.ndarray, body: Body, min_reach: float = 0.36):

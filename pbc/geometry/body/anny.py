@@ -19,6 +19,7 @@ import time
 from collections.abc import Mapping
 from functools import lru_cache
 
+import numpy as np
 import torch
 from omegaconf import OmegaConf
 from torch import Tensor
@@ -31,9 +32,11 @@ from pbc.geometry.body.skeleton import (
     Skeleton,
     forward_kinematics,
     frame_from_axes,
+    limb_segments,
     linear_blend_skinning,
     xzy_angles,
 )
+from pbc.geometry.meshops import nearest_segment
 
 log = logging.getLogger(__name__)
 
@@ -275,6 +278,72 @@ def rest_turn(skel: Skeleton, arm_angle: float | None, legs_apart: float | None,
     return rot
 
 
+def forearms_like(skel: Skeleton, like: Skeleton) -> Tensor:
+    """(1, J, 3, 3) pose turning each forearm of `skel` about its elbow (in rest coordinates, as
+    `rest_turn`'s straightening) so that it bends from its upper arm as `like`'s forearm does from its own:
+    the forearms of one rest pose (straight, a T-pose's) taken to another's (bent forward, Anny's bind pose).
+    Identity for every other joint, so it composes with `rest_turn` joint by joint."""
+    rot = torch.eye(3, dtype=torch.float64).repeat(1, skel.num_joints, 1, 1)
+    frames = skel.frames().double()
+    for side in ("l", "r"):
+        arm, fore, hand = (skel.index(f"{side}_{n}") for n in ("arm", "forearm", "hand"))
+        h, t = skel.rest_heads.double(), like.rest_heads.double()
+        upper, lower = h[fore] - h[arm], h[hand] - h[fore]
+        # `like`'s forearm carried onto this upper arm by the smallest turn between the two upper arms
+        want = _align(t[fore] - t[arm], upper) @ (t[hand] - t[fore])
+        rot[0, fore] = frames[fore].T @ _align(lower, want) @ frames[fore]
+    return rot
+
+
+def _moved(skel: Skeleton, pose: Tensor) -> Skeleton:
+    """`skel` with its rest heads where the pose (1, J, 3, 3) moves them."""
+    return dataclasses.replace(skel, rest_heads=turned_heads(skel, forward_kinematics(skel, pose.float())).float())
+
+
+def long_sleeves_rest(body: Body, points: np.ndarray, elbow_reach: float, bounds: tuple[float, float] = (-30.0, 90.0)
+                      ) -> dict | None:
+    """The rest turn of `body` (keys of ``body.rest``) whose arms a garment's long sleeves lie along:
+    {"arm_angle_deg": int, "straight_forearms": bool}, from its cloth points (P, 3) m; None when no sleeve reaches
+    `elbow_reach` m past the elbow (a short sleeve's own axis gives its arm: `sleeve_axes`). A long sleeve's axis
+    cannot: bent at the elbow, it points between its upper arm and its forearm. Each sleeve's cloth is the outer
+    half of its reach past the shoulder joint (as `sleeve_axes` takes it: the shirt's sides beside the torso are
+    not the sleeve's); for each forearm (straight as a T-pose's, or bent forward as Anny's bind pose) the arm angle
+    within `bounds` that brings the turned arm's bones nearest to it, in the mean; the nearer of the two wins."""
+    from scipy.optimize import minimize_scalar  # noqa: PLC0415 - only to fit a garment's rest
+
+    p = np.asarray(points, np.float64)
+    sleeves = []
+    for side, sgn in (("l", 1.0), ("r", -1.0)):
+        x0, reach = sgn * float(body.skeleton.rest_heads[body.skeleton.index(f"{side}_arm"), 0]), sgn * p[:, 0]
+        sel = (reach > x0) & (p[:, 1] > 0.0)
+        if sel.any():
+            sleeves.append((side, p[sel & (reach > x0 + 0.5 * (reach[sel].max() - x0))]))
+    if not sleeves:
+        return None
+    fits = {}
+    for straight in (True, False):
+        sk = build_anny_body(OmegaConf.merge(body.config, {"rest": {"straight_forearms": straight}})).skeleton
+
+        def gap(angle: float, sk=sk) -> float:
+            moved = _moved(sk, rest_turn(sk, angle, None))
+            return float(np.mean(np.concatenate([np.linalg.norm(
+                cloth - nearest_segment(cloth, limb_segments(moved, f"{side}_arm"))[2], axis=1)
+                for side, cloth in sleeves])))
+
+        fit = minimize_scalar(gap, bounds=bounds, method="bounded", options={"xatol": 0.25})
+        fits[straight] = (float(fit.fun), float(fit.x), _moved(sk, rest_turn(sk, float(fit.x), None)))
+    moved = fits[True][2]
+    long = False
+    for side, cloth in sleeves:
+        shoulder, elbow = (moved.rest_heads[moved.index(f"{side}_{n}")].double().numpy() for n in ("arm", "forearm"))
+        upper = elbow - shoulder
+        long |= float(((cloth - shoulder) @ upper).max()) / np.linalg.norm(upper) > np.linalg.norm(upper) + elbow_reach
+    if not long:
+        return None
+    straight = fits[True][0] <= fits[False][0]
+    return {"arm_angle_deg": int(round(fits[straight][1])), "straight_forearms": straight}
+
+
 def _part_masks(cfg, skel: Skeleton, weights: Tensor) -> Tensor:
     """(P, V) part masks: weight on the part's joints >= parts.min_weight; exclusive groups keep the heavier."""
     cols = {ROOT_NAME: 0} | {n: j + 1 for j, n in enumerate(skel.names)}
@@ -405,10 +474,15 @@ def _re_rest(cfg, skel: Skeleton, vertices: Tensor, weights: Tensor) -> tuple[Te
         return vertices, None
     transforms = forward_kinematics(skel, rot.float()).double()
     vertices = linear_blend_skinning(vertices, weights, transforms)[0]
-    # each joint is now at its parent's turned position (its own turn does not move its head)
-    heads = torch.stack([(transforms[0, p + 1, :3, :3] @ h + transforms[0, p + 1, :3, 3])
-                         for h, p in zip(skel.rest_heads.double(), skel.parents, strict=True)])
-    return vertices, heads
+    return vertices, turned_heads(skel, transforms)
+
+
+def turned_heads(skel: Skeleton, transforms: Tensor) -> Tensor:
+    """(J, 3) float64: the joints' heads moved by a pose's skinning transforms (1, J+1, 4, 4)
+    (`forward_kinematics`): each joint at its parent's turned position (its own turn does not move its head)."""
+    t = transforms.double()
+    return torch.stack([(t[0, p + 1, :3, :3] @ h + t[0, p + 1, :3, 3])
+                        for h, p in zip(skel.rest_heads.double(), skel.parents, strict=True)])
 
 
 def build_anny_body(cfg) -> Body:

@@ -187,12 +187,17 @@ def check_sleeves(positions: np.ndarray, faces: np.ndarray, body, max_angle_deg:
     if bad:
         side, a = max(bad.items(), key=lambda kv: kv[1]["angle_deg"])
         turn = a["droop_deg"] - a["arm_droop_deg"]
+        if abs(turn) >= 0.5 * a["angle_deg"]:
+            why, fix = ("(an A-pose?)", f"rotate the sleeves {abs(turn):.0f} degrees {'up' if turn > 0 else 'down'} "
+                                        "about the shoulders in your modelling tool")
+        else:  # off forward or back, not up or down
+            why, fix = ("(bent at the elbow?)", "turn the sleeves onto the rest arms in your modelling tool")
         raise ValueError(
             f"the garment's {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm (the sleeve "
             f"points {a['droop_deg']:.0f} degrees below the horizontal, the rest arm {a['arm_droop_deg']:.0f}): "
-            "it was modelled on another rest pose (an A-pose?) and the shrink-wrap would stretch it onto the rest "
-            f"arm. Fix: rotate the sleeves {abs(turn):.0f} degrees {'up' if turn > 0 else 'down'} about the "
-            "shoulders in your modelling tool (or use a body whose rest arms match, body=...); the limit is "
+            f"it was modelled on another rest pose {why} and the shrink-wrap would stretch it onto the rest arm. "
+            f"Fix: {fix} (or use a body whose rest arms match, body=...; on Anny, `pbc garment inspect` names the "
+            "rest to make it on: garment.made_on_rest); the limit is "
             f"garment.shrinkwrap.max_sleeve_angle_deg = {max_angle_deg:g}")
     return axes
 

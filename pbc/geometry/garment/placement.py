@@ -468,7 +468,12 @@ def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kin
     reach (garment.shrinkwrap.max_start_distance) and, for a top, its collar above the shoulders (a top from
     another body's frame can sit within reach of the hips, as the issue's SMPL top did)."""
     reach = (gcfg.get("shrinkwrap") or {}).get("max_start_distance")
-    if float(_sdf(body, points).max()) > float(0.3 if reach is None else reach):
+    judged = points
+    if kind == "top" and has_rest_turn(body):
+        # sleeves modelled at another arm angle lie off this rest's arms, not off its frame: a body whose rest turns
+        # is turned to them (garment.made_on_rest, which inspect names); the torso's cloth says where the garment is
+        judged = points[np.abs(points[:, 0]) <= lm["arm_x"]]
+    if float(_sdf(body, judged).max()) > float(0.3 if reach is None else reach):
         return False
     return kind != "top" or _anchor(points, faces, kind)[0][1] >= lm["shoulder_y"]
 
@@ -563,6 +568,12 @@ def trouser_leg_stance(points: np.ndarray, faces: np.ndarray, body: Body, kind: 
         thigh_deg = _outward_deg(heads[names.index(knee)] - heads[names.index(f"{side[0]}_hip")], sgn)
         out[side] = {"leg_deg": leg_deg, "thigh_deg": thigh_deg, "apart_deg": leg_deg - thigh_deg}
     return out
+
+
+def has_rest_turn(body: Body) -> bool:
+    """Whether the body's rest pose can be turned (``body.rest``: Anny's arms, forearms and legs): a garment can
+    be made on it turned (``garment.made_on_rest``)."""
+    return body.config is not None and "rest" in body.config
 
 
 def has_legs(body: Body) -> bool:
