@@ -36,9 +36,10 @@ from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
 from pbc.geometry.meshops import surface_distance  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-# appended to every pbc command that takes Hydra overrides (the README's commands too)
+# appended to every pbc command that takes Hydra overrides (the README's commands too); one drape worker: a few
+# poses drape in less time than a second worker takes to start
 TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4",
-        "sim.discard.max_area_compression=1.0", "sim.fold_frames=0"]
+        "data.workers=1", "sim.discard.max_area_compression=1.0", "sim.fold_frames=0"]
 MANNEQUIN = ["body.mesh.voxel_size=0.03"]  # the coarse mannequin of the unit tier
 README_SAMPLES = "4"
 SKIRT_SAMPLES = "7"  # Anny's posed legs: 4 of the first 7 drapes converge (3: one pose per split)

