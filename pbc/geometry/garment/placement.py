@@ -7,8 +7,9 @@ file's numbers, where a person would put them on the rest body of ``body``, in f
 1. **unit** from size: the hem's girth (the lowest opening of a top, the waist of a bottom) against the
    body's girth there, snapped to a named unit (m, dm, cm, mm, in) when one lies within
    ``placement.unit_snap`` x, else kept as an odd scale;
-2. **registration** from landmarks: the collar (a top's highest opening) onto the body's neck joint plus
-   ``placement.collar_offset``, the waistband of a bottom onto the body's waist; an odd scale is then grown
+2. **registration** from landmarks: the collar (a top's highest opening) onto the midpoint of the body's
+   shoulder joints plus ``placement.collar_from_shoulders`` (where pbc's shirt sized to the body has it), the
+   waistband of a bottom onto the body's waist; an odd scale is then grown
    (within ``placement.scale_range``) until the torso's cloth is outside the body; a top with long straight
    sleeves is then moved onto the shoulders, each sleeve's axis through the body's shoulder joint
    (`_shoulder_shift`), as a person pulls a shirt on: a body's neck stands higher above its shoulders than
@@ -134,6 +135,7 @@ def _landmarks(body: Body) -> dict:
     m = measurements(body)
     arms = sk.rest_heads[[sk.index("l_arm"), sk.index("r_arm")]].double().numpy()
     return {"neck": sk.rest_heads[sk.index("neck")].double().numpy(), "shoulder_y": float(arms[:, 1].mean()),
+            "shoulders": np.array([0.0, float(arms[:, 1].mean()), float(arms[:, 2].mean())]),
             "arm_x": float(np.abs(arms[:, 0]).mean()), "waist_y": m["waist_at"], "torso": torso_mesh(body),
             "low": float(body.vertices[:, 1].min())}
 
@@ -152,8 +154,8 @@ def _anchor(points: np.ndarray, faces: np.ndarray, kind: str) -> tuple[np.ndarra
 
 
 def _target(lm: dict, kind: str, pcfg) -> np.ndarray:
-    if kind == "top":
-        return lm["neck"] + np.asarray(pcfg.collar_offset, np.float64)
+    if kind == "top":  # from the shoulders, as sizing places pbc's shirt (pbc.geometry.garment.sizing)
+        return lm["shoulders"] + np.asarray(pcfg.collar_from_shoulders, np.float64)
     return np.array([0.0, lm["waist_y"], lm["neck"][2]]) + np.asarray(pcfg.waist_offset, np.float64)
 
 
@@ -466,16 +468,22 @@ def _sleeve_membership(points: np.ndarray, turn: dict, ramp: float) -> tuple[np.
 def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kind: str, lm: dict) -> bool:
     """Whether a garment in metres was placed on this body by its maker: every vertex within the shrink-wrap's
     reach (garment.shrinkwrap.max_start_distance) and, for a top, its collar above the shoulders (a top from
-    another body's frame can sit within reach of the hips, as the issue's SMPL top did)."""
+    another body's frame can sit within reach of the hips, as the issue's SMPL top did); a top on a body whose
+    rest turns (Anny): its torso's cloth within reach and its collar within placement.kept_collar_error of
+    where registration would put it."""
     reach = (gcfg.get("shrinkwrap") or {}).get("max_start_distance")
-    judged = points
+    anchor = _anchor(points, faces, kind)[0]
     if kind == "top" and has_rest_turn(body):
         # sleeves modelled at another arm angle lie off this rest's arms, not off its frame: a body whose rest turns
-        # is turned to them (garment.made_on_rest, which inspect names); the torso's cloth says where the garment is
-        judged = points[np.abs(points[:, 0]) <= lm["arm_x"]]
-    if float(_sdf(body, judged).max()) > float(0.3 if reach is None else reach):
+        # is turned to them (garment.made_on_rest, which inspect names); the torso's cloth and the collar, where
+        # registration would put it, say the garment was made on this body (another body's shirt in the same
+        # frame, the mannequin's on Anny, sits within reach, its collar 6 cm off: it is registered)
+        torso = points[np.abs(points[:, 0]) <= lm["arm_x"]]
+        near = np.linalg.norm(anchor - _target(lm, kind, gcfg.placement)) <= float(gcfg.placement.kept_collar_error)
+        return near and float(_sdf(body, torso).max()) <= float(0.3 if reach is None else reach)
+    if float(_sdf(body, points).max()) > float(0.3 if reach is None else reach):
         return False
-    return kind != "top" or _anchor(points, faces, kind)[0][1] >= lm["shoulder_y"]
+    return kind != "top" or anchor[1] >= lm["shoulder_y"]
 
 
 def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None,
