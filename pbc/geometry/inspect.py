@@ -158,8 +158,10 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
     if made_on is not None:
         limbs = ("with the arms {arm_angle_deg} degrees down" if "arm_angle_deg" in made_on
                  else "with each thigh {legs_apart_deg} degrees outward").format(**made_on)
-        pose += (f"; it sits on the body otherwise, so make it on the body {limbs} and drape it onto the rest: "
-                 f"{made_on_override(made_on)}")
+        why = ("it sits on the body otherwise" if placement.kept else
+               f"placement turned its sleeves {max(placement.arm_turn_deg.values()):.0f} degrees onto the rest arms, "
+               "and a drape folds a shirt round lowered arms where re-skinning stretches it")
+        pose += f"; {why}, so make it on the body {limbs} and drape it onto the rest: {made_on_override(made_on)}"
     report = Report(path=path, rows=rows, sleeves=sleeves, arm_droop_deg=arm_droop, uv_range=uv_range,
                     stated_unit=stated, suggest_charts=charts, suggest_unit=unit, suggest_pose=pose,
                     suggest_made_on=made_on,
@@ -181,15 +183,24 @@ def made_on_override(made_on: dict) -> str:
 
 def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, points: np.ndarray,
                   faces: np.ndarray) -> dict | None:
-    """The rest pose (keys of body.rest) to make a tool's garment on, for a garment placement kept as given on a
-    body with a rest turn (Anny's) but whose limbs are not the body's: a top whose sleeves are more than the wrap
+    """The rest pose (keys of body.rest) to make a tool's garment on, on a body with a rest turn (Anny's), for a
+    garment whose limbs are not the body's: a top placement kept as given whose sleeves are more than the wrap
     allows (garment.shrinkwrap.max_sleeve_angle_deg) off the rest arms (the arm angle its sleeves point at), or
     trousers whose legs lean more than garment.placement.leg_rest_deg away from the thighs (each thigh turned as
-    far). None otherwise: a garment registered onto the body had its sleeves re-posed by the placement already;
-    with placement off or a position given by hand the garment is where the user put it."""
-    if (gcfg.get("kind") != "obj" or not has_rest_turn(body) or gcfg.get("made_on_rest") or placement is None
-            or not placement.kept):
+    far); and a registered top whose short sleeves placement turned further than that: re-skinning leaves a wide
+    shirt's sides round lowered arms, the drape folds them (the README's 5.5x against 1.19x). None otherwise:
+    a long sleeve's transfer turns it at the elbow too; with placement off or a position given by hand the garment
+    is where the user put it."""
+    if (gcfg.get("kind") != "obj" or not has_rest_turn(body) or gcfg.get("made_on_rest") or placement is None):
         return None
+    limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
+    if not placement.kept:
+        turned = placement.arm_turn_deg
+        if (limit is None or not turned or placement.forearm_turn_deg or not placement.sleeve_droop_deg
+                or max(turned.values()) <= float(limit)):
+            return None
+        return {"arm_angle_deg": int(round(float(np.mean(list(placement.sleeve_droop_deg.values()))))),
+                "straight_forearms": True}
     if placement.kind == "bottom":
         stance = trouser_leg_stance(points, faces, body, "bottom")
         limit = (gcfg.get("placement") or {}).get("leg_rest_deg")
@@ -197,7 +208,6 @@ def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, 
             return None
         rest = float((body.config.get("rest") or {}).get("legs_apart_deg") or 0.0)
         return {"legs_apart_deg": int(round(rest + float(np.mean([s["apart_deg"] for s in stance.values()]))))}
-    limit = (gcfg.get("shrinkwrap") or {}).get("max_sleeve_angle_deg")
     if not sleeves or limit is None or max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
         return None
     return long_sleeves_rest(body, points, float(gcfg.placement.elbow_reach)) or {

@@ -76,6 +76,7 @@ class Placement:
     distance_after: float = float("nan")  # m, the same after placement
     pushed_out: int = 0  # vertices moved out of the body
     forearm_turn_deg: dict = field(default_factory=dict)  # side -> degrees its forearm turned further, at the elbow
+    sleeve_droop_deg: dict = field(default_factory=dict)  # side -> degrees its sleeve pointed down before the transfer
 
     def lines(self) -> list[str]:
         turn = ", ".join(f"{s} arm turned {d:.0f} deg" + (f" (its forearm {self.forearm_turn_deg[s]:.0f} deg more "
@@ -646,16 +647,17 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
     shift = _shoulder_shift(x, f, body, pcfg, limb) if kind == "top" else np.zeros(3)
     x = x + shift
     moved = _transfer(x, f, body, pcfg, limb) if kind == "top" else (*push_out(
-        x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin)), {}, {})
+        x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin)), {}, {}, {})
     return _checked(*moved, f, body, gcfg, kind, lm, where,
                     (unit, name, target + shift - _anchor(p * unit, f, kind)[0], before))
 
 
 def _transfer(x: np.ndarray, f: np.ndarray, body: Body, pcfg, limb: LimbCloth
-              ) -> tuple[np.ndarray, dict, dict, dict]:
+              ) -> tuple[np.ndarray, dict, dict, dict, dict]:
     """A top's rest-pose transfer (the module docstring's step 3) in up to pcfg.transfer_iterations passes, then
     the push-out (step 4): the points (V, 3), the push-out's stats, and per side the degrees its arm and its
-    forearm (at the elbow) were turned."""
+    forearm (at the elbow) were turned and how far its sleeve pointed below the horizontal before."""
+    droop = {side: a["droop_deg"] for side, a in sleeve_axes(x, f, body, limb).items()}
     turned: dict[str, float] = {}
     forearm: dict[str, float] = {}
     for _ in range(int(pcfg.transfer_iterations)):
@@ -670,17 +672,17 @@ def _transfer(x: np.ndarray, f: np.ndarray, body: Body, pcfg, limb: LimbCloth
             if "elbow" in turn:
                 forearm[side] = forearm.get(side, 0.0) + float(geodesic_deg(turn["fore_rot"], np.eye(3)))
     x, stats = push_out(x, body.vertices.double().numpy(), body.faces.numpy(), float(pcfg.push_out_margin))
-    return x, stats, turned, forearm
+    return x, stats, turned, forearm, {side: droop[side] for side in turned if side in droop}
 
 
-def _checked(x: np.ndarray, stats: dict, turned: dict, forearm: dict, f: np.ndarray, body: Body, gcfg, kind: str,
-             lm: dict, where: str, moved: tuple) -> tuple[np.ndarray, Placement]:
+def _checked(x: np.ndarray, stats: dict, turned: dict, forearm: dict, droop: dict, f: np.ndarray, body: Body, gcfg,
+             kind: str, lm: dict, where: str, moved: tuple) -> tuple[np.ndarray, Placement]:
     """The placed points x (V, 3) and their Placement (moved: unit, its name, translation (3,), the median
     distance as given), or one ValueError when the garment does not sit on the body (step 5)."""
     unit, name, translation, before = moved
     pcfg = gcfg.placement
     placement = Placement(unit, name, kind, translation, False, turned, before,
-                          float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm)
+                          float(np.median(np.abs(_sdf(body, x)))), stats["inside"], forearm, droop)
     wrong = sits(x, f, body, pcfg, kind, lm, (float(gcfg.shrinkwrap.min_encircled_deg),
                                               LimbCloth.from_config(gcfg.shrinkwrap)))
     if wrong is not None:
