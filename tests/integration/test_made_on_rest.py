@@ -234,3 +234,36 @@ def test_a_blouse_made_on_bent_elbows_goes_onto_straight_arms_with_its_forearms_
         bone, t, nearest = nearest_segment(points, limb_segments(scene.body.skeleton, arm))
         cuff = (bone == 1) & (t > 0.5)  # the sleeve round the outer half of the straight forearm
         assert cuff.sum() > 20 and np.linalg.norm(points[cuff] - nearest[cuff], axis=1).mean() < 0.06
+
+
+def test_a_registered_tee_whose_sleeves_placement_turned_down_is_made_on_the_t_pose_instead(tmp_path, capsys):
+    """The pattern tool's tee (3x life size in centimetres, the mannequin's T-pose shirt) registered on A-posed
+    Anny: placement turns its sleeves 60 degrees down by re-skinning, which leaves the wide shirt's sides round the
+    lowered arms, and the wrap stretches the torso 2x: refused. Inspect names the T-pose to make it on instead
+    (its sleeves before the turn), and made there and draped onto the A-pose it wraps with no patch stretched."""
+    from pbc.geometry.body.skeleton import limb_segments
+    from pbc.geometry.meshops import nearest_segment
+
+    tee = tmp_path / "tee.obj"
+    tee.write_text(ECOSYSTEMS["pattern_tee"](), newline="")
+    assert exit_code(main, ["inspect", str(tee), "body=anny", "--no-wrap"]) == 0
+    report = capsys.readouterr().out
+    assert "placement turned its sleeves" in report
+    made_on = re.search(r"garment.made_on_rest=(\{arm_angle_deg:(-?\d+),straight_forearms:true\})", report)
+    assert made_on and abs(int(made_on.group(2))) <= 8, report  # its sleeves straight out
+    settings = [line.strip().strip("'") for line in report.split("suggested settings:")[1].splitlines()
+                if line.strip().startswith(("'garment.charts", "garment.uv_unit"))]
+    base = ["data=tshirt_tiny", "garment=obj", f"garment.obj={tee}", "body=anny", *settings]
+    with pytest.raises(ValueError, match=r"shrink-wrap stretches chart"):
+        build_scene(load_config(base))
+    cfg = load_config([*base, "data.mirror=true", f"garment.made_on_rest={made_on.group(1)}"])
+    scene, stats = build_scene(cfg)
+    assert stats["patch_stretch_max"] < 1.2
+    # the sleeves came down onto the arms: cloth beyond the shoulder joints lies near the upper arms' bones
+    points = scene.garment.vertices.double().numpy()
+    for arm in ("l_arm", "r_arm"):
+        bone = limb_segments(scene.body.skeleton, arm)[:1]
+        sleeve = points[np.sign(points[:, 0]) * bone[0, 0, 0] > 0]
+        sleeve = sleeve[np.abs(sleeve[:, 0]) > abs(bone[0, 0, 0]) + 0.05]
+        gap = np.linalg.norm(sleeve - nearest_segment(sleeve, bone)[2], axis=1)
+        assert len(sleeve) > 20 and np.median(gap) < 0.1, (arm, np.median(gap))
