@@ -37,6 +37,19 @@ SHIRT_ON_ANNY = ["data=tshirt_tiny", "body=anny", "garment.size_to_body.enabled=
                  "data.num_samples=2"]
 
 
+# inspect's suggestion of a rest with straight forearms: the override (1) and its arm angle (2)
+MADE_ON_STRAIGHT = re.compile(r"garment.made_on_rest=(\{arm_angle_deg:(-?\d+),straight_forearms:true\})")
+
+
+def inspected(tmp_path: Path, capsys, name: str, body: str) -> tuple[Path, str]:
+    """tests/helpers/ecosystems.py's garment `name`, written in tmp_path, and `pbc garment inspect`'s report of it
+    on `body` (no wrap)."""
+    path = tmp_path / f"{name}.obj"
+    path.write_text(ECOSYSTEMS[name](), newline="")
+    assert exit_code(main, ["inspect", str(path), f"body={body}", "--no-wrap"]) == 0
+    return path, capsys.readouterr().out
+
+
 def mirror_gap(points: np.ndarray, faces: np.ndarray) -> float:
     """The largest distance (m) from a vertex's mirror image to the surface."""
     return float(surface_points(points @ MIRROR, points, faces)[0].max())
@@ -132,13 +145,10 @@ def test_a_tee_made_on_t_posed_anny_fits_a_posed_anny_through_the_commands(tmp_p
     """The tee as Blender exports it in Anny's frame (tests/helpers/ecosystems.py) sits on A-posed Anny but for its
     sleeves, so placement keeps it as given: `pbc garment inspect` names the rest to make it on, and `pbc garment
     fit` takes it and drapes it there (before: refused at the sleeve check, 50 degrees off)."""
-    tee = tmp_path / "tee.obj"
-    tee.write_text(ECOSYSTEMS["anny_tee"](), newline="")
-    assert exit_code(main, ["inspect", str(tee), "body=anny", "--no-wrap"]) == 0
-    report = capsys.readouterr().out
+    tee, report = inspected(tmp_path, capsys, "anny_tee", "anny")
     assert "kept as given" in report
-    made_on = re.search(r"garment.made_on_rest=\{arm_angle_deg:(-?\d+),straight_forearms:true\}", report)
-    assert made_on and abs(int(made_on.group(1))) <= 8, report  # its sleeves straight out
+    made_on = MADE_ON_STRAIGHT.search(report)
+    assert made_on and abs(int(made_on.group(2))) <= 8, report  # its sleeves straight out
     assert exit_code(main, ["inspect", str(tee), "body=anny_tpose", "--no-wrap"]) == 0
     assert "made_on_rest" not in capsys.readouterr().out  # on the body it was made on: nothing to do
     out = tmp_path / "fit"
@@ -162,8 +172,7 @@ def test_and_back_the_shirt_as_it_lies_on_the_a_pose_goes_onto_t_posed_anny(apos
     path = tmp_path / "a_posed.obj"
     save_garment_obj(apose_scene[0].garment, path)
     assert exit_code(main, ["inspect", str(path), "body=anny_tpose", "--no-wrap"]) == 0
-    made_on = re.search(r"garment.made_on_rest=(\{arm_angle_deg:(\d+),straight_forearms:true\})",
-                        capsys.readouterr().out)
+    made_on = MADE_ON_STRAIGHT.search(capsys.readouterr().out)
     assert made_on and 35 <= int(made_on.group(2)) <= 60, made_on  # A-posed Anny's arms: 48 degrees down
     _, stats = build_scene(load_config(["data=tshirt_tiny", "garment=obj", f"garment.obj={path}", "body=anny_tpose",
                                         "data.mirror=true", f"garment.made_on_rest={made_on.group(1)}"]))
@@ -244,12 +253,9 @@ def test_a_registered_tee_whose_sleeves_placement_turned_down_is_made_on_the_t_p
     from pbc.geometry.body.skeleton import limb_segments
     from pbc.geometry.meshops import nearest_segment
 
-    tee = tmp_path / "tee.obj"
-    tee.write_text(ECOSYSTEMS["pattern_tee"](), newline="")
-    assert exit_code(main, ["inspect", str(tee), "body=anny", "--no-wrap"]) == 0
-    report = capsys.readouterr().out
+    tee, report = inspected(tmp_path, capsys, "pattern_tee", "anny")
     assert "placement turned its sleeves" in report
-    made_on = re.search(r"garment.made_on_rest=(\{arm_angle_deg:(-?\d+),straight_forearms:true\})", report)
+    made_on = MADE_ON_STRAIGHT.search(report)
     assert made_on and abs(int(made_on.group(2))) <= 8, report  # its sleeves straight out
     settings = [line.strip().strip("'") for line in report.split("suggested settings:")[1].splitlines()
                 if line.strip().startswith(("'garment.charts", "garment.uv_unit"))]
