@@ -231,10 +231,9 @@ def drape_onto_rest(cfg: DictConfig, garment: Garment, cage: Cage, made_on: Body
     """The garment made on `made_on` (the body turned to ``garment.made_on_rest``) as it lies on `body`'s
     own rest pose: embedded on `made_on`, its arms turned to `body`'s rest arm angle, its forearms to `body`'s rest
     elbow (``garment.made_on_forearms``) and its thighs back by the legs' difference (``legs_apart_deg``), and
-    draped there by the simulator; made left/right
-    symmetric again with ``data.mirror``. A re-rest a person would do by putting the shirt on and lowering the
-    arms: the armpits fold as cloth does, where re-skinning the sleeves alone leaves a wide shirt's sides round
-    the lowered arms. One ValueError when the drape is discarded."""
+    draped there by the simulator; made left/right symmetric again with ``data.mirror``. A re-rest a person would
+    do by putting the shirt on and lowering the arms: the armpits fold as cloth does, where re-skinning the sleeves
+    alone leaves a wide shirt's sides round the lowered arms. One ValueError when the drape is discarded."""
     from pbc.geometry.body.anny import arm_angle_deg, forearms_like, rest_turn  # noqa: PLC0415 - only Anny re-rests
 
     embedding, _ = shrinkwrap(garment, cage, made_on, cfg.garment.shrinkwrap)

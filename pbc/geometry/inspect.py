@@ -199,8 +199,7 @@ def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, 
         if (limit is None or not turned or placement.forearm_turn_deg or not placement.sleeve_droop_deg
                 or max(turned.values()) <= float(limit)):
             return None
-        return {"arm_angle_deg": int(round(float(np.mean(list(placement.sleeve_droop_deg.values()))))),
-                "straight_forearms": True}
+        return _straight_arms(placement.sleeve_droop_deg.values())
     if placement.kind == "bottom":
         stance = trouser_leg_stance(points, faces, body, "bottom")
         limit = (gcfg.get("placement") or {}).get("leg_rest_deg")
@@ -210,9 +209,13 @@ def _made_on_rest(gcfg, body: Body, placement: Placement | None, sleeves: dict, 
         return {"legs_apart_deg": int(round(rest + float(np.mean([s["apart_deg"] for s in stance.values()]))))}
     if not sleeves or limit is None or max(a["angle_deg"] for a in sleeves.values()) <= float(limit):
         return None
-    return long_sleeves_rest(body, points, float(gcfg.placement.elbow_reach)) or {
-        "arm_angle_deg": int(round(float(np.mean([a["droop_deg"] for a in sleeves.values()])))),
-        "straight_forearms": True}
+    return (long_sleeves_rest(body, points, float(gcfg.placement.elbow_reach))
+            or _straight_arms(a["droop_deg"] for a in sleeves.values()))
+
+
+def _straight_arms(droops) -> dict:
+    """The rest with the arms at the sleeves' mean angle below the horizontal (degrees), forearms straight."""
+    return {"arm_angle_deg": int(round(float(np.mean(list(droops))))), "straight_forearms": True}
 
 
 def _number(unit: str):

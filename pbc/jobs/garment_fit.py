@@ -295,6 +295,17 @@ class Fit:
                                  "--out", str(out)], "preview")
 
     # ------------------------------------------------------------------------------------------ the end
+    def _where(self, last: str, kept, asked) -> list[str]:
+        """One line per output of the steps up to `last`, with the dataset's drapes kept of asked."""
+        o, done = self.out, STEPS[:STEPS.index(last) + 1]
+        lines = [f"  {o / 'inspect'}/  report.txt (the chart table, the settings used), uv_layout.png, on_body.png",
+                 f"  {o / 'cage.json'}  the automatic cage (to edit: then add garment.cage={o / 'cage.json'})"]
+        lines += [line for step, line in (
+            ("data", f"  {o / 'data'}/  the dataset: {kept} drapes kept of {asked}"),
+            ("whole", f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)"),
+            ("preview", f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png")) if step in done]
+        return [*lines, *([f"  {o / 'logs'}/  each step's full output"] if "data" in done else [])]
+
     def summary(self) -> str:
         """Where everything is, and the test error beside the training mean shape's on the same poses."""
         record = RunRecord.read(self.out / "whole" / "metrics.json")
@@ -304,15 +315,9 @@ class Fit:
         counts = ds.manifest.get("counts", {})
         kept, asked = counts.get("kept", len(ds.poses)), counts.get("requested", len(ds.poses))
         g = " ".join(self.overrides)  # as `$G` in a shell: word-split, never re-quoted
-        o = self.out
         return "\n".join([
-            f"pbc garment fit: done in {duration(time.time() - self.t0)}; everything is under {o}",
-            f"  {o / 'inspect'}/  report.txt (the chart table, the settings used), uv_layout.png, on_body.png",
-            f"  {o / 'cage.json'}  the automatic cage (to edit: then add garment.cage={o / 'cage.json'})",
-            f"  {o / 'data'}/  the dataset: {kept} drapes kept of {asked}",
-            f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)",
-            f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png",
-            f"  {o / 'logs'}/  each step's full output",
+            f"pbc garment fit: done in {duration(time.time() - self.t0)}; everything is under {self.out}",
+            *self._where(STEPS[-1], kept, asked),
             f"test vertex error over {len(ds.split('test'))} test poses: {model_cm:.3f} cm (whole model), "
             f"{mean_cm:.3f} cm (the training mean shape)",
             f"the overrides of every step (patch models: python -m pbc.train $G +experiment=patches): G=\"{g}\"",
@@ -320,17 +325,14 @@ class Fit:
 
     def stopped(self) -> str:
         """The summary of a fit stopped by --until: what is there, and how to go on."""
-        o = self.out
-        lines = [f"pbc garment fit: stopped after {self.until} (--until) in {duration(time.time() - self.t0)}; "
-                 f"everything so far is under {o}; the same command without --until goes on from there",
-                 f"  {o / 'inspect'}/  report.txt, uv_layout.png, on_body.png; {o / 'cage.json'}  the automatic cage"]
+        counts = {}
         if STEPS.index(self.until) >= STEPS.index("data"):
             counts = read_json(self.data_dir / "manifest.json", "dataset manifest").get("counts", {})
-            lines.append(f"  {self.data_dir}/  the dataset: {counts.get('kept')} drapes kept of "
-                         f"{counts.get('requested')}")
-        if STEPS.index(self.until) >= STEPS.index("whole"):
-            lines.append(f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)")
-        return "\n".join([*lines, f"the overrides of every step: G=\"{' '.join(self.overrides)}\""])
+        return "\n".join([
+            f"pbc garment fit: stopped after {self.until} (--until) in {duration(time.time() - self.t0)}; everything "
+            f"so far is under {self.out}; the same command without --until goes on from there",
+            *self._where(self.until, counts.get("kept"), counts.get("requested")),
+            f"the overrides of every step: G=\"{' '.join(self.overrides)}\""])
 
     def run(self) -> str:
         self.inspect_and_check()

@@ -1,5 +1,5 @@
-"""`pbc garment fit`'s pure helpers: where a fit goes without --out (an outfit's pieces apart) and the overrides
-that load a garment file."""
+"""`pbc garment fit`'s pure helpers: where a fit goes without --out (an outfit's pieces apart), the overrides
+that load a garment file, and what a fit stopped by --until says."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pbc.jobs.garment_fit import default_out, empty_splits, garment_overrides
+from pbc.jobs.garment_fit import Fit, default_out, empty_splits, garment_overrides
 
 
 def test_each_piece_of_an_outfit_gets_its_own_fit_dir(tmp_path):
@@ -38,3 +38,19 @@ def test_a_dataset_with_an_empty_split_stops_the_fit_naming_the_samples_to_ask_f
     assert "--samples 19" in msg and str(tmp_path / "data.log") in msg
     three = {"splits": {"train": [0], "val": [1], "test": [2]}, "counts": {"kept": 3, "requested": 6}}
     assert empty_splits(three, tmp_path / "data.log") is None
+
+
+def test_a_fit_stopped_by_until_lists_only_what_its_steps_made(tmp_path):
+    shirt = tmp_path / "shirt.obj"
+    shirt.write_text("v 0 0 0\n")
+    out = tmp_path / "fit"
+    said = Fit(shirt, [], out, until="checks").stopped()
+    assert "stopped after checks (--until)" in said and "without --until goes on" in said
+    assert str(out / "cage.json") in said and str(out / "inspect") in said
+    assert "the dataset" not in said and str(out / "logs") not in said  # no step process ran: no logs
+    (out / "data").mkdir(parents=True)
+    (out / "data" / "manifest.json").write_text('{"counts": {"kept": 5, "requested": 6}}')
+    said = Fit(shirt, [], out, until="data").stopped()
+    assert "the dataset: 5 drapes kept of 6" in said and str(out / "logs") in said and "whole-garment" not in said
+    with pytest.raises(ValueError, match=r"--until inspect: one of checks, data, whole, preview"):
+        Fit(shirt, [], out, until="inspect")
