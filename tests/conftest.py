@@ -36,6 +36,20 @@ XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
 os.environ.setdefault("PBC_WARP_CACHE", str(ROOT / ".cache" / "warp"))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def no_user_models(tmp_path_factory):
+    """The user's models folder ($PBC_MODELS, pbc.pretrained.user_models_dir) is an empty folder of the session
+    for every test and every job it starts: `--pretrained tshirt` is the shipped model whatever the machine's
+    user packed (a test of user models points the variable at its own folder)."""
+    saved = os.environ.get("PBC_MODELS")
+    os.environ["PBC_MODELS"] = str(tmp_path_factory.mktemp("user_models"))
+    yield
+    if saved is None:
+        os.environ.pop("PBC_MODELS", None)
+    else:
+        os.environ["PBC_MODELS"] = saved
+
+
 def once_per_run(tmp_path_factory, name: str, build, encode=str, decode=Path):
     """`build(folder)` for a session fixture, once per test run. A plain run builds in its tmp folder. In a
     parallel run the first worker that asks builds in the run's tmp folder shared by the workers, under a file
@@ -203,3 +217,16 @@ def stop_at_data(monkeypatch):
     from helpers.train_runs import stop_training_at_data
 
     stop_training_at_data(monkeypatch)
+
+
+CORPUS = Path(__file__).resolve().parents[1].parent / "shared" / "corpus"  # ../shared/corpus from the repo root
+
+
+@pytest.fixture(scope="session")
+def corpus() -> Path:
+    """The real-world corpus (files as other tools wrote them, ../shared/corpus/README.md). Missing is a failure,
+    never a skip: it is every door's yardstick."""
+    if not (CORPUS / "README.md").is_file():
+        pytest.fail(f"the corpus is missing at {CORPUS}: the tests read real clips and garments from "
+                    "../shared/corpus (beside the repository); put it there")
+    return CORPUS

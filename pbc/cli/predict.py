@@ -42,8 +42,8 @@ def parser() -> argparse.ArgumentParser:
                     "meshes/ (OBJ with the garment's UVs and normals, or PLY), vertices.npy, poses.npy, "
                     "contact_sheet.png and predict.json.")
     ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/latest/whole)")
-    ap.add_argument("--pretrained", metavar="NAME", help="a model shipped with pbc (pbc pretrained list; e.g. "
-                    "tshirt) instead of a run dir")
+    ap.add_argument("--pretrained", metavar="NAME", help="a pretrained model: yours, else the one shipped with "
+                    "pbc (pbc pretrained list; e.g. tshirt) instead of a run dir")
     ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
                     "dir holding them, or a stacked +experiment=patches run dir")
     ap.add_argument("--method", default="pca", choices=METHODS, help="seam method for --patches (default pca)")
@@ -87,7 +87,7 @@ def run(argv: list[str]) -> int:
     if args.pretrained and args.whole_run:
         ap.error("give a run dir or --pretrained NAME, not both")
     if args.pretrained:
-        args.whole_run = str(pretrained_run(args.pretrained))  # an unknown name: the shipped ones listed
+        args.whole_run = str(pretrained_run(args.pretrained))  # an unknown name: the models there are listed
     if not args.whole_run and not args.patches:
         ap.error("give a whole-shirt run dir (or --pretrained NAME), or --patches with the patch runs")
     check_max_poses(args.max)  # before any model is loaded: --max 0 is a mistake, not "all"

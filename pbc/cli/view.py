@@ -37,7 +37,8 @@ def parser() -> argparse.ArgumentParser:
                     "garment and the per-vertex error as colour, whole vs stitched and the seam method as "
                     "toggles, and play/pause over a loaded sequence. Settings: conf/view.yaml.")
     ap.add_argument("whole_run", nargs="?", help="a whole-shirt training run dir (e.g. runs/main/latest/whole)")
-    ap.add_argument("--pretrained", metavar="NAME", help="a model shipped with pbc (e.g. tshirt) instead of RUN")
+    ap.add_argument("--pretrained", metavar="NAME", help="a pretrained model: yours, else the one shipped with "
+                    "pbc (pbc pretrained list; e.g. tshirt) instead of RUN")
     ap.add_argument("--patches", nargs="+", metavar="RUN", help="the patch run dirs (one per cage patch), a sweep "
                     "dir holding them, or a stacked +experiment=patches run dir")
     ap.add_argument("--method", choices=METHODS, default=str(cfg.method),

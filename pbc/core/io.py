@@ -46,6 +46,36 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
             tmp.unlink()
 
 
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike, previous: str | os.PathLike | None = None) -> Iterator[Path]:
+    """Yield an empty folder beside `path` to write into; on success it is renamed onto `path`, on error removed
+    with everything in it, so `path` is either as before or whole. What `path` held is renamed to `previous`
+    (kept) just before the new folder takes its place, or, with `previous` None, removed once it has."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        yield tmp
+        os.chmod(tmp, 0o755)  # mkdtemp makes folders private; what pbc writes is shared data
+        old = None
+        if path.exists() or path.is_symlink():
+            old = Path(previous) if previous is not None else tmp.with_name(tmp.name + ".replaced")
+            os.rename(path, old)
+        try:
+            os.rename(tmp, path)
+        except OSError:
+            if old is not None:
+                os.rename(old, path)  # the folder as it was
+            raise
+        if old is not None and previous is None and old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old)
+        elif old is not None and previous is None:
+            old.unlink()
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
 def write_text(path: str | os.PathLike, text: str) -> None:
     """Write a text file, atomically."""
     with atomic_path(path) as tmp:

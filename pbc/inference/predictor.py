@@ -117,9 +117,10 @@ def load_decoder(checkpoint: str | Path) -> tuple[nn.Module, dict]:
 
 
 def pretrained_run(name: str) -> Path:
-    """The run dir of the model shipped with pbc as `name` (`pbc.pretrained.shipped_models()`), for any
-    reader of runs (`ClothPredictor.from_runs`, `pbc view --pretrained`); an unknown name is refused listing
-    the shipped ones. `whole_run="pretrained:NAME"` in from_runs / pbc evaluate is the same."""
+    """The run dir of the pretrained model `name`, for any reader of runs (`ClothPredictor.from_runs`,
+    `pbc view --pretrained`): the user's (`pbc.pretrained.user_models()`), which shadows a shipped one of that
+    name, else the one shipped with pbc (`pbc.pretrained.shipped_models()`); an unknown name is refused listing
+    both. `whole_run="pretrained:NAME"` in from_runs / pbc evaluate is the same."""
     return pretrained_dir(name)
 
 
@@ -420,7 +421,7 @@ class ClothPredictor:
         if not whole_run and not has_patches:
             raise ValueError("from_runs needs a whole-shirt run dir, or the patch run dirs (one per cage patch) / "
                              "their sweep dir")
-        whole_run = resolve_run(whole_run)  # "pretrained:NAME": a shipped model (pbc.pretrained)
+        whole_run = resolve_run(whole_run)  # "pretrained:NAME": a pretrained model (pbc.pretrained)
         whole = read_run(whole_run) if whole_run else None
         if whole is not None and whole.kind.value not in WHOLE_KINDS:
             raise ValueError(f"{whole.path}: a {whole.kind.value!r} run, not a whole-garment run (a whole-shirt "
@@ -457,8 +458,9 @@ class ClothPredictor:
 
     @classmethod
     def from_pretrained(cls, name: str, **kw) -> ClothPredictor:
-        """The whole-shirt model shipped with pbc as `name` (`pbc.pretrained.shipped_models()`;
-        pbc/pretrained/<name>/MODEL_CARD.md says what it is); kw as `from_runs` (device, threads, ...)."""
+        """The pretrained whole-shirt model `name`: the user's, else the one shipped with pbc (`pretrained_run`;
+        its MODEL_CARD.md says what it is, `pbc pretrained list` where it is); kw as `from_runs` (device,
+        threads, ...)."""
         return cls.from_runs(pretrained_run(name), **kw)
 
     def check_model(self, model: str | None) -> str:

@@ -1,4 +1,7 @@
-"""Pack a trained whole-shirt run as a shipped model (`pbc pretrained pack RUN --name NAME`).
+"""Pack a trained whole-shirt run as a pretrained model (`pbc pretrained pack RUN --name NAME`): into the user's
+models folder (pbc.pretrained.user_models_dir), where `--pretrained NAME` finds it before a shipped model of the
+same name. A shipped model's folder, or a name that would shadow one, is written only when asked (`force`); the
+model is written whole or not at all, and a model it replaces is kept beside it (`previous_path`).
 
 What a fresh clone needs to predict, score and flag poses without the dataset (pbc.pretrained says the
 layout): the network's weights in half precision (a checkpoint of the state dict only: 3.8M parameters are
@@ -12,7 +15,6 @@ from __future__ import annotations
 
 import os
 import platform
-import shutil
 import subprocess
 import time
 import zipfile
@@ -22,7 +24,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from pbc.core.io import load_checkpoint, write_text
+from pbc.core.io import atomic_dir, load_checkpoint, write_text
 from pbc.core.runs import VERTEX_ERROR, ModelKind, RunRecord, monitor, read_run
 from pbc.data.dataset import dataset_fingerprint, load_dataset, person_kw
 from pbc.data.trimmed import check_max_rows, is_trimmed, recorded_mean_offsets, trim_dataset
@@ -30,12 +32,13 @@ from pbc.inference.poses import training_pose_range
 from pbc.inference.predictor import WHOLE_KINDS, ClothPredictor
 from pbc.motion.ranges import SWING_TWIST, range_from_record, range_table_record
 from pbc.pixels.frames import from_offsets
-from pbc.pretrained import SHIPPED_DIR
+from pbc.pretrained import in_shipped_dir, is_model_name, shipped_model_dir, shipped_models, user_models_dir
 
 WEIGHTS = "weights_fp16.ckpt"
 CARD = "MODEL_CARD.md"
 DATA = "data"
 CM = 100.0
+PREVIOUS = ".previous-"  # a model a pack replaces is kept beside it as <name>.previous-<time>
 ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the weights file's entries' timestamp (zip's earliest): packing is repeatable
 
 
@@ -148,33 +151,97 @@ def shipped_pose_range(run, ds) -> tuple[dict, str]:
             f"measured by pbc pretrained pack from the run's dataset, swing-twist ({why})")
 
 
+def pack_destination(name: str, out: str | Path | None = None, force: bool = False) -> Path:
+    """The folder `pbc pretrained pack` writes model `name` into: `out`, else the user's models folder's
+    <name>. Without `force` it refuses (a ValueError in one line, naming the shipped model and the fix) a folder
+    inside pbc's shipped models, and a folder of the user's models named as a shipped model (it would shadow
+    it). With `force`, `out` is written where it says and the default is the user's folder, never the package."""
+    dest = Path(out) if out is not None else user_models_dir() / name
+    if force:
+        return dest
+    if in_shipped_dir(dest):
+        raise ValueError(f"--out {dest} is inside pbc/pretrained, the models shipped with pbc, which pack does not "
+                         f"overwrite: leave --out out to pack into your models ({user_models_dir()}), or add --force "
+                         "to replace the package's copy (re-making a shipped model in a checkout)")
+    if dest.name in shipped_models() and dest.parent.resolve() == user_models_dir().resolve():
+        raise ValueError(f"{dest.name!r} is a model shipped with pbc ({shipped_summary(dest.name)}): give yours "
+                         f"another --name, or add --force to pack it as your own {dest.name!r} in {dest}, where it "
+                         "shadows the shipped one (whose files stay as they are)")
+    return dest
+
+
+def shipped_summary(name: str) -> str:
+    """The shipped model `name` in a few words: its folder and test error, from its record."""
+    folder = shipped_model_dir(name)
+    info = RunRecord.read(folder).extra.get("pretrained", {})
+    if info.get("test_vertex_error_cm") is None:
+        return str(folder)
+    return f"{folder}, {info['test_vertex_error_cm']} cm over {info.get('test_poses')} test poses"
+
+
+def previous_path(dest: Path, stamp: str) -> Path:
+    """Where a model already at `dest` is kept when a pack replaces it: `<dest>.previous-<stamp>` beside it (a
+    name no model has, so `--pretrained` never finds it), with `-2`, `-3`, ... when that one is taken."""
+    kept, n = dest.with_name(f"{dest.name}{PREVIOUS}{stamp}"), 1
+    while kept.exists() or kept.is_symlink():
+        n += 1
+        kept = dest.with_name(f"{dest.name}{PREVIOUS}{stamp}-{n}")
+    return kept
+
+
 def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data_dir: str | Path | None = None,
              trained_on: str | None = None, command: str | None = None, commit: str | None = None,
-             notes: str | Path | None = None, test_poses: int | None = None) -> dict:
-    """Pack the whole-shirt run `run_dir` as shipped model `name` under `out` (default pbc/pretrained/<name>,
-    replaced). data_dir: the run's dataset when it moved; trained_on: the training machine in words (the
-    run records none; default: its trainer.accelerator and this machine); command: how the run was made
-    (for the card); commit: the code the run was trained with (the run records none; default: this
-    checkout's, which packs it); notes: a markdown file whose text the card carries after its table (where the
-    data came from, its licence, what was measured beyond the test split); test_poses: ship and score the first
-    this many poses of the test split (None: all; the split's drapes are most of a shipped model's bytes).
-    Returns the card's numbers (also metrics.json's "pretrained" block)."""
+             notes: str | Path | None = None, test_poses: int | None = None, force: bool = False) -> dict:
+    """Pack the whole-shirt run `run_dir` as model `name` into `out` (default: the user's models folder's
+    <name>; `pack_destination` says what is refused without `force`). The model is written in a folder beside
+    `out` and renamed onto it when whole: a pack that fails leaves no part of it. A folder already at `out` is
+    kept, renamed to `previous_path(out, ...)`, except a shipped model's (forced), which is replaced.
+
+    data_dir: the run's dataset when it moved; trained_on: the training machine in words (the run records none;
+    default: its trainer.accelerator and this machine); command: how the run was made (for the card); commit: the
+    code the run was trained with (the run records none; default: this checkout's, which packs it); notes: a
+    markdown file whose text the card carries after its table (where the data came from, its licence, what was
+    measured beyond the test split); test_poses: ship and score the first this many poses of the test split
+    (None: all; the split's drapes are most of a model's bytes). Returns the card's numbers (also metrics.json's
+    "pretrained" block), with `dir` (where the model is) and `previous` (where the model it replaced is kept;
+    None when none is kept) added."""
     t0 = time.time()
-    if not name or not name.replace("_", "").replace("-", "").isalnum():
+    if not is_model_name(name):
         raise ValueError(f"--name {name!r}: give a plain name (letters, digits, - or _), e.g. tshirt")
-    check_max_rows(test_poses, "test", "--test-poses")  # before anything is written
-    note_text = _read_notes(notes)  # before anything of a shipped model is replaced
+    dest = pack_destination(name, out, force)  # before anything is read or written
+    check_max_rows(test_poses, "test", "--test-poses")
+    note_text = _read_notes(notes)
     run = read_run(run_dir)
     if run.kind.value not in WHOLE_KINDS:
         raise ValueError(f"{run.path}: a {run.kind.value!r} run; only a whole-garment run (a whole-shirt CNN or a "
                          "fully connected run) packs as a shipped model")
-    out = Path(out) if out is not None else SHIPPED_DIR / name
     full = ClothPredictor.from_runs(run.path, data_dir=data_dir)
+    # a shipped model's folder (forced) is replaced: git or a reinstall has the old one, and a copy kept there ships
+    previous = None if in_shipped_dir(dest) else previous_path(dest, time.strftime("%Y%m%d-%H%M%S"))
+    with atomic_dir(dest, previous) as staging:
+        info = _write_model(staging, name, run, full, trained_on, command, commit, note_text, test_poses,
+                            made_again=_pack_words(name, out, force))
+        info["pack_seconds"] = round(time.time() - t0, 1)
+        _write_card(staging, info)
+    info["dir"], info["previous"] = dest, previous if previous is not None and previous.exists() else None
+    return info
+
+
+def _pack_words(name: str, out, force: bool) -> str:
+    """The card's `pbc pretrained pack` arguments after the run: how this very destination is written again."""
+    words = f"--name {name}"
+    if out is not None and in_shipped_dir(out):
+        words += f" --out pbc/pretrained/{Path(out).name}"
+    return words + (" --force" if force else "")
+
+
+def _write_model(out: Path, name: str, run, full: ClothPredictor, trained_on, command, commit, note_text,
+                 test_poses, made_again: str) -> dict:
+    """Write the model of `run` (opened as `full`) into the empty folder `out`: fp16 weights, the trimmed data,
+    the record; its numbers measured on those files (pack_run's card numbers, less pack_seconds)."""
     ds = full.dataset
     ck = load_checkpoint(run.checkpoint)
     net_state = {k: v for k, v in ck["state_dict"].items() if k.startswith("net.")}
-    if out.exists():
-        shutil.rmtree(out)
     (out / "checkpoints").mkdir(parents=True)
     save_deflated({"state_dict": half_state(net_state), "hyper_parameters": ck["hyper_parameters"],
                    "pbc_pretrained": {"name": name, "source_checkpoint": run.checkpoint.name}},
@@ -206,6 +273,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         "recorded_fp32_test_vertex_error_cm": record.metric("test", VERTEX_ERROR),
         "pose_range_source": range_source,
         "notes": note_text,
+        "pack_arguments": made_again,
     }
     RunRecord(kind=run.kind, optimized_metric=monitor(run.kind), best_checkpoint=WEIGHTS,
               identity=dict(run.identity), config=dict(run.config), epochs=record.epochs, seconds=record.seconds,
@@ -229,8 +297,12 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         "fp16_vs_fp32_max_vertex_cm": round(float(diff.max()) * CM, 4),
         "fp16_vs_fp32_mean_vertex_cm": round(float(diff.mean()) * CM, 5),
         "poses_beating_mean_shape": int((s16["model"] < s16["mean_shape"]).sum()),
-        "pack_seconds": round(time.time() - t0, 1),
     })
+    return info
+
+
+def _write_card(out: Path, info: dict) -> None:
+    """Complete the model in `out`: its sizes into `info`, `info` into the record, and MODEL_CARD.md."""
     sizes = {str(p.relative_to(out)): p.stat().st_size for p in sorted(out.rglob("*")) if p.is_file()}
     info["bytes"] = {"weights": sizes[f"checkpoints/{WEIGHTS}"], "data": sum(v for k, v in sizes.items()
                                                                             if k.startswith(DATA + "/"))}
@@ -238,9 +310,8 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
     rec.test = {VERTEX_ERROR: info["test_vertex_error_cm"], f"{VERTEX_ERROR}_std": info["test_vertex_error_cm_std"]}
     rec.extra["pretrained"] = info
     rec.write(out)
-    write_text(out / CARD, model_card(info, pose_range))
+    write_text(out / CARD, model_card(info, rec.pose_range))
     info["bytes"]["total"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    return info
 
 
 def _read_notes(notes) -> str | None:
@@ -308,7 +379,7 @@ offsets (the baseline) and joint-angle range. Only the whole model ships: no pat
 
 ```bash
 {made}
-pbc pretrained pack runs/main/latest/whole --name {i['name']}
+pbc pretrained pack runs/main/latest/whole {i.get('pack_arguments') or '--name ' + i['name']}
 ```
 
 Source run: `{i['source_run']}` ({i['source_checkpoint']}); dataset manifest hash

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,7 +87,13 @@ def shipped(standin, monkeypatch, tmp_path):
     """pbc.pretrained looking in the stand-in's shipped dir (the real one holds the real model)."""
     monkeypatch.setattr(pbc.pretrained, "SHIPPED_DIR", standin[0])
     monkeypatch.setenv("PBC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("PBC_MODELS", str(tmp_path / "models"))  # the user's models folder: empty
     return standin
+
+
+def tree(folder: Path) -> dict[str, bytes | None]:
+    """Every path under `folder`, with each file's bytes (None for a folder): equal trees are byte-identical."""
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None) for p in sorted(folder.rglob("*"))}
 
 
 def test_packed_model_predicts_what_its_fp32_checkpoint_does(shipped):
@@ -169,14 +178,23 @@ def test_joints_the_model_does_not_read_are_never_flagged(shipped):
     assert (rng[others, :, 0] == -180).all() and (rng[others, :, 1] == 180).all()
 
 
-def test_unknown_names_are_refused_listing_the_shipped_ones(shipped, capsys):
-    with pytest.raises(ValueError, match=r"no shipped model named 'shirt'; pbc ships standin"):
+def test_unknown_names_are_refused_listing_the_shipped_models_and_yours(shipped, tmp_path, capsys):
+    (tmp_path / "models" / "mine").mkdir(parents=True)
+    (tmp_path / "models" / "mine" / "metrics.json").write_text("{}")
+    (tmp_path / "models" / "mine.previous-20250101-000000").mkdir()  # a kept copy is no model
+    (tmp_path / "models" / "mine.previous-20250101-000000" / "metrics.json").write_text("{}")
+    want = re.escape(f"no pretrained model named 'shirt': pbc ships standin; your models folder "
+                     f"({tmp_path / 'models'}) holds mine (give one of those, or a trained run dir instead)")
+    with pytest.raises(ValueError, match=want):
         pretrained_run("shirt")
-    with pytest.raises(ValueError, match="pbc ships standin"):
+    with pytest.raises(ValueError, match=want):
         ClothPredictor.from_runs("pretrained:shirt")
+    with pytest.raises(ValueError, match=want.replace("'shirt'", "'mine.previous-20250101-000000'")):
+        pretrained_run("mine.previous-20250101-000000")
     assert exit_code(predict_cli.main, ["--pretrained", "shirt", "--poses", "test"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("pbc predict: error: no shipped model named 'shirt'") and "standin" in err
+    assert err.startswith("pbc predict: error: no pretrained model named 'shirt': pbc ships standin; your models")
+    assert "holds mine" in err and err.count("\n") == 1
 
 
 def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
@@ -200,7 +218,7 @@ def test_predict_and_evaluate_take_a_shipped_model(shipped, tmp_path, capsys):
     assert e["train_mean"]["vertex_error_cm"] == pytest.approx(shipped[3]["mean_shape_test_vertex_error_cm"],
                                                                abs=1e-3)
     assert exit_code(pretrained_cli.main, ["list"]) == 0
-    assert "standin: test vertex error" in capsys.readouterr().out
+    assert "standin (shipped): test vertex error" in capsys.readouterr().out
 
 
 def test_pack_refuses_a_patch_run_and_a_bad_name(shipped, tmp_path):
@@ -273,6 +291,108 @@ def test_a_fully_connected_run_predicts_and_packs(shipped, tmp_path, monkeypatch
     e = evaluate(cfg, tmp_path / "eval")["entries"]
     assert e["whole"]["vertex_error_cm"] == pytest.approx(info["test_vertex_error_cm"], abs=1e-3)
     assert e["floor_256"]["vertex_error_cm"] < e["whole"]["vertex_error_cm"]
+
+
+def test_pack_onto_a_shipped_name_is_refused_in_one_line_and_the_shipped_files_stay(shipped, tmp_path, capsys):
+    """The shipped models are read-only to pack: their name (it would shadow them) or their folder (--out) is
+    refused before anything is read or written, naming the model and the fix."""
+    before = tree(shipped[0])
+    with pytest.raises(ValueError, match=r"^'standin' is a model shipped with pbc \(.*\): give yours another "
+                                         r"--name, or add --force to pack it as your own 'standin' in ") as err:
+        pack.pack_run(shipped[1], "standin")
+    assert str(shipped[0] / "standin") in str(err.value) and "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=r"--out .* is inside pbc/pretrained, the models shipped with pbc, .* or "
+                                         r"add --force"):
+        pack.pack_run(shipped[1], "other", shipped[0] / "other")
+    assert exit_code(pretrained_cli.main, ["pack", str(shipped[1]), "--name", "standin"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pbc pretrained: error: 'standin' is a model shipped with pbc") and err.count("\n") == 1
+    assert tree(shipped[0]) == before and not (tmp_path / "models").exists()
+
+
+def test_force_packs_yours_where_it_shadows_the_shipped_model_and_pretrained_loads_it(shipped, tmp_path, capsys,
+                                                                                     monkeypatch):
+    """--force onto a shipped name: yours goes to your models folder (the package's files stay byte for byte),
+    and every door of --pretrained NAME then opens yours; `list` shows both and which shadows which."""
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    before = tree(shipped[0])
+    mine = tmp_path / "models" / "standin"
+    assert exit_code(pretrained_cli.main, ["pack", str(shipped[1]), "--name", "standin", "--force",
+                                           "--test-poses", "1"]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith(f"standin -> {mine}: ")
+    assert f"it shadows the shipped standin ({shipped[0] / 'standin'}, unchanged)" in said
+    assert tree(shipped[0]) == before
+    assert pretrained_run("standin") == mine
+    # yours ships one test pose, the shipped one two
+    assert len(ClothPredictor.from_pretrained("standin").dataset) == 1
+    assert len(ClothPredictor.from_runs("pretrained:standin").dataset) == 1
+    out = tmp_path / "pred"
+    assert exit_code(predict_cli.main, ["--pretrained", "standin", "--poses", "test", "--out", str(out),
+                                        "--sheet", "0"]) == 0
+    res = json.loads((out / "predict.json").read_text())
+    assert res["num_poses"] == 1 and res["whole_run"] == str(mine)
+    capsys.readouterr()
+    assert exit_code(pretrained_cli.main, ["list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("standin (yours, shadows the shipped standin): test vertex error ")
+    assert lines[0].endswith(str(mine / "MODEL_CARD.md"))
+    assert lines[1].startswith("standin (shipped, shadowed by yours): test vertex error ")
+    assert lines[1].endswith(str(shipped[0] / "standin" / "MODEL_CARD.md"))
+    assert lines[2] == f"your models folder: {tmp_path / 'models'} ($PBC_MODELS sets it)"
+    assert tree(shipped[0]) == before
+
+
+def test_force_with_out_in_the_package_remakes_a_shipped_model(shipped, tmp_path, monkeypatch):
+    """Re-making a shipped model in a checkout: --out at its folder with --force replaces it (no copy is kept
+    inside the package, where it would ship), and its card says how to make it again."""
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    package = tmp_path / "package"
+    shutil.copytree(shipped[0], package)
+    monkeypatch.setattr(pbc.pretrained, "SHIPPED_DIR", package)
+    info = pack.pack_run(shipped[1], "standin", package / "standin", force=True, test_poses=1)
+    assert info["dir"] == package / "standin" and info["previous"] is None
+    assert sorted(p.name for p in package.iterdir()) == ["standin"]
+    assert pretrained_run("standin") == package / "standin" and len(load_dataset(package / "standin" / "data")) == 1
+    card = (package / "standin" / "MODEL_CARD.md").read_text()
+    assert "pbc pretrained pack runs/main/latest/whole --name standin --out pbc/pretrained/standin --force" in card
+
+
+def test_packing_over_your_model_keeps_the_old_one_and_says_where(shipped, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+    models = tmp_path / "models"
+    first = pack.pack_run(shipped[1], "mine", test_poses=1)
+    assert first["dir"] == models / "mine" and first["previous"] is None
+    old = tree(models / "mine")
+    assert exit_code(pretrained_cli.main, ["pack", str(shipped[1]), "--name", "mine"]) == 0
+    kept = sorted(p for p in models.iterdir() if p.name != "mine")
+    assert [p.name[:len("mine.previous-")] for p in kept] == ["mine.previous-"]
+    assert tree(kept[0]) == old  # the first model, byte for byte
+    assert f"; the model there before is kept as {kept[0]}" in capsys.readouterr().out
+    assert len(ClothPredictor.from_pretrained("mine").dataset) == 2  # the new one: both test poses
+    assert pbc.pretrained.user_models() == ["mine"]  # the kept copy is no model --pretrained finds
+
+
+def test_a_failed_pack_leaves_nothing_half_written(shipped, tmp_path, monkeypatch):
+    """The model is written beside its folder and renamed onto it whole: a pack failing half-way (here the
+    trimmed data, after the weights) leaves no part of it, and a model that was there stays as it was."""
+    monkeypatch.setattr(pack, "git_commit", lambda where: "0123abc")  # no subprocess in the unit tier
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pack, "trim_dataset", full_disk)
+    models = tmp_path / "models"
+    with pytest.raises(OSError, match="No space left"):
+        pack.pack_run(shipped[1], "mine")
+    assert list(models.iterdir()) == []
+    (models / "mine" / "checkpoints").mkdir(parents=True)
+    (models / "mine" / "metrics.json").write_text('{"kind": "whole"}')
+    (models / "mine" / "checkpoints" / pack.WEIGHTS).write_bytes(b"the weights before")
+    before = tree(models)
+    with pytest.raises(OSError, match="No space left"):
+        pack.pack_run(shipped[1], "mine")
+    assert tree(models) == before
 
 
 @pytest.mark.parametrize("name", pbc.pretrained.shipped_models())

@@ -146,7 +146,7 @@ def test_a_sequence_is_an_npy_of_rotations_or_a_bvh(predictor, tmp_path):
 def test_the_command_refuses_a_missing_pretrained_model_and_a_bad_port(capsys):
     assert exit_code(view_cli.main, ["--pretrained", "no_such_model"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("pbc view: error: no shipped model named 'no_such_model'") and "tshirt" in err
+    assert err.startswith("pbc view: error: no pretrained model named 'no_such_model': pbc ships ") and "tshirt" in err
     assert len(err.splitlines()) == 1
     assert exit_code(view_cli.main, ["run", "--port", "http"]) == 2
     assert "give a TCP port number" in capsys.readouterr().err
