@@ -24,6 +24,8 @@ log = logging.getLogger(__name__)
 # Hydra writes .hydra/ into the run dir before the job runs, so a job refused there (the dir in use, holding a
 # finished training, another dataset) would overwrite that run's config; pbc writes it once the door is passed
 HYDRA_SUBDIR = ".hydra"
+# the overrides pbc adds to the user's (after them: they win): Hydra writes no .hydra/ of its own
+OWN_OVERRIDES = ("hydra.output_subdir=null",)
 
 
 def write_hydra_files(cfg: DictConfig, out: Path) -> None:
@@ -45,7 +47,7 @@ def train_job(cfg: DictConfig) -> float:
 
 
 def run(args: list[str]) -> None:
-    run_hydra(train_job, [*args, "hydra.output_subdir=null"])
+    run_hydra(train_job, args, own_overrides=OWN_OVERRIDES)
 
 
 main = entry_point("train", run)
