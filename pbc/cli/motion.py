@@ -1,12 +1,13 @@
 """`pbc motion inspect CLIP.bvh [body overrides]`: what pbc makes of a motion clip, before predicting with it.
 
-    pbc motion inspect walk.bvh                        # the mannequin; the figure at the clip's middle frame
-    pbc motion inspect walk.bvh body=anny --frame 40 --out walk.png
+    pbc motion inspect walk.bvh                        # on Anny (the starters' body); the figure at the middle frame
+    pbc motion inspect walk.bvh body=mannequin --frame 40 --out walk.png
     pbc motion inspect walk.bvh --bvh-map my_rig.yaml  # a joint map of your own (conf/motion/cmu_mb.yaml's layout)
 
-Prints the clip's dialect, units, skeleton height and rest pose, the match (body joint <- clip joint, and
-why), the clip joints that drive nothing, and whether `pbc predict`, `pbc view` and `data.poses` would
-refuse it (a body arm, leg or spine matched to no joint); writes a PNG of the clip's skeleton at a frame
+Prints the clip's dialect, units, skeleton height and rest pose (or the frame standing in for it), the match
+(body joint <- clip joint, and why), the clip joints that drive nothing, the sanity of the retargeted clip
+(trunk upright, feet under the hips, a person's height) and whether `pbc predict`, `pbc view` and
+`data.poses` would refuse it, with the setting that goes on; writes a PNG of the clip's skeleton at a frame
 beside the body posed by it (--out; default <clip name>.inspect.png in the current folder).
 """
 
@@ -22,6 +23,8 @@ from pbc.motion.bvh import check_skeleton, read_bvh
 from pbc.motion.inspect import clip_figure, describe
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map
 
+STARTERS_BODY = "anny"  # conf/body: the body of the shipped models (pbc/pretrained)
+
 
 def run(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="pbc motion", description=__doc__,
@@ -33,6 +36,9 @@ def run(argv: list[str]) -> int:
                     "that layout; auto (default): a shipped table knowing every joint, else by name and structure")
     ap.add_argument("--frame", type=int, metavar="K", help="the clip frame of the figure (default: the middle one)")
     ap.add_argument("--out", help="the PNG to write (default: <clip name>.inspect.png here)")
+    ap.add_argument("--rest-frame", type=int, metavar="K", help="the clip frame whose posture is its rest (default: "
+                    "its OFFSETs' layout, or for a skeleton lying flat frame 0 when it stands as a rest, else the "
+                    "clip's most neutral standing frame)")
     ap.add_argument("--no-figure", action="store_true", help="the report only")
     args = ap.parse_args(argv)
     clip = Path(args.clip)
@@ -47,13 +53,17 @@ def run(argv: list[str]) -> int:
     if not -bvh.num_frames <= frame < bvh.num_frames:
         raise ValueError(f"--frame {frame}: {clip} has frames 0 to {bvh.num_frames - 1}")
     frame %= bvh.num_frames
-    body = body_from_config(load_config(args.overrides).body)
+    overrides = list(args.overrides)
+    if not any(o.lstrip("+~").startswith("body") for o in overrides):
+        overrides.insert(0, f"body={STARTERS_BODY}")  # the body the shipped models, so predict and view, use
+    body = body_from_config(load_config(overrides).body)
     # the whole report, even when predict would refuse the clip: that is what a user inspects it for
-    motion = bvh_to_poses(bvh, body.skeleton, choose_joint_map(bvh, args.bvh_map), slice(frame, frame + 1),
-                          allow_rest=True)
+    motion = bvh_to_poses(bvh, body.skeleton, choose_joint_map(bvh, args.bvh_map), allow_rest=True,
+                          rest_frame=args.rest_frame, trust=True)
+    print(f"body: {overrides[0] if overrides[0].startswith('body=') else 'as overridden'}")
     print("\n".join(describe(bvh, motion, body.skeleton)))
     if not args.no_figure:
-        print(f"figure: {clip_figure(out, bvh, motion, body, 0)} (frame {frame})")
+        print(f"figure: {clip_figure(out, bvh, motion, body, frame)} (frame {frame})")
     return 0
 
 

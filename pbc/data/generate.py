@@ -120,7 +120,7 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
     # each key below only when its setting is away from its default: existing datasets keep their fingerprint
     data = cfg.data
     if data.get("poses") is not None:  # the clips' content (not where they lie) and how they are mixed
-        fp["pose_source"] = {"files": source_files_hash(data.poses),
+        fp["pose_source"] = {"files": source_files_hash(data.poses, list(data.get("poses_holdout") or ())),
                              "sampled_fraction": float(data.get("poses_sampled_fraction") or 0.0),
                              "joint_map": str(data.get("poses_joint_map") or "auto"),
                              "allow_rest": bool(data.get("poses_allow_rest")),
@@ -627,7 +627,7 @@ def dataset_poses(cfg: DictConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray
     if data.get("poses") is not None:
         return motion_capture_poses(data.poses, n, float(data.get("poses_sampled_fraction") or 0.0), seed, skel,
                                     scene.body, settings, str(data.get("poses_joint_map") or "auto"),
-                                    bool(data.get("poses_allow_rest")))
+                                    bool(data.get("poses_allow_rest")), list(data.get("poses_holdout") or ()))
     poses, pose_stats = sample_poses(skel, n, seed, scene.body, settings)
     angles = np.asarray(pose_stats.pop("angles_deg"), dtype=np.float32)
     return poses.numpy().astype(np.float32), angles, pose_stats, None

@@ -13,7 +13,9 @@ depend on the Euler order.
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,9 +42,11 @@ class PoseSource:
     clips: list[str]  # clip names, relative to data.poses (a file: its name)
 
 
-def clip_files(path: str | Path) -> list[Path]:
+def clip_files(path: str | Path, holdout: Sequence[str] = ()) -> list[Path]:
     """The clips `data.poses` names: the file itself, or every .bvh / .npy under a folder (sorted, so the
-    order, and with it the selection, never depends on the file system). One ValueError naming the fix."""
+    order, and with it the selection, never depends on the file system), less those whose name relative to
+    the folder matches a glob pattern of `holdout` (`data.poses_holdout`: clips kept out of training, to be
+    scored on apart). One ValueError naming the fix."""
     p = Path(path)
     if p.is_file():
         if p.suffix.lower() not in CLIP_SUFFIXES:
@@ -51,6 +55,11 @@ def clip_files(path: str | Path) -> list[Path]:
         return [p]
     if p.is_dir():
         found = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in CLIP_SUFFIXES)
+        if found and holdout:
+            found = [f for f in found if not held_out(str(f.relative_to(p)), holdout)]
+            if not found:
+                raise ValueError(f"data.poses={p}: data.poses_holdout={list(holdout)} holds out every clip of the "
+                                 "folder; hold out fewer")
         if not found:
             raise ValueError(f"data.poses={p}: the folder holds no clip (no .bvh or .npy file under it); put the "
                              "motion-capture clips there or point data.poses at a clip")
@@ -89,12 +98,17 @@ CLIP_OPTIONS = {"--bvh-map ": "data.poses_joint_map=", "--bvh-map": "data.poses_
                 "--allow-rest": "data.poses_allow_rest=true", "--max-frames": "(conf/motion/sequence.yaml max_frames)"}
 
 
+def held_out(name: str, holdout: Sequence[str]) -> bool:
+    """Whether clip `name` (relative to data.poses) matches a glob pattern of `holdout`."""
+    return any(fnmatch.fnmatch(name, pat) or fnmatch.fnmatch(Path(name).name, pat) for pat in holdout)
+
+
 def read_pose_source(path: str | Path, skeleton: Skeleton, posed_joints=(), joint_map: str = "auto",
-                     allow_rest: bool = False) -> PoseSource:
+                     allow_rest: bool = False, holdout: Sequence[str] = ()) -> PoseSource:
     """Every frame of every clip under `path` as the body's poses; joints outside `posed_joints` (the
     garment's own joint set, `sampling.posed_joints`; () = all) are put back at rest, as the sampler keeps
     them. A clip that moves none of the posed joints is refused, naming it."""
-    files = clip_files(path)
+    files = clip_files(path, holdout)
     root = Path(path)
     keep = np.ones(skeleton.num_joints, bool)
     if posed_joints:
@@ -116,12 +130,12 @@ def read_pose_source(path: str | Path, skeleton: Skeleton, posed_joints=(), join
     return PoseSource(np.concatenate(poses), np.concatenate(clip), np.concatenate(frame), names)
 
 
-def source_files_hash(path: str | Path) -> dict[str, str]:
+def source_files_hash(path: str | Path, holdout: Sequence[str] = ()) -> dict[str, str]:
     """{clip name: sha256 of its bytes, 16 hex}: what the dataset's fingerprint keeps of `data.poses` (its
     content, not where it lies: a moved copy of the clips makes the same data)."""
     root = Path(path)
     out = {}
-    for f in clip_files(root):
+    for f in clip_files(root, holdout):
         out[f.name if f == root else str(f.relative_to(root))] = hashlib.sha256(f.read_bytes()).hexdigest()[:16]
     return out
 
@@ -144,8 +158,8 @@ def farthest_pose_selection(poses: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 
 def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed: int, skeleton: Skeleton,
-                         body, settings: SamplingSettings, joint_map: str = "auto", allow_rest: bool = False
-                         ) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+                         body, settings: SamplingSettings, joint_map: str = "auto", allow_rest: bool = False,
+                         holdout: Sequence[str] = ()) -> tuple[np.ndarray, np.ndarray, dict, dict]:
     """n dataset poses: round(n * (1 - sampled_fraction)) clip frames by farthest-point selection (arms inside
     the torso raised out of it: `pbc.motion.fit`), then the rest from the D.3 sampler (`sample_poses`, the same
     seed).
@@ -159,7 +173,7 @@ def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed
                          "to draw from the D.3 sampler (0: every pose from the clips)")
     n_sampled = int(round(n * float(sampled_fraction)))
     n_clip = n - n_sampled
-    src = read_pose_source(path, skeleton, settings.posed_joints, joint_map, allow_rest)
+    src = read_pose_source(path, skeleton, settings.posed_joints, joint_map, allow_rest, holdout)
     if n_clip > len(src.poses):
         raise ValueError(f"data.poses={path}: {len(src.poses)} frames in {len(src.clips)} clip(s), fewer than the "
                          f"{n_clip} poses asked of them (data.num_samples={n} x (1 - data.poses_sampled_fraction="

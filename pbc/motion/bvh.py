@@ -81,6 +81,21 @@ class Bvh:
                 pos[:, j] = pos[:, jt.parent] + rel[:, jt.parent] @ jt.offset
         return pos
 
+    def pelvis_relative(self, pelvis: int, frames=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """((F, J, 3) positions, (F, J, 3, 3) global rotations) of every joint by the file's forward kinematics,
+        both in the frame of joint `pelvis` at that frame (its position the origin, its rotation removed), file
+        units. `pelvis` 0 is `root_relative_positions` / `root_relative_rotations`; another joint leaves out
+        what lies above it (Bandai Namco's joint_Root on the floor, whose child Hips carries the body's turn
+        and an OFFSET that is a world position)."""
+        rot = self.root_relative_rotations(frames)
+        pos = np.zeros(rot.shape[:2] + (3,))
+        for j, jt in enumerate(self.joints):
+            if jt.parent >= 0:
+                pos[:, j] = pos[:, jt.parent] + rot[:, jt.parent] @ jt.offset
+        turn = rot[:, pelvis]  # (F, 3, 3)
+        rel_pos = np.einsum("fba,fjb->fja", turn, pos - pos[:, pelvis:pelvis + 1])
+        return rel_pos, np.swapaxes(turn, -1, -2)[:, None] @ rot
+
     def local_rotations(self, frames=slice(None)) -> np.ndarray:
         """(F, J, 3, 3) float64 local rotations of the chosen frames, each joint's Euler order its own."""
         m = self.motion[frames]

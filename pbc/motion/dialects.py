@@ -44,6 +44,8 @@ class JointMap:
     why: dict[str, str] = field(default_factory=dict)
     toward: dict[str, str] = field(default_factory=dict)
     dialect: str = ""
+    frame_time: tuple[float, float] | None = None  # (the header's, the capture's): a converter's default rate
+    units: str | None = None  # the dialect's length unit (conf/motion/sequence.yaml units), None: unknown
 
     def known(self) -> set[str]:
         return set(self.bones) | set(self.joints.values())
@@ -86,6 +88,12 @@ def guess_dialect(names, cfg=None) -> str:
         if any(re.search(str(d.pattern), n) for n in names):
             return str(d.name)
     return "unknown"
+
+
+def dialect_units(dialect: str, cfg=None) -> str | None:
+    """The length unit conf/motion/dialects.yaml gives `dialect` (None: none given)."""
+    cfg = cfg or dialect_settings()
+    return next((str(d.units) for d in cfg.dialects if str(d.name) == dialect and d.get("units")), None)
 
 
 def _children(bvh: Bvh) -> list[list[int]]:
@@ -141,9 +149,9 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
     if heads:
         head = min(heads, key=lambda j: depth[j])
     else:  # the deepest joint reached through unsided joints only (Rigify's spine.006)
-        unsided = [j for j in range(len(names)) if all(parts[k][0] is None for k in _ancestors(bvh, j))]
+        unsided = [j for j in range(len(names)) if all(parts[k][0] is None for k in ancestors(bvh, j))]
         head = max(unsided, key=lambda j: (depth[j], -j))
-    centre = list(reversed(_ancestors(bvh, head)))  # root ... head
+    centre = list(reversed(ancestors(bvh, head)))  # root ... head
 
     # the limbs: subtrees of sided joints whose parent is unsided, by side; arm or leg by their names, else
     # by where they hang (from the root's level: a leg)
@@ -212,18 +220,23 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
             if i + 1 < len(chain):
                 toward[names[j]] = names[chain[i + 1]]
 
-    # the trunk: the joint the arms hang from ends the spine; the neck runs from there to the head
+    # the trunk: the pelvis is where the legs and the spine meet (the clip's root, or below it a joint like
+    # Bandai Namco's Hips under a joint_Root on the floor); the spine runs from above it to the joint the arms
+    # hang from; the neck from there to the head
+    leg_roots = [bvh.joints[t[0]].parent for (_, kind), t in limbs.items() if kind == "leg"]
+    pelvis = lowest_common_ancestor(bvh, [*leg_roots, head]) if leg_roots else 0
+    base = centre.index(pelvis) if pelvis in centre else 0
     arm_roots = [bvh.joints[t[0]].parent for (_, kind), t in limbs.items() if kind == "arm"]
-    on_centre = [centre.index(a) for a in arm_roots if a in centre]
+    on_centre = [centre.index(a) for a in arm_roots if a in centre and centre.index(a) > base]
     if on_centre:
         top = max(on_centre)
-        spine = centre[1:top + 1]
+        spine = centre[base + 1:top + 1]
         neck = centre[top + 1:-1]
         top_reason = f"the arms hang from {names[centre[top]]}"
     else:  # no arms: the joints named neck start the neck
-        necks = [i for i, j in enumerate(centre) if parts[j][1].startswith("neck")]
+        necks = [i for i, j in enumerate(centre) if parts[j][1].startswith("neck") and i > base]
         cut = necks[0] if necks else len(centre) - 1
-        spine, neck = centre[1:cut], centre[cut:-1]
+        spine, neck = centre[base + 1:cut], centre[cut:-1]
         top_reason = "no arms: the spine ends below the first joint named neck"
     for what, file_chain, single in (("spine", spine, -1), ("neck", neck, 0)):
         body_chain = list(body[what])
@@ -237,11 +250,22 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
         why[str(body.head)] = "named head" if heads else "the end of the trunk's chain"
     for i, j in enumerate(centre[:-1]):
         toward.setdefault(names[j], names[centre[i + 1]])
-    return JointMap("auto", None, joints, tuple(names), why, toward, guess_dialect(names, cfg))
+    dialect = guess_dialect(names, cfg)
+    return JointMap("auto", None, joints, tuple(names), why, toward, dialect, units=dialect_units(dialect, cfg))
 
 
-def _ancestors(bvh: Bvh, j: int) -> list[int]:
-    """j, its parent, ..., the root."""
+def lowest_common_ancestor(bvh: Bvh, joints: list[int]) -> int:
+    """The deepest joint that is `joints`' every member or an ancestor of it (the root for none)."""
+    if not joints:
+        return 0
+    common = set(ancestors(bvh, joints[0]))
+    for j in joints[1:]:
+        common &= set(ancestors(bvh, j))
+    return next(k for k in ancestors(bvh, joints[0]) if k in common)
+
+
+def ancestors(bvh: Bvh, j: int) -> list[int]:
+    """j, its parent, ..., the root (indices into bvh.joints)."""
     out = [j]
     while bvh.joints[out[-1]].parent >= 0:
         out.append(bvh.joints[out[-1]].parent)

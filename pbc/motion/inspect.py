@@ -22,7 +22,8 @@ def describe(bvh: Bvh, motion: Motion, skeleton) -> list[str]:
     lines = [f"clip: {bvh.path}: {len(bvh.joints)} joints, {bvh.num_frames} frames at {1 / bvh.frame_time:g} fps "
              f"({seconds:.2f} s)",
              f"dialect: {t.dialect or 'unknown'}; units: {motion.units} ({motion.metres_per_unit:g} m per unit); "
-             f"skeleton height {motion.height_m:.2f} m; rest pose: {motion.rest_pose}",
+             f"skeleton height {motion.height_m:.2f} m; rest pose: {motion.rest_pose}"
+             + (f" (frame {motion.rest_frame} stands in for it)" if motion.rest_frame is not None else ""),
              "joint map: " + (f"{t.path}" if t.path is not None else "matched by name and structure (no table; "
                               "--bvh-map FILE.yaml overrides)"),
              f"{'body joint':<12}{'clip joint':<28}why"]
@@ -34,11 +35,23 @@ def describe(bvh: Bvh, motion: Motion, skeleton) -> list[str]:
     free = [n for n in bvh.names if n not in set(motion.mapped.values()) and n != bvh.names[0]]
     if free:
         lines.append(f"clip joints driving no body joint ({len(free)}): {', '.join(free)}")
+    lines += [f"note: {n}" for n in motion.notes if "stay at rest" not in n and "are ignored" not in n]  # the
+    # table above lists those
     undriven = must_drive(skeleton, motion.mapped)
     if undriven:
         lines.append(f"refused by pbc predict / view / data.poses: the body's {', '.join(undriven)} would stay at "
                      "rest; map them with --bvh-map FILE.yaml, or go on with --allow-rest")
+    lines.append(sanity_line(motion.sanity))
     return lines
+
+
+def sanity_line(sanity: dict) -> str:
+    """One line of `pbc.motion.retarget.sanity_report`: the measures, and the refusal when it found problems."""
+    measures = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in sanity.items() if k not in ("problems",))
+    if not sanity.get("problems"):
+        return f"sanity: stands as a person ({measures})"
+    return (f"refused by pbc predict / view / data.poses: {'; '.join(sanity['problems'])} ({measures}); fix its "
+            "rest (--rest-frame K) or its joint map (--bvh-map FILE.yaml), or go on with --trust-clip")
 
 
 def _posed_heads(skeleton, poses: np.ndarray) -> np.ndarray:
@@ -59,7 +72,7 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
     from matplotlib.collections import PolyCollection  # noqa: PLC0415 - as above: only this figure plots
 
     frame = int(round(float(motion.source_frames[k])))
-    pos = bvh.root_relative_positions(slice(frame, frame + 1))[0] @ motion.axes.T * motion.metres_per_unit
+    pos = bvh.pelvis_relative(motion.pelvis, slice(frame, frame + 1))[0][0] @ motion.axes.T * motion.metres_per_unit
     index = {n: i for i, n in enumerate(bvh.names)}
     skel = body.skeleton
     fig, (ax_clip, ax_body) = plt.subplots(1, 2, figsize=(11, 6.5))
@@ -76,7 +89,8 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
             short = motion.mapped[j].rsplit(":", 1)[-1]  # the namespace ('mixamorig:') is in the report
             ax_clip.annotate(short, p[:2], fontsize=6, xytext=(4, 2), textcoords="offset points")
     ax_clip.set_title(f"the clip's skeleton, frame {frame} (its own forward kinematics)\n"
-                      f"{motion.table.dialect or 'unknown'} names, {motion.units}, rest: {motion.rest_pose}; "
+                      f"{motion.table.dialect or 'unknown'} names, {motion.units}, rest: {motion.rest_pose}"
+                      f"{'' if motion.rest_frame is None else f' (frame {motion.rest_frame})'}; "
                       "coloured: joints driving the body", fontsize=9)
 
     verts = pose_body(body, torch.from_numpy(motion.poses[k:k + 1]).to(body.vertices.dtype))[0].double().numpy()
@@ -105,7 +119,8 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
         ax.set_aspect("equal")
         ax.set_xlabel("x (m, the body's left)")
         ax.set_ylabel("y (m, up)")
-    fig.suptitle(f"{Path(bvh.path).name}: seen from the front, root at the origin", fontsize=10)
+    fig.suptitle(f"{Path(bvh.path).name}: seen from the front, the pelvis ({bvh.names[motion.pelvis]}) at the origin",
+                 fontsize=10)
     fig.tight_layout()
     out = Path(path)
     tmp = out.with_name(out.name + ".part.png")

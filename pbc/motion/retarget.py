@@ -16,17 +16,18 @@ parent's, in its rest frame F_j: R_j = F_j^T M_parent^T M_j F_j. A body joint th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 from omegaconf import OmegaConf
 from scipy.spatial.transform import Rotation, Slerp
 
 from pbc.core.paths import CONF_DIR
-from pbc.geometry.body.skeleton import Skeleton
+from pbc.geometry.body.skeleton import Skeleton, forward_kinematics
 from pbc.motion.bvh import Bvh, BvhError, check_skeleton, read_bvh
-from pbc.motion.dialects import JointMap, dialect_settings, match_joints
+from pbc.motion.dialects import JointMap, ancestors, dialect_settings, lowest_common_ancestor, match_joints
 
 MOTION_CONF = CONF_DIR / "motion"
 SETTINGS = "sequence"  # conf/motion/sequence.yaml: not a joint map
@@ -59,8 +60,22 @@ def load_joint_map(name_or_path: str | Path) -> JointMap:
                          "'bones' list, as conf/motion/cmu_mb.yaml")
     joints = {str(k): str(v) for k, v in cfg["joints"].items() if v is not None}
     why = {j: f"row of {p.name}" for j in joints}
+    ft = cfg.get("frame_time")
     return JointMap(p.stem, p, joints, tuple(str(b) for b in cfg.get("bones") or ()), why,
-                    dialect=f"table {p.stem}")
+                    dialect=f"table {p.stem}",
+                    frame_time=(float(ft["header"]), float(ft["capture"])) if isinstance(ft, dict) else None,
+                    units=str(cfg["units"]) if cfg.get("units") else None)
+
+
+def capture_rate(bvh: Bvh, table: JointMap) -> tuple[Bvh, str | None]:
+    """The clip at its capture's rate: a header carrying its converter's default frame time (the table's
+    `frame_time.header`, e.g. amc2bvh's 30 fps for CMU's 120 fps captures) gets the capture's, with a note."""
+    if table.frame_time is None or abs(bvh.frame_time - table.frame_time[0]) > 1e-5:
+        return bvh, None
+    header, capture = table.frame_time
+    return replace(bvh, frame_time=capture), (
+        f"the header's {1 / header:g} fps is {table.name}'s converter default: played at the capture's "
+        f"{1 / capture:g} fps (conf/motion/{table.name}.yaml frame_time)")
 
 
 def choose_joint_map(bvh: Bvh, spec: str | Path = "auto") -> JointMap:
@@ -123,14 +138,18 @@ def file_axes(p: np.ndarray, h: np.ndarray) -> np.ndarray:
     return snap
 
 
-def detect_units(p: np.ndarray, h: np.ndarray, units: dict, tolerance: float = 1.6) -> tuple[str, float]:
+def detect_units(p: np.ndarray, h: np.ndarray, units: dict, tolerance: float = 1.6,
+                 expected: str | None = None) -> tuple[str, float]:
     """(unit name, metres per file unit) from the size of skeleton p (n, 3) against the body's h (n, 3): the
-    nearest unit in log ratio when within `tolerance` of it, else a scaled rig ("cm x2.00", its measured
-    metres per unit: a Mixamo character exported at twice the size)."""
+    `expected` unit (the dialect's) when within `tolerance` of it, else the nearest unit in log ratio when
+    within `tolerance` of it, else a scaled rig ("cm x2.00", its measured metres per unit: a Mixamo character
+    exported at twice the size)."""
     hn, pn = np.linalg.norm(h, axis=1).sum(), np.linalg.norm(p, axis=1).sum()
     if hn <= 0 or pn <= 0:
         return "unknown", 1.0
     mpu = hn / pn
+    if expected in units and max(mpu / float(units[expected]), float(units[expected]) / mpu) <= tolerance:
+        return expected, float(units[expected])
     name = min(units, key=lambda u: abs(np.log(mpu / float(units[u]))))
     ratio = mpu / float(units[name])
     if max(ratio, 1 / ratio) <= tolerance:
@@ -146,11 +165,11 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
 
 
-def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_joints=()) -> str:
+def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_joints=(), pelvis: int = 0) -> str:
     """The clip's rest pose (positions rest (J, 3)): "T-pose", "A-pose", "arms down", "arms up", "standing"
     (no arms matched) or "flat" (the skeleton lies along one direction at zero rotation, its orientation in
-    the channels: Bandai Namco), from the angles between the spine and the upper arm and the thigh. bvh_joints:
-    the clip's joints (an upper arm without a `toward` points at its first child)."""
+    the channels: Bandai Namco), from the angles between the spine (from joint `pelvis` up) and the upper arm
+    and the thigh. bvh_joints: the clip's joints (an upper arm without a `toward` points at its first child)."""
     body = dialect_settings().body
     m = table.joints
 
@@ -166,9 +185,9 @@ def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_join
 
     top = next((pos(j) for j in [body.head, *reversed(list(body.neck)), *reversed(list(body.spine))]
                 if pos(j) is not None), None)
-    if top is None or not np.linalg.norm(top - rest[0]) > 0:
+    if top is None or not np.linalg.norm(top - rest[pelvis]) > 0:
         return "unknown"
-    up = top - rest[0]
+    up = top - rest[pelvis]
     arms = [_angle(b, up) for b in (bone(body.limbs.l.upper_arm), bone(body.limbs.r.upper_arm)) if b is not None]
     legs = [_angle(pos(body.limbs[s].shin) - pos(body.limbs[s].thigh), up) for s in "lr"
             if pos(body.limbs[s].shin) is not None and pos(body.limbs[s].thigh) is not None]
@@ -185,6 +204,126 @@ def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_join
     if a <= hi:
         return "T-pose"
     return "A-pose" if a < cfg.arms_down_deg else "arms down"
+
+
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) degrees between vectors a and b (..., 3); nan where one is zero."""
+    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.einsum("...i,...i->...", a, b) / (na * nb)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def posture_angles(pos: np.ndarray, index: dict, table: JointMap) -> dict[str, np.ndarray]:
+    """How far each frame stands from a rest pose, from the clip's joint positions pos (F, J, 3) in its
+    pelvis's frame (degrees, (F,) each; nan where the clip lacks the joints): `knee_bend` the larger angle
+    between a thigh and its shin, `leg_from_spine` the smaller angle between a thigh and the spine (180:
+    standing), `spine_bend` between the lower and the upper trunk, `arm_from_spine` the smaller angle between
+    an upper arm and the spine (90: a T-pose, 180: arms down)."""
+    body = dialect_settings().body
+    m = table.joints
+    nan = np.full(len(pos), np.nan)
+
+    def at(body_joint):
+        return pos[:, index[m[body_joint]]] if m.get(body_joint) in index else None
+
+    trunk = [at(j) for j in [*body.spine, *body.neck, body.head]]
+    trunk = [t for t in trunk if t is not None]
+    if not trunk:
+        return {k: nan for k in ("knee_bend", "leg_from_spine", "spine_bend", "arm_from_spine")}
+    top, mid = trunk[-1], at(body.spine[-1])
+    up = top  # the pelvis is the origin
+    knees, legs, arms = [], [], []
+    for side in "lr":
+        limb = body.limbs[side]
+        hip, knee, foot = at(limb.thigh), at(limb.shin), at(limb.foot)
+        if hip is not None and knee is not None and foot is not None:
+            knees.append(_angles(knee - hip, foot - knee))
+            legs.append(_angles(knee - hip, up))
+        arm, fore = at(limb.upper_arm), at(limb.forearm)
+        if arm is not None and fore is not None:
+            arms.append(_angles(fore - arm, up))
+    out = {"knee_bend": np.max(knees, 0) if knees else nan, "leg_from_spine": np.min(legs, 0) if legs else nan,
+           "spine_bend": _angles(mid, top - mid) if mid is not None and mid is not top else nan,
+           "arm_from_spine": np.min(arms, 0) if arms else nan}
+    return out
+
+
+def rest_problems(angles: dict[str, np.ndarray], cfg) -> list[list[str]]:
+    """Per frame, what keeps it from standing as a rest pose (conf/motion/dialects.yaml rest.frame); [] for a
+    frame that stands as one. angles: `posture_angles`."""
+    lim = cfg.frame
+    tests = [("knee_bend", lambda a: a > lim.max_knee_bend_deg, "knees bent {:.0f} degrees"),
+             ("leg_from_spine", lambda a: a < lim.min_leg_from_spine_deg, "legs {:.0f} degrees from the spine "
+                                                                          "(not standing)"),
+             ("spine_bend", lambda a: a > lim.max_spine_bend_deg, "trunk bent {:.0f} degrees"),
+             ("arm_from_spine", lambda a: a < lim.min_arm_from_spine_deg, "arms {:.0f} degrees from the spine "
+                                                                          "(raised)")]
+    n = len(next(iter(angles.values())))
+    out: list[list[str]] = [[] for _ in range(n)]
+    for key, bad, text in tests:
+        a = angles[key]
+        known = np.isfinite(a)  # a clip without the joints says nothing against a frame
+        for f in np.flatnonzero(known & bad(np.where(known, a, 0.0))):
+            out[f].append(text.format(float(a[f])))
+    return out
+
+
+def choose_rest_frame(bvh: Bvh, pelvis: int, index: dict, table: JointMap, cfg) -> tuple[int, str]:
+    """(frame, why) of the clip's frame to stand in for a rest its OFFSETs do not give: frame 0 when it stands
+    as a rest pose (`rest_problems`), else the frame nearest a neutral stance among those that do. Raises
+    BvhError naming frame 0's problems and --rest-frame when no frame stands as one."""
+    pos, _ = bvh.pelvis_relative(pelvis)
+    angles = posture_angles(pos, index, table)
+    problems = rest_problems(angles, cfg)
+    if not problems[0]:
+        return 0, "frame 0 stands as a rest pose"
+    good = np.flatnonzero([not p for p in problems])
+    if len(good) == 0:
+        raise BvhError(f"{bvh.path}: its rest skeleton lies flat and no frame stands as a rest pose (frame 0: "
+                       f"{', '.join(problems[0])}); give the frame of a rest pose (standing, arms out or down) with "
+                       "--rest-frame K (`pbc motion inspect CLIP --frame K` shows a frame)")
+    lean = (np.nan_to_num(angles["knee_bend"]) + np.nan_to_num(180.0 - angles["leg_from_spine"])
+            + np.nan_to_num(angles["spine_bend"]))
+    best = int(good[np.argmin(lean[good])])
+    return best, f"frame 0 does not stand as a rest: {', '.join(problems[0])}; --rest-frame K picks another"
+
+
+def sanity_report(poses: np.ndarray, skeleton: Skeleton, height_m: float, cfg) -> dict:
+    """Whether retargeted poses (N, J, 3, 3) show a person as a person stands: the trunk upright over the
+    pelvis (median tilt of the body's head from straight above its lower back), the feet under the hips (the
+    share of frames with both ankles below both hips) and the clip's skeleton height (metres) in range
+    (conf/motion/sequence.yaml sanity). Returns the measures and `problems` (empty: sane). Up to
+    cfg.max_frames frames, spread over the clip, are looked at."""
+    pick = np.unique(np.linspace(0, len(poses) - 1, min(len(poses), int(cfg.max_frames))).round().astype(int))
+    t = forward_kinematics(skeleton, torch.from_numpy(np.ascontiguousarray(poses[pick])).double()).numpy()
+    heads = skeleton.rest_heads.double().numpy()
+    pos = np.einsum("fjab,jb->fja", t[:, 1:, :3, :3], heads) + t[:, 1:, :3, 3]  # (F, J, 3)
+    names = list(skeleton.names)
+    body = dialect_settings().body
+    out: dict = {"frames_checked": int(len(pick)), "height_m": round(float(height_m), 3), "problems": []}
+    lo_h, hi_h = cfg.height_m
+    if not lo_h <= height_m <= hi_h:
+        out["problems"].append(f"the skeleton is {height_m:.2f} m tall, outside {lo_h:g}-{hi_h:g} m (its unit or "
+                               "its rest misread)")
+    top = next((j for j in [body.head, *reversed(list(body.neck)), *reversed(list(body.spine))] if j in names), None)
+    base = next((j for j in body.spine if j in names), None)
+    if top is not None and base is not None and top != base:
+        tilt = _angles(pos[:, names.index(top)] - pos[:, names.index(base)], np.array([0.0, 1.0, 0.0]))
+        out["trunk_tilt_deg"] = round(float(np.median(tilt)), 1)
+        if out["trunk_tilt_deg"] > cfg.max_trunk_tilt_deg:
+            out["problems"].append(f"the trunk leans {out['trunk_tilt_deg']:.0f} degrees from upright over the "
+                                   f"pelvis in the median frame (at most {cfg.max_trunk_tilt_deg:g}: the body lies "
+                                   "down or stands on its head)")
+    legs = [(body.limbs[s].thigh, body.limbs[s].foot) for s in "lr"]
+    if all(h in names and f in names for h, f in legs):
+        hip_y = np.min([pos[:, names.index(h), 1] for h, _ in legs], 0)
+        foot_y = np.max([pos[:, names.index(f), 1] for _, f in legs], 0)
+        out["feet_under_hips"] = round(float(np.mean(foot_y < hip_y)), 3)
+        if out["feet_under_hips"] < cfg.min_feet_under_hips:
+            out["problems"].append(f"the feet are below the hips in {out['feet_under_hips']:.0%} of the frames "
+                                   f"(at least {cfg.min_feet_under_hips:.0%} expected)")
+    return out
 
 
 @dataclass
@@ -206,11 +345,14 @@ class Motion:
     notes: list[str] = field(default_factory=list)
     rest_pose: str = ""  # the file's rest: T-pose, A-pose, arms down, flat (then frame 0 stands in for it), ...
     height_m: float = 0.0  # the clip's skeleton, head to lowest joint at its rest (or frame 0), metres
+    rest_frame: int | None = None  # the clip frame standing in for its rest (None: its OFFSETs' layout)
+    pelvis: int = 0  # the clip joint whose frame is the body's root frame (index into the clip's joints)
+    sanity: dict = field(default_factory=dict)  # `sanity_report`: the measures and the problems found
 
     def summary(self) -> dict:
         return {"joint_map": str(self.table.path or self.table.name), "dialect": self.table.dialect,
                 "units": self.units, "metres_per_unit": self.metres_per_unit, "rest_pose": self.rest_pose,
-                "height_m": round(self.height_m, 4),
+                "height_m": round(self.height_m, 4), "rest_frame": self.rest_frame, "sanity": self.sanity,
                 "fps": self.fps, "frames": len(self.poses), "mapped": self.mapped, "ignored": self.ignored,
                 "unknown": self.unknown, "at_rest": self.missing, "source_frames": [
                     round(float(f), 4) for f in self.source_frames]}
@@ -258,13 +400,18 @@ def must_drive(skeleton: Skeleton, mapped: dict) -> list[str]:
 
 
 def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = slice(None),
-                 fps: float | None = None, allow_rest: bool = False, max_frames: int | None = None) -> Motion:
+                 fps: float | None = None, allow_rest: bool = False, max_frames: int | None = None,
+                 rest_frame: int | None = None, trust: bool = False) -> Motion:
     """The body's poses (N, J, 3, 3) for the clip's `frames` (a slice of its frames), resampled at `fps`
-    (None: the clip's frames as selected). Raises BvhError when no joint of the clip is in the table, or
-    when the body's arms, legs or spine would stay at rest (`allow_rest` goes on with them at rest), and
-    ValueError for a request of more than `max_frames` poses (None: conf/motion/sequence.yaml's)."""
+    (None: the clip's frames as selected). `rest_frame`: the clip frame whose posture is its rest (None: the
+    OFFSETs' layout, or for a skeleton lying flat a frame standing as a rest, `choose_rest_frame`). Raises
+    BvhError when no joint of the clip is in the table, when the body's arms, legs or spine would stay at rest
+    (`allow_rest` goes on with them at rest), when no frame stands as a rest, or when the retargeted clip fails
+    `sanity_report` (`trust` goes on, the problems in Motion.sanity); ValueError for a request of more than
+    `max_frames` poses (None: conf/motion/sequence.yaml's) or a rest_frame outside the clip."""
     settings = motion_settings()
     check_skeleton(bvh)
+    bvh, rate_note = capture_rate(bvh, table)
     names = list(skeleton.names)
     index = {n: i for i, n in enumerate(bvh.names)}
     mapped = {j: table.joints[j] for j in names if table.joints.get(j) in index}
@@ -288,7 +435,7 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
                        f"{', '.join(free[:20]) or 'none'}{' ...' if len(free) > 20 else ''}); map them in a joint "
                        "map (--bvh-map FILE.yaml, rows 'body joint: clip joint' as conf/motion/cmu_mb.yaml; "
                        "`pbc motion inspect` shows the match), or go on with them at rest with --allow-rest")
-    notes = []
+    notes = [rate_note] if rate_note else []
     if unknown:
         notes.append(f"{len(unknown)} BVH joints are not in the joint map {table.path} (another dialect?): "
                      f"{', '.join(unknown)}; add them to its rows or bones, or pick another table with --bvh-map")
@@ -303,17 +450,34 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
     idx = output_frames(bvh, frames, fps)
     check_frame_count(bvh, idx, fps, limit)
 
-    # the rest: the OFFSETs' layout; a skeleton lying flat (its orientation in the channels) takes frame 0's
-    # posture as its rest instead, each joint's rotation then taken relative to frame 0's
+    # the model's root frame is the clip's pelvis: where the joints driving the body's roots (its lower back
+    # and hips) meet; each rotation and position below is taken in its frame
+    roots = [index[mapped[j]] for j, par in zip(names, skeleton.parents, strict=True) if par < 0 and j in mapped]
+    pelvis = lowest_common_ancestor(bvh, roots) if len(roots) > 1 else 0
+    # the rest: the OFFSETs' layout; a skeleton lying flat (its orientation in the channels) takes a frame's
+    # posture as its rest instead (`rest_frame`, else frame 0 when it stands as a rest, else the clip's most
+    # rest-like frame), each joint's rotation then taken relative to that frame's
+    rest_cfg = dialect_settings().rest
     rest = bvh.rest_positions()
-    kind = rest_pose_kind(rest, index, table, dialect_settings().rest, bvh.joints)
+    rest = rest - rest[pelvis]
+    kind = rest_pose_kind(rest, index, table, rest_cfg, bvh.joints, pelvis)
     ref = np.tile(np.eye(3), (len(bvh.joints), 1, 1))
-    if kind == "flat":
-        ref = bvh.root_relative_rotations(slice(0, 1))[0]
-        rest = bvh.root_relative_positions(slice(0, 1))[0]
-        frame0 = rest_pose_kind(rest, index, table, dialect_settings().rest, bvh.joints)
-        notes.append(f"the clip's rest skeleton lies flat (its orientation is in the channels): frame 0 ({frame0}) "
-                     "stands in for its rest")
+    rest_at = None
+    if rest_frame is not None:
+        if isinstance(rest_frame, bool) or not isinstance(rest_frame, int) or not (
+                -bvh.num_frames <= rest_frame < bvh.num_frames):
+            raise ValueError(f"--rest-frame {rest_frame!r}: {bvh.path} has frames 0 to {bvh.num_frames - 1}; give "
+                             "the frame of a rest pose (standing, arms out or down)")
+        rest_at = rest_frame % bvh.num_frames
+        why_rest = "given by --rest-frame"
+    elif kind == "flat":
+        rest_at, why_rest = choose_rest_frame(bvh, pelvis, index, table, rest_cfg)
+    if rest_at is not None:
+        pos_k, rot_k = bvh.pelvis_relative(pelvis, slice(rest_at, rest_at + 1))
+        ref, rest = rot_k[0], pos_k[0]
+        kind_at = rest_pose_kind(rest, index, table, rest_cfg, bvh.joints, pelvis)
+        notes.append(f"frame {rest_at} ({kind_at}) stands in for the clip's rest ({why_rest}"
+                     + ("; the rest skeleton lies flat, its orientation in the channels)" if kind == "flat" else ")"))
     heads = skeleton.rest_heads.double().numpy()
     body_frames = skeleton.frames().double().numpy()
     order = [j for j in names if j in mapped]
@@ -326,10 +490,13 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
         body_cfg.limbs[s][r] for s in "lr" for r in ("clavicle", "upper_arm", "thigh"))}
     trunk = [k for k, j in enumerate(order) if j in trunk_roles]
     axes = file_axes(p[trunk], h[trunk]) if len(trunk) >= 3 else file_axes(p, h)
-    unit, mpu = detect_units(p, h, OmegaConf.to_container(settings.units), float(settings.units_tolerance))
+    unit, mpu = detect_units(p, h, OmegaConf.to_container(settings.units), float(settings.units_tolerance),
+                             table.units)
     up = axes.T @ np.array([0.0, 1.0, 0.0])
-    every = np.concatenate([rest, np.stack([rest[k] + ref[k] @ jt.end for k, jt in enumerate(bvh.joints)
-                                            if jt.end is not None] or [rest[:1]])])
+    below = [k for k in range(len(bvh.joints)) if pelvis in ancestors(bvh, k)]  # the body: joints above the
+    # pelvis (a joint_Root on the floor) are not part of it
+    every = np.concatenate([rest[below], np.stack([rest[k] + ref[k] @ bvh.joints[k].end for k in below
+                                                   if bvh.joints[k].end is not None] or [rest[below[:1]]])])
     height = float((every @ up).max() - (every @ up).min()) * mpu
 
     # rest alignment A_j: the body's rest bone direction onto the file's
@@ -358,7 +525,7 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
         if foot in align and shin in align and not any(p == names.index(foot) for p in skeleton.parents):
             align[foot] = align[shin]
 
-    q = bvh.root_relative_rotations(idx) @ np.swapaxes(ref, -1, -2)  # (F, Jb, 3, 3), file axes, from the rest
+    q = bvh.pelvis_relative(pelvis, idx)[1] @ np.swapaxes(ref, -1, -2)  # (F, Jb, 3, 3), file axes, from the rest
     out = np.tile(np.eye(3), (len(idx), len(names), 1, 1))
     glob = [None] * len(names)
     for i, j in enumerate(names):
@@ -385,13 +552,19 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
         src = idx[0] + t_new[:len(out)] / dt
         rate = float(fps)
     times = (src - src[0]) * dt
+    sanity = sanity_report(out, skeleton, height, settings.sanity)
+    if sanity["problems"] and not trust:
+        raise BvhError(f"{bvh.path}: the clip retargeted onto the body does not stand as a person: "
+                       f"{'; '.join(sanity['problems'])}; see what pbc made of it with `pbc motion inspect "
+                       f"{bvh.path}` and fix its rest (--rest-frame K) or its joint map (--bvh-map FILE.yaml), or "
+                       "go on as it is with --trust-clip")
     return Motion(out, times, src, rate, table, unit, mpu, axes, mapped, ignored, unknown, missing, notes, kind,
-                  height)
+                  height, rest_at, pelvis, sanity)
 
 
 def poses_from_clip(path: str | Path, skeleton: Skeleton, joint_map: str | Path = "auto",
                     frames: str | slice | None = None, fps: float | None = None, allow_rest: bool = False,
-                    max_frames: int | None = None) -> Motion:
+                    max_frames: int | None = None, rest_frame: int | None = None, trust: bool = False) -> Motion:
     """The one door from a motion clip to the body's poses (Motion.poses (N, J, 3, 3)): read the .bvh, match
     its joints (`joint_map`: "auto" = a shipped table knowing every joint, else by name and structure; a
     table's name or a YAML file wins), `frames` a START:STOP:STEP string or a slice of its frames, resampled
@@ -399,4 +572,5 @@ def poses_from_clip(path: str | Path, skeleton: Skeleton, joint_map: str | Path 
     bvh = read_bvh(path)
     check_skeleton(bvh)
     chosen = frames if isinstance(frames, slice) else parse_frames(frames)
-    return bvh_to_poses(bvh, skeleton, choose_joint_map(bvh, joint_map), chosen, fps, allow_rest, max_frames)
+    return bvh_to_poses(bvh, skeleton, choose_joint_map(bvh, joint_map), chosen, fps, allow_rest, max_frames,
+                        rest_frame, trust)

@@ -19,6 +19,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from pbc.geometry.body.skeleton import forward_kinematics
+from pbc.motion.dialects import split_name
 
 # (key, parent key, T-pose head in metres: x left, y up, z forward); the spine and neck are filled per dialect
 LIMBS = [
@@ -130,8 +131,9 @@ def rest_layout(joints, ends, style: str):
 
 
 def clip_text(dialect: str, n_frames: int = 5, seed: int = 0, prefix: str | None = None, scale: float | None = None,
-              max_deg: float = 50.0, frame_time: float = 1 / 30) -> str:
-    """A BVH clip of `dialect` with random joint rotations (up to max_deg about each axis) and root motion."""
+              max_deg: float = 50.0, frame_time: float = 1 / 30, trunk_deg: float = 8.0) -> str:
+    """A BVH clip of `dialect` with random joint rotations (up to max_deg about each axis of a limb's joint,
+    trunk_deg of the spine's and the neck's: a person stays upright over the pelvis) and root motion."""
     d = DIALECTS[dialect]
     scale = d["scale"] if scale is None else scale
     joints, ends = skeleton(dialect, prefix)
@@ -141,8 +143,10 @@ def clip_text(dialect: str, n_frames: int = 5, seed: int = 0, prefix: str | None
     J = len(joints)
     kids = {i: [k for k in range(J) if joints[k][1] == i] for i in range(J)}
     # the world pose W (F, J, 3, 3): the root random, each joint a random turn of its parent's
-    local = Rotation.from_euler("xyz", rng.uniform(-max_deg, max_deg, (n_frames * J, 3)), degrees=True) \
-        .as_matrix().reshape(n_frames, J, 3, 3)
+    limit = np.array([max_deg if split_name(name)[0] is not None or par < 0 else trunk_deg
+                      for name, par, *_ in joints])
+    local = Rotation.from_euler("xyz", (rng.uniform(-1.0, 1.0, (n_frames, J, 3)) * limit[:, None]).reshape(-1, 3),
+                                degrees=True).as_matrix().reshape(n_frames, J, 3, 3)
     local[0, 1:] = np.eye(3)  # frame 0 stands at the file's rest posture (a converter's calibration frame)
     world = np.empty_like(local)
     for j, (_, par, _, _) in enumerate(joints):

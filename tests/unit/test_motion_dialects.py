@@ -98,12 +98,15 @@ def test_a_limb_left_at_rest_is_refused_unless_allowed(tmp_path):
                                        r".*UpperArm_L.*--bvh-map FILE.*--allow-rest") as e:
         poses_from_clip(path, SKEL, joint_map="cmu_mb")
     assert str(e.value).startswith(f"{path}:2: ") and "\n" not in str(e.value)
-    m = poses_from_clip(path, SKEL, joint_map="cmu_mb", allow_rest=True)
+    # a clip read through another dialect's table: neither a person's height nor upright, refused for that too
+    with pytest.raises(BvhError, match="does not stand as a person"):
+        poses_from_clip(path, SKEL, joint_map="cmu_mb", allow_rest=True)
+    m = poses_from_clip(path, SKEL, joint_map="cmu_mb", allow_rest=True, trust=True)
     np.testing.assert_allclose(m.poses[:, SKEL.index("l_arm")], np.eye(3)[None].repeat(len(m.poses), 0), atol=1e-12)
     # a table given as a file wins over the match
     table = tmp_path / "mine.yaml"
     table.write_text("joints: {l_arm: UpperArm_R, r_arm: UpperArm_L, spine1: Chest}\nbones: []\n")
-    mine = poses_from_clip(path, SKEL, joint_map=str(table))
+    mine = poses_from_clip(path, SKEL, joint_map=str(table), trust=True)
     assert mine.mapped == {"spine1": "Chest", "l_arm": "UpperArm_R", "r_arm": "UpperArm_L"}
 
 
