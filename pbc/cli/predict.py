@@ -14,8 +14,7 @@ import numpy as np
 from pbc.cli.errors import entry_point
 from pbc.inference.poses import check_max_poses, read_motion, read_poses
 from pbc.inference.predictor import ClothPredictor, fit_training_pca, pretrained_run, stitch_config
-from pbc.jobs.predict import predict_sequence, predict_to_dir
-from pbc.motion.ranges import range_summary
+from pbc.jobs.predict import GUARDS, clip_summary, predict_sequence, predict_to_dir
 from pbc.motion.retarget import shipped_joint_maps
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
@@ -26,12 +25,14 @@ EXAMPLES = """examples:
   pbc predict runs/main/latest/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
   pbc predict runs/main/latest/whole --patches runs/patches --method pca --poses test --format ply
   pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: meshes, video, GLB
-  pbc predict runs/main/latest/whole --poses walk.bvh --fps 30 --clamp-to-range --bvh-map my_rig.yaml
+  pbc predict runs/main/latest/whole --poses walk.bvh --fps 30 --guard range --bvh-map my_rig.yaml
+  pbc predict --pretrained tshirt --poses dance.bvh --rest-frame 40     # a clip whose rest is its frame 40
   pbc predict runs/shapes/whole --poses walk.bvh --person 3            # a data.body_shape run: on person 3
 """
 # the options that only a BVH clip takes, and their defaults
-MOTION_OPTIONS = {"bvh_map": "auto", "frames": None, "fps": None, "clamp_to_range": False, "video": "mp4",
-                  "no_glb": False, "allow_rest": False, "max_frames": None}
+MOTION_OPTIONS = {"bvh_map": "auto", "frames": None, "fps": None, "clamp_to_range": False, "guard": None,
+                  "video": "mp4", "no_glb": False, "allow_rest": False, "max_frames": None, "rest_frame": None,
+                  "trust_clip": False}
 
 
 def parser() -> argparse.ArgumentParser:
@@ -73,8 +74,16 @@ def parser() -> argparse.ArgumentParser:
                         "match no joint of the clip (they stay at rest; refused otherwise)")
     motion.add_argument("--max-frames", type=int, metavar="N", help="the most frames a request may make "
                         "(default: max_frames of conf/motion/sequence.yaml, 100000)")
-    motion.add_argument("--clamp-to-range", action="store_true", help="clamp joint angles into the training poses' "
-                        "range before predicting (frames outside are flagged either way)")
+    motion.add_argument("--guard", choices=GUARDS, help="frames past the model's data (flagged either way): "
+                        "nearest turns each towards its nearest training pose to the limit, range clamps the joint "
+                        "angles into the training poses' range, none predicts them as they are (default: guard of "
+                        "conf/motion/sequence.yaml, nearest)")
+    motion.add_argument("--clamp-to-range", action="store_true", help="the same as --guard range")
+    motion.add_argument("--rest-frame", type=int, metavar="K", help="the clip frame whose posture is its rest "
+                        "(default: its OFFSETs' layout, or for a skeleton lying flat a frame standing as a rest; "
+                        "`pbc motion inspect CLIP` shows which)")
+    motion.add_argument("--trust-clip", action="store_true", help="go on when the retargeted clip fails the sanity "
+                        "check (trunk upright, feet under the hips, a person's height; refused otherwise)")
     motion.add_argument("--video", choices=("mp4", "gif", "none"), default="mp4", help="body + garment video "
                         "(default mp4)")
     motion.add_argument("--no-glb", action="store_true", help="no animated garment.glb")
@@ -125,17 +134,20 @@ def run(argv: list[str]) -> int:
 
 def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
     """--poses clip.bvh: the clip read and checked whole before anything is written."""
+    if args.clamp_to_range and args.guard not in (None, "range"):
+        raise ValueError(f"--clamp-to-range is --guard range: give one of them, not --guard {args.guard} too")
     motion = read_motion(args.poses, predictor.dataset, args.bvh_map, args.frames, args.fps, args.allow_rest,
-                         args.max_frames)
+                         args.max_frames, args.rest_frame, args.trust_clip)
     if args.max is not None:
         motion = dataclasses.replace(motion, poses=motion.poses[:args.max], times=motion.times[:args.max],
                                      source_frames=motion.source_frames[:args.max])
     res = predict_sequence(predictor, motion, out, args.format, None if args.video == "none" else args.video,
-                           not args.no_glb, args.body, args.clamp_to_range, args.batch_size, args.model,
+                           not args.no_glb, args.body, "range" if args.clamp_to_range else args.guard,
+                           args.batch_size, args.model,
                            dict(info, frames=args.frames, fps=args.fps), person=args.person)
-    for note in res["notes"]:  # the clip's mapping, and where the training range came from when not the run
+    for note in res["notes"][len(motion.notes):]:  # where the training range came from when not the run
         print(note)
-    print(range_summary(res["pose_range"]))
+    print(clip_summary(motion, res["pose_range"]))
     extra = ", ".join(res["files"][k] for k in ("video", "glb") if k in res["files"])
     print(f"{res['num_poses']} frames ({motion.table.name} joint map, {motion.units}, {motion.fps:g} fps) -> "
           f"{out}/meshes/frame_*.{args.format} ({res['model']} model){', ' + extra if extra else ''}, "

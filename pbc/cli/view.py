@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import argparse
 
+import torch
+
 from pbc.cli.errors import entry_point
 from pbc.inference.predictor import ClothPredictor, pretrained_run, stitch_config
+from pbc.jobs.predict import GUARDS, clip_summary, guard_frames
 from pbc.jobs.view import check_port, load_sequence, start_viewer, stop_within, url, view_config, wait_forever
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
@@ -50,6 +53,12 @@ def parser() -> argparse.ArgumentParser:
                                                        "automatically, as pbc predict --poses clip.bvh)")
     ap.add_argument("--allow-rest", action="store_true", help="a .bvh sequence: go on when the body's arms, legs or "
                     "spine match no joint of the clip (they stay at rest; refused otherwise)")
+    ap.add_argument("--rest-frame", type=int, metavar="K", help="a .bvh sequence: the clip frame whose posture is its "
+                    "rest (default: found, as pbc predict)")
+    ap.add_argument("--trust-clip", action="store_true", help="a .bvh sequence: go on when the retargeted clip fails "
+                    "the sanity check (refused otherwise)")
+    ap.add_argument("--guard", choices=GUARDS, help="a .bvh sequence: frames past the model's data, as pbc predict "
+                    "--guard (default: conf/motion/sequence.yaml guard)")
     ap.add_argument("--data", metavar="DIR", help="the runs' dataset, when it moved from where they recorded it")
     ap.add_argument("--host", default=str(cfg.host), help=f"address to serve on (default {cfg.host}: this "
                                                           "machine only)")
@@ -72,7 +81,12 @@ def run(argv: list[str]) -> int:
     predictor = ClothPredictor.from_runs(whole, args.patches, stitch, data_dir=args.data)
     if predictor.stitcher is not None and args.pca:
         predictor.stitcher.pca = load_pca(args.pca, dataset_hash(predictor.dataset.dir))
-    sequence, fps = load_sequence(args.sequence, predictor.dataset, args.allow_rest) if args.sequence else (None, None)
+    sequence, fps, motion = (load_sequence(args.sequence, predictor.dataset, args.allow_rest, args.rest_frame,
+                                           args.trust_clip) if args.sequence else (None, None, None))
+    if motion is not None:  # the clip as pbc predict reads it: its summary, its flags, the guard taken
+        guarded, report = guard_frames(predictor, motion.poses, args.guard)
+        sequence = torch.as_tensor(guarded, dtype=torch.float32)
+        print(clip_summary(motion, report), flush=True)
     viewer = start_viewer(predictor, args.host, args.port, sequence, cfg, sequence_fps=fps)
     print(f"pbc view: {url(viewer)}  (Ctrl-C stops it)", flush=True)
     stop_within(float(cfg.stop_grace_s))

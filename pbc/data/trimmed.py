@@ -4,8 +4,9 @@ A shipped model must predict, be scored and flag unseen poses on a machine witho
 whole dataset (6.6 MB of draped vertices for tshirt_small) would outweigh the weights. So it keeps the
 files a predictor reads (garment.obj, cage.json, body.npz, embedding.npz), one split's poses and draped
 vertices (the test split: `--poses test` and the model card's score), and of the training split only what
-is asked of it: its joint-angle range (pbc.motion.ranges compares new poses with it) and its mean offsets
-(the training mean shape, the no-model baseline), in `training.json` + `mean_offsets.npy`.
+is asked of it: its joint-angle range (pbc.motion.ranges compares new poses with it), its mean offsets
+(the training mean shape, the no-model baseline) and its poses (pbc.motion.known measures how far a new pose
+is from them), in `training.json` + `mean_offsets.npy` + `known_poses.npy` (float16: 0.9 MB for 2,400 poses).
 
 It is an ordinary dataset directory (pbc.data.dataset.load_dataset opens it): the kept split becomes its
 only rows, the other splits are empty, and its manifest says what it was cut from (`trimmed_from`).
@@ -27,6 +28,7 @@ from pbc.motion.ranges import EULER, PoseRange
 
 TRAINING_FILE = "training.json"
 MEAN_FILE = "mean_offsets.npy"
+KNOWN_FILE = "known_poses.npy"  # the training split's poses (M, J, 3, 3) float16: what the model knows
 # what a predictor reads besides the arrays (pbc.data.dataset's layout)
 GEOMETRY_FILES = ("garment.obj", "cage.json", "body.npz", "embedding.npz")
 
@@ -76,6 +78,8 @@ def trim_dataset(ds: ClothDataset, out: str | Path, pose_range: PoseRange, mean_
     if mean.shape != (len(ds.garment.vertices), 3):
         raise ValueError(f"mean offsets {mean.shape}, the garment has {len(ds.garment.vertices)} vertices")
     save_npy(out / MEAN_FILE, mean)
+    train = np.asarray(ds.split("train"))
+    save_npy(out / KNOWN_FILE, np.asarray(ds.poses[train], np.float16))
     write_json(out / TRAINING_FILE, {
         "num_train": int(len(ds.split("train"))), "space": space, "mean_offsets": MEAN_FILE,
         "pose_range_deg": range_table(np.asarray(pose_range.deg), names), "pose_range_chart": pose_range.chart})
@@ -121,6 +125,19 @@ def recorded_training_range(ds: ClothDataset) -> PoseRange | None:
                          "(pbc pretrained pack RUN --name NAME)")
     return PoseRange(np.array([[table[n][ax] for ax in AXES] for n in names], dtype=np.float64),
                      s.get("pose_range_chart", EULER))
+
+
+def recorded_known_poses(ds: ClothDataset) -> np.ndarray | None:
+    """The training split's poses (M, J, 3, 3) float32 as recorded by `trim_dataset`; None for a full dataset
+    (take its training split) or a cut-down copy written before it recorded them."""
+    if not is_trimmed(ds) or not (Path(ds.dir) / KNOWN_FILE).is_file():
+        return None
+    known = load_npy(Path(ds.dir) / KNOWN_FILE, mmap=False)
+    j = ds.body.skeleton.num_joints
+    if known.ndim != 4 or known.shape[1:] != (j, 3, 3):
+        raise ValueError(f"{Path(ds.dir) / KNOWN_FILE}: shape {known.shape}, not (M, {j}, 3, 3) for the body's "
+                         f"{j} joints: pack the model again (pbc pretrained pack RUN --name NAME)")
+    return np.asarray(known, np.float32)
 
 
 def recorded_mean_offsets(ds: ClothDataset) -> tuple[torch.Tensor, str] | None:

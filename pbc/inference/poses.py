@@ -13,10 +13,11 @@ import torch
 from torch import Tensor
 
 from pbc.core.validate import as_poses
-from pbc.data.trimmed import recorded_training_range
+from pbc.data.trimmed import recorded_known_poses, recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
 from pbc.motion.fit import clear_clip_arms, cleared_note
+from pbc.motion.known import nearest_known
 from pbc.motion.ranges import PoseRange, angle_range, range_from_record
 from pbc.motion.retarget import Motion, motion_settings, poses_from_clip
 
@@ -101,15 +102,19 @@ def posed_bodies(dataset, poses: Tensor, person=None, chunk: int = 64) -> Tensor
 
 
 def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frames: str | None = None,
-                fps: float | None = None, allow_rest: bool = False, max_frames: int | None = None) -> Motion:
+                fps: float | None = None, allow_rest: bool = False, max_frames: int | None = None,
+                rest_frame: int | None = None, trust: bool = False) -> Motion:
     """A motion clip as the dataset's body's poses (Motion.poses (N, J, 3, 3)) through
     `pbc.motion.retarget.poses_from_clip`: its joints matched by `joint_map` (a table of conf/motion or a YAML
     file; "auto": a shipped table knowing every joint, else by name and structure), `frames` a START:STOP:STEP
     slice of its frames, resampled at `fps` (None: as selected); the body's arms, legs or spine left undriven
-    refused unless `allow_rest`; more than `max_frames` poses refused (None: conf/motion/sequence.yaml's).
+    refused unless `allow_rest`; more than `max_frames` poses refused (None: conf/motion/sequence.yaml's);
+    `rest_frame` the clip frame whose posture is its rest (None: found); a clip failing the sanity check
+    (pbc.motion.retarget.sanity_report) refused unless `trust`.
     Arms the retarget hangs inside the torso are raised out of it (`pbc.motion.fit`; a note says so).
     Bad files: one ValueError naming the line and the fix (pbc.motion.bvh)."""
-    motion = poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames)
+    motion = poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames,
+                             rest_frame, trust)
     motion.poses, turned = clear_clip_arms(motion.poses, dataset.body, motion_settings().clear_arms)
     note = cleared_note(turned)
     if note:
@@ -142,6 +147,45 @@ def run_pose_range(predictor: ClothPredictor) -> tuple[PoseRange, str, str | Non
             f"the range is taken from {where}")
     log.info(note)
     return unread_joints_free(training_pose_range(ds), predictor), where, note
+
+
+def run_known_poses(predictor: ClothPredictor) -> np.ndarray | None:
+    """The poses (M, J, 3, 3) the predictor's model was trained on: a shipped model's recorded ones
+    (pbc.data.trimmed.KNOWN_FILE), else its dataset's training split; None for a shipped model packed before
+    models carried them (its frames are then judged by the joint-angle range alone)."""
+    ds = predictor.dataset
+    recorded = recorded_known_poses(ds)
+    if recorded is not None:
+        return recorded
+    if "trimmed_from" in ds.manifest:
+        return None
+    idx = np.asarray(ds.split("train"))
+    return np.asarray(ds.poses)[idx] if len(idx) else None
+
+
+class KnownPoses(NamedTuple):
+    """What a model knows (pbc.motion.known): its training poses, the joints it reads, and the distance (RMS
+    degrees over those joints) past which a pose is outside its data."""
+
+    poses: np.ndarray  # (M, J, 3, 3)
+    joints: list[int]
+    limit_deg: float
+
+
+def run_known(predictor: ClothPredictor, quantile: float) -> KnownPoses | None:
+    """The predictor's `KnownPoses`, the limit the `quantile` of its test split's distances to the training
+    poses (its val split's where no test split is at hand); None when its training poses or its held-out poses
+    are not at hand."""
+    known = run_known_poses(predictor)
+    if known is None:
+        return None
+    ds = predictor.dataset
+    held = next((np.asarray(ds.split(s)) for s in ("test", "val") if len(ds.split(s))), None)
+    if held is None:
+        return None
+    joints = [int(j) for j in predictor.read_joints()]
+    dist = nearest_known(np.asarray(ds.poses)[held], known, joints).distance_deg
+    return KnownPoses(known, joints, float(np.quantile(dist, quantile)))
 
 
 def unread_joints_free(rng: PoseRange, predictor: ClothPredictor) -> PoseRange:

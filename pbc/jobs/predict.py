@@ -14,10 +14,11 @@ from torch import Tensor
 from pbc.core.io import naming_full_disk, require_free_space, require_writable_dir, save_npy, write_json
 from pbc.core.validate import as_poses
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
-from pbc.inference.poses import posed_bodies, run_pose_range
+from pbc.inference.poses import posed_bodies, run_known, run_pose_range
 from pbc.inference.predictor import ClothPredictor, predict_poses
 from pbc.jobs.writers import FrameObjWriter, VideoWriter, camera, contact_sheet, render_frames, write_glb
-from pbc.motion.ranges import clamp_to_range, range_report
+from pbc.motion.known import nearest_known, pull_towards_known
+from pbc.motion.ranges import clamp_to_range, range_report, range_summary
 from pbc.motion.retarget import Motion, motion_settings
 
 OUT_FULL_FIX = ("free space there or give another output folder (--out DIR); every file already written is "
@@ -82,16 +83,68 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
         return result
 
 
+GUARDS = ("nearest", "range", "none")  # conf/motion/sequence.yaml guard
+
+
+def guard_frames(predictor: ClothPredictor, poses: np.ndarray, guard: str | None = None) -> tuple[np.ndarray, dict]:
+    """A clip's poses (N, J, 3, 3) as the model is asked for them, and what predict.json records of them.
+
+    Each frame is judged by how far it is from the poses the model was trained on (`run_known`, over the joints
+    it reads): flagged past the limit its own test poses set (conf/motion/sequence.yaml known). `guard`
+    (None: conf's): `nearest` turns each flagged frame towards its nearest training pose until it is at the
+    limit (pbc.motion.known.pull_towards_known); `range` clamps each joint into the training poses' joint-angle
+    range; `none` leaves them. A model without its training poses at hand flags by the joint-angle range, and
+    its `nearest` guard clamps to that range. The joint-angle range report is kept either way."""
+    settings = motion_settings()
+    guard = str(settings.guard) if guard is None else guard
+    if guard not in GUARDS:
+        raise ValueError(f"--guard {guard!r}: one of {', '.join(GUARDS)} (conf/motion/sequence.yaml guard)")
+    names = list(predictor.dataset.body.skeleton.names)
+    rng, range_source, range_note = run_pose_range(predictor)
+    tol = float(settings.range_tolerance_deg)
+    report = range_report(poses, rng, names, tol)
+    known = run_known(predictor, float(settings.known.quantile))
+    out = np.asarray(poses, np.float64)
+    if known is not None:
+        near = nearest_known(out, known.poses, known.joints)
+        flagged = near.distance_deg > known.limit_deg
+        report["known"] = {
+            "measure": "RMS angle over the joints the model reads to the nearest training pose (pbc.motion.known)",
+            "limit_deg": round(known.limit_deg, 3), "quantile_of_test_poses": float(settings.known.quantile),
+            "training_poses": int(len(known.poses)), "read_joints": [names[j] for j in known.joints],
+            "distance_deg": [round(float(d), 3) for d in near.distance_deg],
+            "flagged": np.flatnonzero(flagged).tolist(), "num_flagged": int(flagged.sum())}
+        if guard == "nearest":
+            out = pull_towards_known(out, known.poses, known.joints, near, known.limit_deg)
+    else:
+        report["known"] = None
+    if guard == "range" or (guard == "nearest" and known is None):
+        out = clamp_to_range(out, rng, tol)
+    report["guard"] = guard if known is not None or guard != "nearest" else "range (no training poses at hand)"
+    report["clamped"] = guard != "none"
+    report["source"], report["note"] = range_source, range_note
+    return out, report
+
+
+def clip_summary(motion: Motion, report: dict) -> str:
+    """What pbc predict and pbc view print of a clip: its notes, how it was read (dialect, units, rest, rate,
+    frames) and its frames past the model's data with the guard taken (`guard_frames`'s report)."""
+    rest = motion.rest_pose + ("" if motion.rest_frame is None else f", frame {motion.rest_frame} standing in")
+    read = (f"clip: {motion.table.dialect or motion.table.name} names, {motion.units}, rest {rest}, "
+            f"{motion.fps:g} fps, {len(motion.poses)} frames")
+    return "\n".join([*motion.notes, read, range_summary(report)])
+
+
 def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
-                     glb: bool = True, body: bool = False, clamp: bool = False, batch_size: int = 32,
+                     glb: bool = True, body: bool = False, guard: str | None = None, batch_size: int = 32,
                      model: str | None = None, info: dict | None = None, progress: bool = True,
                      person: int | None = None) -> dict:
     """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
     with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
     k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
     animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
-    the frames outside the training poses' range (`run_pose_range`), the seconds of each stage). `clamp`: joint
-    angles clamped into the training range before predicting (the flags are taken before). person: the
+    the frames past the model's data and the guard taken against them (`guard_frames`; the flags are taken
+    before it), the seconds of each stage). person: the
     dataset's person k the clip is played on (None: the base person). Returns predict.json's content."""
     t0 = time.time()
     model = predictor.check_model(model)
@@ -99,11 +152,8 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     settings = motion_settings()
     ds = predictor.dataset
     names = list(ds.body.skeleton.names)
-    rng, range_source, range_note = run_pose_range(predictor)
-    tol = float(settings.range_tolerance_deg)
-    report = range_report(motion.poses, rng, names, tol)
-    poses_np = clamp_to_range(motion.poses, rng, tol) if clamp else motion.poses
-    report["clamped"] = bool(clamp)
+    poses_np, report = guard_frames(predictor, motion.poses, guard)
+    range_source, range_note = report.pop("source"), report.pop("note")
     poses, _ = as_poses(poses_np.astype(np.float32), len(names), joint_names=names, what="motion poses")
     out = require_writable_dir(out, "prediction output directory")
     stages = {"read": round(t0 - (info or {}).get("started", t0), 3)} if info and "started" in info else {}

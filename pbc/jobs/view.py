@@ -41,6 +41,7 @@ from pbc.core.paths import CONF_DIR
 from pbc.geometry.body.base import pose_body
 from pbc.inference.poses import read_motion, read_poses
 from pbc.inference.predictor import ClothPredictor, fit_training_pca, stitch_config
+from pbc.motion.retarget import Motion
 from pbc.sim.poses import euler_xzy_to_matrix
 from pbc.stitch.seams import METHODS, NEEDS_WHOLE
 
@@ -112,11 +113,13 @@ def error_colors(error_cm: np.ndarray, max_cm: float, colormap: str) -> np.ndarr
 # ----------------------------------------------------------------------------- sequences and ports
 
 
-def load_sequence(path: str | Path, dataset, allow_rest: bool = False) -> tuple[Tensor, float | None]:
+def load_sequence(path: str | Path, dataset, allow_rest: bool = False, rest_frame: int | None = None,
+                  trust: bool = False) -> tuple[Tensor, float | None, Motion | None]:
     """A pose sequence for the timeline: an .npy of rotations ((N, J, 3, 3) or (N, J*9), checked by
     `pbc.inference.poses.read_poses`) or a .bvh clip (`pbc.inference.poses.read_motion`: joint map "auto", every
-    frame; `allow_rest`: go on when the body's arms, legs or spine match no joint of the clip) ->
-    (poses (N, J, 3, 3) float32, the clip's frames a second, None for an .npy)."""
+    frame; `allow_rest`: go on when the body's arms, legs or spine match no joint of the clip; `rest_frame`,
+    `trust`: as pbc predict's) -> (poses (N, J, 3, 3) float32, the clip's frames a second, the clip's Motion;
+    None and None for an .npy)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".npy", ".bvh"):
@@ -125,9 +128,9 @@ def load_sequence(path: str | Path, dataset, allow_rest: bool = False) -> tuple[
     if not path.is_file():
         raise ValueError(f"sequence file {path} does not exist")
     if suffix == ".bvh":
-        motion = read_motion(path, dataset, allow_rest=allow_rest)
-        return torch.as_tensor(np.asarray(motion.poses), dtype=torch.float32), float(motion.fps)
-    return read_poses(path, dataset)[0], None
+        motion = read_motion(path, dataset, allow_rest=allow_rest, rest_frame=rest_frame, trust=trust)
+        return torch.as_tensor(np.asarray(motion.poses), dtype=torch.float32), float(motion.fps), motion
+    return read_poses(path, dataset)[0], None, None
 
 
 def check_port(port) -> int:
@@ -194,6 +197,9 @@ class ClothViewer:
         self._dataset_index = self._dataset_poses()
         self._build_scene()
         self._build_gui()
+        if self.sequence is not None:  # a sequence opens on its own first frame
+            self._on_frame()
+            return
         first = next((name for name in self._dataset_index if name.startswith("test")), NO_POSE)
         self.pose_dropdown.value = first  # the first test pose, with its simulation, else the rest pose
         if first == NO_POSE:

@@ -152,7 +152,17 @@ def range_report(poses, rng: PoseRange, names: Sequence[str], tol: float) -> dic
 
 
 def range_summary(report: dict) -> str:
-    """One line for the console."""
+    """One line for the console: the frames past what the model knows (report["known"], pbc.motion.known) and
+    the guard taken, else the frames outside the joint-angle range."""
+    known, guard = report.get("known"), report.get("guard")
+    if known:
+        n, total = known["num_flagged"], report["num_frames"]
+        how = {"nearest": "turned towards their nearest training pose to the limit",
+               "range": "clamped into the training poses' joint-angle range",
+               "none": "predicted as they are (--guard nearest turns them towards the data)"}.get(guard, guard)
+        return (f"{n} of {total} frames are past the model's data (their nearest training pose more than "
+                f"{known['limit_deg']:.1f} degrees away, RMS over the {len(known['read_joints'])} joints it reads; "
+                f"predict.json pose_range.known)" + (f": {how}" if n else ""))
     n, total = report["num_outside"], report["num_frames"]
     if not n:
         return f"all {total} frames are inside the training poses' joint-angle range"
@@ -161,7 +171,7 @@ def range_summary(report: dict) -> str:
             f"extrapolates there; frames in predict.json 'pose_range'): "
             + ", ".join(f"{k} in {v} frames" for k, v in worst)
             + (" (swing-twist axes: x, z the swing, y the twist)" if report.get("chart") == SWING_TWIST else "")
-            + ("" if report.get("clamped") else "; --clamp-to-range clamps them"))
+            + ("" if report.get("clamped") else "; --guard range clamps them"))
 
 
 def clamp_to_range(poses, rng: PoseRange, tol: float = 0.0) -> np.ndarray:

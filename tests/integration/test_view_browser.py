@@ -134,8 +134,12 @@ def test_toggles_dataset_poses_and_the_timeline(tmp_path):
     sequence = torch.from_numpy(np.array(ds.poses[:5]))
     viewer = start_viewer(predictor, "127.0.0.1", 0, sequence=sequence, log=lambda *_: None)
     try:
-        # opened on the first test pose: the simulated garment beside, the prediction coloured by its error
-        assert viewer.pose_dropdown.value == "test 00008"
+        # a sequence opens on its own first frame, not on a pose of the model's data
+        assert torch.equal(viewer.pose, sequence[0]) and viewer.pose_dropdown.value == "(sliders)"
+        assert int(viewer.timeline.value) == 0 and not viewer.truth_handle.visible
+        # the first test pose: the simulated garment beside, the prediction coloured by its error
+        viewer.pose_dropdown.value = "test 00008"
+        wait_for(lambda: viewer.truth_handle.visible, "the test pose's simulation to show")
         assert viewer.truth_handle.visible and viewer.error_handle is not None
         assert np.allclose(viewer.truth_handle.vertices, ds.verts[8])
         err = np.linalg.norm(viewer.meshes.garment - np.asarray(ds.verts[8]), axis=1) * 100

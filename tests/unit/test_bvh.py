@@ -24,6 +24,7 @@ from pbc.geometry.meshio import write_garment_mesh
 from pbc.jobs.writers import FrameObjWriter, render_frames
 from pbc.motion.bvh import BvhError, parse_bvh, read_bvh
 from pbc.motion.fit import clear_clip_arms
+from pbc.motion.known import nearest_known
 from pbc.motion.ranges import EULER, angle_range, clamp_to_range, range_report
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, motion_settings, parse_frames
 from pbc.sim.poses import euler_xzy_to_matrix
@@ -279,7 +280,7 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
     clip.write_text(clip_text(poses, 1 / 0.0254))
     out = tmp_path / "out"
     assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out), "--frames", "0:12:2",
-                            "--video", "gif"]) == 0
+                            "--video", "gif", "--guard", "none"]) == 0
     printed = capsys.readouterr().out
     res = json.loads((out / "predict.json").read_text())
     assert res["num_poses"] == 6 and res["motion"]["units"] == "inch" and res["motion"]["ignored"] == [
@@ -292,9 +293,13 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
     assert said[0].startswith(f"arms raised out of the torso in {n} of 6 frames") if n else not said
     verts = np.load(out / "vertices.npy")
     assert sorted(p.name for p in (out / "meshes").iterdir()) == [f"frame_{k:05d}.obj" for k in range(6)]
-    # the stand-in data's poses are small turns: limit-wide random poses are outside, flagged and printed
+    # the stand-in data's poses are small turns: limit-wide random poses are past them, flagged and printed
     rep = res["pose_range"]
-    assert rep["num_outside"] == len(rep["frames_outside"]) > 0 and "outside the training poses' range" in printed
+    assert rep["num_outside"] == len(rep["frames_outside"]) > 0
+    known = rep["known"]
+    assert known["num_flagged"] == len(known["flagged"]) > 0 and rep["guard"] == "none"
+    assert f"{known['num_flagged']} of 6 frames are past the model's data" in printed
+    assert all((d > known["limit_deg"]) == (k in known["flagged"]) for k, d in enumerate(known["distance_deg"]))
     assert "ignored: LeftForeArm, RightForeArm, LeftUpLeg" in printed
     from PIL import Image
 
@@ -314,6 +319,19 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
     base = np.frombuffer(blob[bv.byteOffset:bv.byteOffset + bv.byteLength], np.float32).reshape(-1, 3)
     # every garment vertex appears (split at the UV seams) and base + target k = frame k
     assert {tuple(np.round(p, 5)) for p in base + delta} == {tuple(np.round(p, 5)) for p in verts[3]}
+    # the default guard: the flags stay, each flagged frame turned towards its nearest training pose to the limit
+    out3 = tmp_path / "guarded"
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out3), "--frames", "0:12:2",
+                            "--video", "none", "--no-glb"]) == 0
+    res3 = json.loads((out3 / "predict.json").read_text())
+    assert res3["pose_range"]["guard"] == "nearest" and res3["pose_range"]["known"]["flagged"] == known["flagged"]
+    ds = load_dataset(data)
+    train = np.asarray(ds.poses)[np.asarray(ds.split("train"))]
+    joints = list(range(len(SKEL.names)))
+    guarded = nearest_known(np.load(out3 / "poses.npy"), train, joints).distance_deg
+    assert (guarded <= known["limit_deg"] + 0.05).all()
+    moved = np.abs(np.load(out3 / "poses.npy") - np.load(out / "poses.npy")).max((1, 2, 3)) > 1e-4
+    assert moved.tolist() == [k in known["flagged"] for k in range(6)]
     # clamped: the flags stay, the poses move into the range
     out2 = tmp_path / "clamped"
     assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out2), "--clamp-to-range",

@@ -125,8 +125,8 @@ def test_a_sequence_is_an_npy_of_rotations_or_a_bvh(predictor, tmp_path):
     ds = predictor.dataset
     seq = np.asarray(ds.poses[:4])
     np.save(tmp_path / "walk.npy", seq)
-    poses, fps = load_sequence(tmp_path / "walk.npy", ds)
-    assert torch.allclose(poses, torch.from_numpy(seq)) and fps is None
+    poses, fps, motion = load_sequence(tmp_path / "walk.npy", ds)
+    assert torch.allclose(poses, torch.from_numpy(seq)) and fps is None and motion is None
     with pytest.raises(ValueError, match=r"\.npy of \(N, 10, 3, 3\) rotations or a \.bvh"):
         load_sequence(tmp_path / "walk.txt", ds)
     with pytest.raises(ValueError, match="does not exist"):
@@ -136,8 +136,9 @@ def test_a_sequence_is_an_npy_of_rotations_or_a_bvh(predictor, tmp_path):
 
     clip = random_poses(5, seed=2)
     (tmp_path / "walk.bvh").write_text(clip_text(clip))
-    poses, fps = load_sequence(tmp_path / "walk.bvh", ds)
+    poses, fps, motion = load_sequence(tmp_path / "walk.bvh", ds)
     assert np.allclose(poses.numpy(), clip, atol=1e-5) and fps == pytest.approx(120, rel=1e-4)
+    assert motion.units and len(motion.poses) == 5
     np.save(tmp_path / "scaled.npy", seq * 2)
     with pytest.raises(ValueError, match="rotation"):
         load_sequence(tmp_path / "scaled.npy", ds)
