@@ -3,7 +3,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: venv main test test-fast lint bench chromium
+.PHONY: venv main test test-fast lint bench chromium docs
 
 $(BIN)/python:
 	$(PY) -m venv $(VENV)
@@ -35,6 +35,11 @@ test-fast: venv
 
 lint: venv
 	$(BIN)/ruff check pbc tests bench
+
+# the documentation site (mkdocs.yml: docs/, the API from the docstrings) into site/, strictly: a broken link,
+# anchor, snippet or docstring fails it, as in tests/integration/test_docs_site.py
+docs: venv
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 bench: venv
 	for b in bench/*.py; do $(BIN)/python $$b || exit 1; done
