@@ -75,9 +75,9 @@ def parser() -> argparse.ArgumentParser:
     motion.add_argument("--max-frames", type=int, metavar="N", help="the most frames a request may make "
                         "(default: max_frames of conf/motion/sequence.yaml, 100000)")
     motion.add_argument("--guard", choices=GUARDS, help="frames past the model's data (flagged either way): "
-                        "nearest turns each towards its nearest training pose to the limit, range clamps the joint "
-                        "angles into the training poses' range, none predicts them as they are (default: guard of "
-                        "conf/motion/sequence.yaml, nearest)")
+                        "nearest turns each towards its nearest training pose to the limit and clamps its joint "
+                        "angles into the training poses' range, range clamps only, none predicts them as they are "
+                        "(default: guard of conf/motion/sequence.yaml, nearest)")
     motion.add_argument("--clamp-to-range", action="store_true", help="the same as --guard range")
     motion.add_argument("--rest-frame", type=int, metavar="K", help="the clip frame whose posture is its rest "
                         "(default: its OFFSETs' layout, or for a skeleton lying flat a frame standing as a rest; "

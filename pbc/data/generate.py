@@ -155,7 +155,10 @@ def config_mismatch(cfg: DictConfig, manifest: dict, full: bool = False) -> list
     """
     want = (fingerprint(cfg, build_scene(cfg)[0]) if full
             else _cheap_fingerprint(cfg, garment_from_config(cfg.garment, _body_if_needed(cfg))[0]))
-    return identity_diff({k: manifest.get(k) for k in want}, want, names=("dataset", "config"))
+    recorded = {k: manifest.get(k) for k in want}
+    if isinstance(recorded.get("pose_source"), dict):  # the manifest's also holds each row's clip and frame
+        recorded["pose_source"] = {k: recorded["pose_source"].get(k) for k in want["pose_source"]}
+    return identity_diff(recorded, want, names=("dataset", "config"))
 
 
 def check_matches_config(cfg: DictConfig, data: ClothDataset, full: bool = False) -> None:
@@ -825,8 +828,10 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
     if mirror is not None:  # after the split: no validation or test pose has its mirror in training
         rows = _add_mirrors(arrays, manifest, mirror, splits["train"], kept)
     if sources is not None:
-        manifest["pose_source"] = {"clips": sources["clips"], "clip": [int(sources["clip"][i]) for i in rows],
-                                   "frame": [int(sources["frame"][i]) for i in rows]}
+        # beside the fingerprint's pose_source keys (the clips' hashes, the mix): each row's clip and frame
+        manifest["pose_source"] = dict(manifest.get("pose_source") or {}, clips=sources["clips"],
+                                       clip=[int(sources["clip"][i]) for i in rows],
+                                       frame=[int(sources["frame"][i]) for i in rows])
 
     fix = (f"free space there (or move {out} to a disk with room and point paths.data_dir at it), then run the "
            "same command again: the drapes in work/ are kept and only the merge is redone")

@@ -191,7 +191,7 @@ def run_known(predictor: ClothPredictor, quantile: float) -> KnownPoses | None:
 def unread_joints_free(rng: PoseRange, predictor: ClothPredictor) -> PoseRange:
     """rng with every joint the models do not read (`ClothPredictor.read_joints`) open to any angle
     (-180 to 180): a shirt's data keeps the legs at rest, so a walk's legs would flag every frame and
-    --clamp-to-range would freeze them, though they cannot move the shirt."""
+    the guard would freeze them, though they cannot move the shirt."""
     out = np.array(rng.deg, dtype=np.float64)
     unread = np.setdiff1d(np.arange(len(out)), predictor.read_joints())
     out[unread, :, 0], out[unread, :, 1] = -180.0, 180.0

@@ -92,9 +92,11 @@ def guard_frames(predictor: ClothPredictor, poses: np.ndarray, guard: str | None
     Each frame is judged by how far it is from the poses the model was trained on (`run_known`, over the joints
     it reads): flagged past the limit its own test poses set (conf/motion/sequence.yaml known). `guard`
     (None: conf's): `nearest` turns each flagged frame towards its nearest training pose until it is at the
-    limit (pbc.motion.known.pull_towards_known); `range` clamps each joint into the training poses' joint-angle
-    range; `none` leaves them. A model without its training poses at hand flags by the joint-angle range, and
-    its `nearest` guard clamps to that range. The joint-angle range report is kept either way."""
+    limit (pbc.motion.known.pull_towards_known), then clamps each joint into the training poses' joint-angle
+    range (a pose near a training pose overall may still bend one joint past every one: the trousers on a
+    Bandai Namco walk, a knee); `range` clamps only; `none` leaves them. A model without its training poses at
+    hand flags by the joint-angle range, and its `nearest` guard clamps to that range. The joint-angle range
+    report is kept either way."""
     settings = motion_settings()
     guard = str(settings.guard) if guard is None else guard
     if guard not in GUARDS:
@@ -118,7 +120,7 @@ def guard_frames(predictor: ClothPredictor, poses: np.ndarray, guard: str | None
             out = pull_towards_known(out, known.poses, known.joints, near, known.limit_deg)
     else:
         report["known"] = None
-    if guard == "range" or (guard == "nearest" and known is None):
+    if guard in ("range", "nearest"):
         out = clamp_to_range(out, rng, tol)
     report["guard"] = guard if known is not None or guard != "nearest" else "range (no training poses at hand)"
     report["clamped"] = guard != "none"

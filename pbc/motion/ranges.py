@@ -157,7 +157,7 @@ def range_summary(report: dict) -> str:
     known, guard = report.get("known"), report.get("guard")
     if known:
         n, total = known["num_flagged"], report["num_frames"]
-        how = {"nearest": "turned towards their nearest training pose to the limit",
+        how = {"nearest": "turned towards their nearest training pose to the limit, joints clamped into its range",
                "range": "clamped into the training poses' joint-angle range",
                "none": "predicted as they are (--guard nearest turns them towards the data)"}.get(guard, guard)
         return (f"{n} of {total} frames are past the model's data (their nearest training pose more than "

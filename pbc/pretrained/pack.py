@@ -367,13 +367,14 @@ every number here was measured by it on the packed files.
 | --- | --- |
 {table}
 
-{notes}The model saw {d['splits']['train']} training rows: far from the paper's 16K (0.44 cm there). Poses outside
-the training poses' joint-angle range (below; metrics.json `pose_range`) are flagged by
-`pbc predict --poses clip.bvh`.
+{notes}The model saw {d['splits']['train']} training rows: far from the paper's 16K (0.44 cm there). A clip's frame
+farther from every training pose (`data/known_poses.npy`, over the joints the model reads) than its own test poses
+are is flagged by `pbc predict --poses clip.bvh` and `pbc view --sequence clip.bvh`, and guarded by default: turned
+towards its nearest training pose to that limit, its joints clamped into the range below (`--guard`; pbc.motion.known).
 {range_section(pose_range)}
 What ships beside the weights (`data/`): the garment, cage, body and embedding of the run's dataset, the
-{n} test poses with their draped vertices (`--poses test`), and of the training split only its mean
-offsets (the baseline) and joint-angle range. Only the whole model ships: no patch models.
+{n} test poses with their draped vertices (`--poses test`), and of the training split its mean
+offsets (the baseline), joint-angle range and poses (float16). Only the whole model ships: no patch models.
 
 ## Made again
 
@@ -398,8 +399,8 @@ def range_section(pose_range: dict | None) -> str:
 
 [min, max] degrees over the {pose_range['poses']} poses of the {pose_range['split']} split, per joint and axis:
 {pose_range['angles']}. A clip's frame with a joint whose rotation is more than `range_tolerance_deg`
-(conf/motion/sequence.yaml) from every rotation these angles hold is flagged; `--clamp-to-range` moves it to the
-nearest one.
+(conf/motion/sequence.yaml) from every rotation these angles hold is moved to the nearest one by the guard
+(`--guard nearest` or `range`).
 
 | joint | x | y | z |
 | --- | --- | --- | --- |

@@ -108,6 +108,15 @@ def test_poses_from_a_folder_of_clips_mixed_with_the_sampler_record_their_clip_a
     again = make(tmp_path / "again", f"data.poses={write_clips(tmp_path / 'copy', 7, 9)}", "data.num_samples=10",
                  "data.poses_sampled_fraction=0.3")
     assert np.array_equal(again.poses, ds.poses) and again.manifest["pose_source"] == src
+    # the data trains: its manifest keeps the fingerprint's pose_source beside each row's clip and frame
+    cfg = tiny_cfg(tmp_path / "data", "data.workers=1", "body.sampling.block_size=64", f"data.poses={clips}",
+                   "data.num_samples=10", "data.poses_sampled_fraction=0.3")
+    assert src["files"].keys() == {"clip0.bvh", "clip1.bvh"} and gen.config_mismatch(cfg, ds.manifest) == []
+    # a clip held out of training is not read, and the fingerprint says so
+    held = gen.config_mismatch(tiny_cfg(tmp_path / "data", "body.sampling.block_size=64", f"data.poses={clips}",
+                                        "data.num_samples=10", "data.poses_sampled_fraction=0.3",
+                                        "data.poses_holdout=[clip1*]"), ds.manifest)
+    assert any("clip1.bvh" in line for line in held)
 
 
 def test_default_keys_keep_the_fingerprint_and_clips_enter_it(tmp_path, no_drape):

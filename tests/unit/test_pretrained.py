@@ -30,7 +30,7 @@ from pbc.data.trimmed import recorded_mean_offsets
 from pbc.geometry.body.base import save_body
 from pbc.geometry.cage.base import save_cage
 from pbc.geometry.garment.base import save_garment_obj
-from pbc.inference.poses import run_pose_range, training_pose_range
+from pbc.inference.poses import run_known, run_known_poses, run_pose_range, training_pose_range
 from pbc.inference.predictor import ClothPredictor, pretrained_run
 from pbc.motion.ranges import range_from_record
 
@@ -129,6 +129,11 @@ def test_packed_data_is_the_test_split_with_the_training_summary(shipped):
     want = pred.offsets_of(torch.from_numpy(np.asarray(full.poses[idx])), torch.from_numpy(np.asarray(full.verts[idx])))
     assert space == "local" and torch.allclose(mean, want[0].mean(0), atol=1e-6)
     assert info["test_poses"] == len(test) and info["dataset"]["splits"] == {"train": 7, "val": 1, "test": 2}
+    # the training poses ship (float16): what the model knows, for the flags and the guard (pbc.motion.known)
+    shipped_pred = ClothPredictor.from_pretrained("standin")
+    known = run_known_poses(shipped_pred)
+    np.testing.assert_allclose(known, np.asarray(full.poses[idx]), atol=2e-3)
+    assert run_known(shipped_pred, 0.99).limit_deg == pytest.approx(run_known(pred, 0.99).limit_deg, abs=0.2)
 
 
 def test_the_record_and_card_carry_the_measured_numbers(shipped):

@@ -147,7 +147,7 @@ def test_the_console_line_names_the_axes_outside_and_their_chart():
     poses = np.concatenate([st_rot([0.0, 0.0, -88.0]), st_rot([0.0, 0.0, -60.0])])  # inside; 20 past z = -80
     line = range_summary(range_report(poses, HANGING_ST, ["l_arm"], 1e-3))
     assert line.startswith("1 of 2 frames have joint angles outside") and "l_arm.z in 1 frames" in line
-    assert "swing-twist axes" in line and "--clamp-to-range" in line
+    assert "swing-twist axes" in line and "--guard range" in line
     assert "swing-twist" not in range_summary(range_report(rot([0.0, 0.0, -60.0]), HANGING, ["l_arm"], 1e-3))
     assert range_summary(range_report(poses[:1], HANGING_ST, ["l_arm"], 1e-3)) == (
         "all 1 frames are inside the training poses' joint-angle range")
