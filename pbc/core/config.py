@@ -8,16 +8,17 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import DictConfig, OmegaConf
 
-from pbc.core.paths import CONF_DIR, resolve_path
+from pbc.core.paths import CONF_DIR, corpus_dir, resolve_path
 from pbc.core.runs import monitor
 from pbc.core.validate import suggest_config_key
 
 
 def register_resolvers() -> None:
     """pbc's OmegaConf resolvers: ``${pbc.monitor:${model.kind}}`` (the checkpoint monitor of a model kind,
-    pbc.core.runs.monitor). Importing pbc.core.config registers them; every entry point that instantiates
-    callbacks imports it."""
+    pbc.core.runs.monitor) and ``${pbc.corpus:}`` (the real-world corpus, pbc.core.paths.corpus_dir).
+    Importing pbc.core.config registers them; every entry point that instantiates callbacks imports it."""
     OmegaConf.register_new_resolver("pbc.monitor", monitor, replace=True)
+    OmegaConf.register_new_resolver("pbc.corpus", lambda: str(corpus_dir()), replace=True)
 
 
 register_resolvers()

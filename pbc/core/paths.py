@@ -34,3 +34,9 @@ def resolve_path(path: str | os.PathLike) -> Path:
     if p.parts and p.parts[0] == "conf":
         return CONF_DIR.joinpath(*p.parts[1:])
     return SHIPPED_ROOT / p
+
+
+def corpus_dir() -> Path:
+    """The real-world corpus (motion clips and garments as other tools wrote them): $PBC_CORPUS, else
+    `../shared/corpus` beside the checkout."""
+    return Path(os.environ.get("PBC_CORPUS") or SHIPPED_ROOT.parent / "shared" / "corpus")
