@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 
 class Nearest(NamedTuple):
@@ -65,24 +65,29 @@ def pull_towards_known(poses, known, joints, nearest: Nearest, limit_deg: float)
     `joints`) turned towards its nearest known pose, every read joint along its own geodesic by one shared
     fraction, until its distance is `limit_deg`; the other poses and joints are returned as they are. The
     guard against poses outside the data: the model is asked for a pose it knows, as close to the clip's as
-    it knows."""
+    it knows. The fraction is found by bisection, all far poses at once."""
     out = np.array(poses, dtype=np.float64)
     far = np.flatnonzero(nearest.distance_deg > limit_deg)
+    if len(far) == 0:
+        return out
     joints = list(joints)
-    for n in far:
-        target = np.asarray(known[nearest.index[n]], np.float64)
-        slerps = [Slerp([0.0, 1.0], Rotation.from_matrix(np.stack([out[n, j], _orthonormal(target[j])])))
-                  for j in joints]
-        lo, hi = 0.0, 1.0  # the distance falls as t grows (each joint nears the target along its geodesic)
-        for _ in range(30):
-            t = 0.5 * (lo + hi)
-            turned = np.stack([s([t]).as_matrix()[0] for s in slerps])
-            sq = ((turned - target[joints]) ** 2).sum()
-            if _rms_deg(sq, len(joints)) > limit_deg:
-                lo = t
-            else:
-                hi = t
-        out[n, joints] = np.stack([s([hi]).as_matrix()[0] for s in slerps])
+    start = out[far][:, joints]  # (n, j, 3, 3)
+    target = np.stack([_orthonormal(m) for m in np.asarray(known, np.float64)[nearest.index[far]][:, joints]
+                       .reshape(-1, 3, 3)]).reshape(start.shape)
+    turn = Rotation.from_matrix((np.swapaxes(start, -1, -2) @ target).reshape(-1, 3, 3)).as_rotvec()  # (n*j, 3)
+
+    def at(t):  # (n,) fractions -> (n, j, 3, 3): each joint turned by t along its geodesic towards the target
+        step = Rotation.from_rotvec(turn * np.repeat(t, len(joints))[:, None]).as_matrix().reshape(start.shape)
+        return start @ step
+
+    lo, hi = np.zeros(len(far)), np.ones(len(far))  # the distance falls as t grows
+    for _ in range(30):
+        t = 0.5 * (lo + hi)
+        dist = _rms_deg(((at(t) - target) ** 2).sum((1, 2, 3)), len(joints))
+        lo, hi = np.where(dist > limit_deg, t, lo), np.where(dist > limit_deg, hi, t)
+    turned = out[far]
+    turned[:, joints] = at(hi)
+    out[far] = turned
     return out
 
 
