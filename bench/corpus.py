@@ -40,15 +40,14 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.starter import mean_shape, open_model  # noqa: E402
 from pbc.core.runs import RunRecord  # noqa: E402
 from pbc.data.generate import Scene, drape_pose  # noqa: E402
-from pbc.data.trimmed import recorded_mean_offsets  # noqa: E402
-from pbc.geometry.meshops import edge_stretch, mesh_edges  # noqa: E402
+from pbc.geometry.meshops import edge_stretch, median_edge_lengths, mesh_edges  # noqa: E402
 from pbc.inference.poses import read_motion, run_known  # noqa: E402
 from pbc.jobs.predict import guard_frames  # noqa: E402
 from pbc.motion.bvh import read_bvh  # noqa: E402
 from pbc.motion.retarget import motion_settings  # noqa: E402
-from pbc.pixels.frames import from_offsets  # noqa: E402
 
 CORPUS = ROOT.parent / "shared" / "corpus"
 TARGETS = {"shattered": 0, "flagged_trained": 0.10, "held_out_over_mean_shape": 0.5, "kept": 0.90}
@@ -58,12 +57,6 @@ CM = 100.0
 
 def corpus_clips(corpus: Path) -> list[Path]:
     return sorted((corpus / "motion").rglob("*.bvh"))
-
-
-def open_model(name: str):
-    from bench.starter import open_model as opener  # noqa: PLC0415 - the sibling bench's loader, after sys.path
-
-    return opener(name)
 
 
 def read_row(path: Path, dataset) -> tuple[dict, object | None]:
@@ -126,22 +119,13 @@ def predict(pred, poses: np.ndarray) -> np.ndarray:
         return pred(torch.from_numpy(np.asarray(poses, np.float32)), model="whole").numpy()
 
 
-def mean_shape(pred, poses: np.ndarray) -> np.ndarray:
-    with torch.inference_mode():
-        p = torch.from_numpy(np.asarray(poses, np.float32))
-        mean, space = recorded_mean_offsets(pred.dataset)
-        anchors, frames = pred.frames(p)
-        return from_offsets(mean.expand(len(p), -1, -1), anchors, frames, space).numpy()
-
-
 def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: Path) -> tuple[list[dict], dict]:
     """One model over every clip: per clip its flags, shattered frames and (with `drape`) drapes and errors."""
     pred, run_dir = open_model(name)
     cfg = OmegaConf.create(RunRecord.read(run_dir).config)
     ds = pred.dataset
     edges = mesh_edges(ds.garment.faces.numpy())
-    usual = np.median(np.linalg.norm(np.asarray(ds.verts)[:, edges[:, 0]] - np.asarray(ds.verts)[:, edges[:, 1]],
-                                     axis=-1), 0)
+    usual = median_edge_lengths(np.asarray(ds.verts), edges)
     known = run_known(pred, float(motion_settings().known.quantile))
     scene = Scene(ds.body, ds.garment, ds.cage, ds.embedding, cfg.sim) if drape else None
     rows = []
@@ -167,7 +151,7 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
             drapes, kept = cached_drapes(cache / scene_key(cfg), scene, m.poses[pick])
             x = predict(pred, guarded[pick])
             err = np.linalg.norm(x - drapes, axis=-1).mean(1) * CM
-            base = np.linalg.norm(mean_shape(pred, m.poses[pick]) - drapes, axis=-1).mean(1) * CM
+            base = np.linalg.norm(mean_shape(pred, m.poses[pick]).numpy() - drapes, axis=-1).mean(1) * CM
             row.update(draped=len(pick), kept=int(kept.sum()), model_cm=err[kept].round(4).tolist(),
                        mean_shape_cm=base[kept].round(4).tolist(), flagged_draped=flagged[pick][kept].tolist(),
                        distance_deg=None if not k else np.asarray(k["distance_deg"])[pick][kept].round(2).tolist())

@@ -71,15 +71,22 @@ def clip_frames(pred: ClothPredictor, path: Path, every: int) -> tuple[np.ndarra
     return motion.poses.astype(np.float32), [f"{path.stem} {first + k * step}" for k in range(len(motion.poses))]
 
 
+def mean_shape(pred: ClothPredictor, poses: np.ndarray) -> torch.Tensor:
+    """(N, V, 3) the training mean shape (its recorded mean offsets) skinned onto poses (N, J, 3, 3)."""
+    p = torch.from_numpy(np.asarray(poses, np.float32))
+    with torch.inference_mode():
+        mean, space = recorded_mean_offsets(pred.dataset)
+        anchors, frames = pred.frames(p)
+        return from_offsets(mean.expand(len(p), -1, -1), anchors, frames, space)
+
+
 def score(pred: ClothPredictor, poses: np.ndarray, drapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame (cm): the model's mean vertex error and the training mean shape's, against drapes (N, V, 3);
     and the model's positions (N, V, 3)."""
     p = torch.from_numpy(poses)
     with torch.inference_mode():
         x = pred(p, model="whole")
-        mean, space = recorded_mean_offsets(pred.dataset)
-        anchors, frames = pred.frames(p)
-        m = from_offsets(mean.expand(len(p), -1, -1), anchors, frames, space)
+    m = mean_shape(pred, poses)
     v = torch.from_numpy(drapes)
     return ((x - v).norm(dim=-1).mean(1) * CM).numpy(), ((m - v).norm(dim=-1).mean(1) * CM).numpy(), x.numpy()
 

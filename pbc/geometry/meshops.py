@@ -333,6 +333,12 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(e, axis=0)
 
 
+def median_edge_lengths(verts: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(E,) each edge's median length over meshes verts (N, V, 3): its usual length (`edge_stretch`)."""
+    v = np.asarray(verts, np.float64)
+    return np.median(np.linalg.norm(v[:, edges[:, 0]] - v[:, edges[:, 1]], axis=-1), 0)
+
+
 def edge_stretch(verts: np.ndarray, edges: np.ndarray, usual: np.ndarray) -> np.ndarray:
     """(N,) each mesh's longest edge against that edge's usual length: verts (N, V, 3), edges (E, 2), usual
     (E,) lengths (e.g. the median over a model's own drapes). A predicted garment past 3x is shattered:

@@ -74,11 +74,15 @@ class Bvh:
         """(F, J, 3) joint positions by the file's own forward kinematics with the root's rotation and
         translation removed (file units, the root's axes). Position channels of other joints are ignored:
         files that carry them on every joint (Bandai Namco) repeat the OFFSET there."""
-        rel = self.root_relative_rotations(frames)
-        pos = np.zeros(rel.shape[:2] + (3,))
+        return self._positions(self.root_relative_rotations(frames))
+
+    def _positions(self, rot: np.ndarray) -> np.ndarray:
+        """(F, J, 3) joint positions from the joints' root-relative rotations rot (F, J, 3, 3): each OFFSET
+        turned by its parent's rotation, summed down the tree."""
+        pos = np.zeros(rot.shape[:2] + (3,))
         for j, jt in enumerate(self.joints):
             if jt.parent >= 0:
-                pos[:, j] = pos[:, jt.parent] + rel[:, jt.parent] @ jt.offset
+                pos[:, j] = pos[:, jt.parent] + rot[:, jt.parent] @ jt.offset
         return pos
 
     def pelvis_relative(self, pelvis: int, frames=slice(None)) -> tuple[np.ndarray, np.ndarray]:
@@ -88,10 +92,7 @@ class Bvh:
         what lies above it (Bandai Namco's joint_Root on the floor, whose child Hips carries the body's turn
         and an OFFSET that is a world position)."""
         rot = self.root_relative_rotations(frames)
-        pos = np.zeros(rot.shape[:2] + (3,))
-        for j, jt in enumerate(self.joints):
-            if jt.parent >= 0:
-                pos[:, j] = pos[:, jt.parent] + rot[:, jt.parent] @ jt.offset
+        pos = self._positions(rot)
         turn = rot[:, pelvis]  # (F, 3, 3)
         rel_pos = np.einsum("fba,fjb->fja", turn, pos - pos[:, pelvis:pelvis + 1])
         return rel_pos, np.swapaxes(turn, -1, -2)[:, None] @ rot

@@ -10,9 +10,8 @@ import numpy as np
 import torch
 
 from pbc.geometry.body.base import Body, pose_body
-from pbc.geometry.body.skeleton import forward_kinematics
 from pbc.motion.bvh import Bvh
-from pbc.motion.retarget import Motion, must_drive
+from pbc.motion.retarget import Motion, must_drive, posed_heads
 
 
 def describe(bvh: Bvh, motion: Motion, skeleton) -> list[str]:
@@ -52,13 +51,6 @@ def sanity_line(sanity: dict) -> str:
         return f"sanity: stands as a person ({measures})"
     return (f"refused by pbc predict / view / data.poses: {'; '.join(sanity['problems'])} ({measures}); fix its "
             "rest (--rest-frame K) or its joint map (--bvh-map FILE.yaml), or go on with --trust-clip")
-
-
-def _posed_heads(skeleton, poses: np.ndarray) -> np.ndarray:
-    """(J, 3) the body's joint heads posed by one pose (J, 3, 3)."""
-    t = forward_kinematics(skeleton, torch.from_numpy(poses[None]).double())[0].numpy()
-    heads = skeleton.rest_heads.double().numpy()
-    return np.einsum("jab,jb->ja", t[1:, :3, :3], heads) + t[1:, :3, 3]
 
 
 def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) -> Path:
@@ -101,7 +93,7 @@ def clip_figure(path: str | Path, bvh: Bvh, motion: Motion, body: Body, k: int) 
     shade = 0.35 + 0.6 * np.clip(normal[order] @ np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0]), 0, 1)
     ax_body.add_collection(PolyCollection(tri[order][:, :, :2], facecolors=np.outer(shade, [0.85, 0.72, 0.6]),
                                           edgecolors="none"))
-    heads = _posed_heads(skel, motion.poses[k])
+    heads = posed_heads(skel, motion.poses[k:k + 1])[0]
     for i, j in enumerate(skel.names):
         par = skel.parents[i]
         if par >= 0:

@@ -157,12 +157,12 @@ def detect_units(p: np.ndarray, h: np.ndarray, units: dict, tolerance: float = 1
     return f"{name} x{1 / ratio:.2f}", float(mpu)
 
 
-def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    """Degrees between two vectors (nan when one is zero)."""
-    na, nb = np.linalg.norm(a), np.linalg.norm(b)
-    if na == 0 or nb == 0:
-        return float("nan")
-    return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) degrees between vectors a and b (..., 3); nan where one is zero."""
+    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.einsum("...i,...i->...", a, b) / (na * nb)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_joints=(), pelvis: int = 0) -> str:
@@ -188,8 +188,9 @@ def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_join
     if top is None or not np.linalg.norm(top - rest[pelvis]) > 0:
         return "unknown"
     up = top - rest[pelvis]
-    arms = [_angle(b, up) for b in (bone(body.limbs.l.upper_arm), bone(body.limbs.r.upper_arm)) if b is not None]
-    legs = [_angle(pos(body.limbs[s].shin) - pos(body.limbs[s].thigh), up) for s in "lr"
+    arms = [float(_angles(b, up)) for b in (bone(body.limbs.l.upper_arm), bone(body.limbs.r.upper_arm))
+            if b is not None]
+    legs = [float(_angles(pos(body.limbs[s].shin) - pos(body.limbs[s].thigh), up)) for s in "lr"
             if pos(body.limbs[s].shin) is not None and pos(body.limbs[s].thigh) is not None]
     arms = [a for a in arms if np.isfinite(a)]
     legs = [a for a in legs if np.isfinite(a)]
@@ -204,14 +205,6 @@ def rest_pose_kind(rest: np.ndarray, index: dict, table: JointMap, cfg, bvh_join
     if a <= hi:
         return "T-pose"
     return "A-pose" if a < cfg.arms_down_deg else "arms down"
-
-
-def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(...,) degrees between vectors a and b (..., 3); nan where one is zero."""
-    na, nb = np.linalg.norm(a, axis=-1), np.linalg.norm(b, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        c = np.einsum("...i,...i->...", a, b) / (na * nb)
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def posture_angles(pos: np.ndarray, index: dict, table: JointMap) -> dict[str, np.ndarray]:
@@ -289,6 +282,13 @@ def choose_rest_frame(bvh: Bvh, pelvis: int, index: dict, table: JointMap, cfg) 
     return best, f"frame 0 does not stand as a rest: {', '.join(problems[0])}; --rest-frame K picks another"
 
 
+def posed_heads(skeleton: Skeleton, poses: np.ndarray) -> np.ndarray:
+    """(F, J, 3) the body's joint heads posed by poses (F, J, 3, 3), in the body's root frame."""
+    t = forward_kinematics(skeleton, torch.from_numpy(np.ascontiguousarray(poses)).double()).numpy()
+    heads = skeleton.rest_heads.double().numpy()
+    return np.einsum("fjab,jb->fja", t[:, 1:, :3, :3], heads) + t[:, 1:, :3, 3]
+
+
 def sanity_report(poses: np.ndarray, skeleton: Skeleton, height_m: float, cfg) -> dict:
     """Whether retargeted poses (N, J, 3, 3) show a person as a person stands: the trunk upright over the
     pelvis (median tilt of the body's head from straight above its lower back), the feet under the hips (the
@@ -296,9 +296,7 @@ def sanity_report(poses: np.ndarray, skeleton: Skeleton, height_m: float, cfg) -
     (conf/motion/sequence.yaml sanity). Returns the measures and `problems` (empty: sane). Up to
     cfg.max_frames frames, spread over the clip, are looked at."""
     pick = np.unique(np.linspace(0, len(poses) - 1, min(len(poses), int(cfg.max_frames))).round().astype(int))
-    t = forward_kinematics(skeleton, torch.from_numpy(np.ascontiguousarray(poses[pick])).double()).numpy()
-    heads = skeleton.rest_heads.double().numpy()
-    pos = np.einsum("fjab,jb->fja", t[:, 1:, :3, :3], heads) + t[:, 1:, :3, 3]  # (F, J, 3)
+    pos = posed_heads(skeleton, poses[pick])  # (F, J, 3)
     names = list(skeleton.names)
     body = dialect_settings().body
     out: dict = {"frames_checked": int(len(pick)), "height_m": round(float(height_m), 3), "problems": []}

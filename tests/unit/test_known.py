@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from pbc.geometry.meshops import edge_stretch, mesh_edges
+from pbc.geometry.meshops import edge_stretch, median_edge_lengths, mesh_edges
 from pbc.motion.known import nearest_known, pull_towards_known
 
 
@@ -68,3 +68,5 @@ def test_edge_stretch_is_the_longest_edge_over_its_usual_length():
     torn = square.copy()
     torn[2] = [1, 4, 0]  # vertex 2 pulled away: edge 2-3 from 1 to sqrt(10), edge 1-2 from 1 to 4
     assert edge_stretch(np.stack([square, torn]), edges, usual) == pytest.approx([1.0, 4.0])
+    # the usual lengths: each edge's median over meshes
+    assert median_edge_lengths(np.stack([square, square, torn]), edges) == pytest.approx(usual)
