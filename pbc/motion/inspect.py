@@ -11,14 +11,15 @@ import torch
 
 from pbc.geometry.body.base import Body, pose_body
 from pbc.motion.bvh import Bvh
-from pbc.motion.retarget import Motion, must_drive, posed_heads
+from pbc.motion.retarget import Motion, capture_rate, must_drive, posed_heads
 
 
 def describe(bvh: Bvh, motion: Motion, skeleton) -> list[str]:
     """The report's lines: the clip, the dialect and units, the match table with reasons, what is left out."""
     t = motion.table
-    seconds = (bvh.num_frames - 1) * bvh.frame_time
-    lines = [f"clip: {bvh.path}: {len(bvh.joints)} joints, {bvh.num_frames} frames at {1 / bvh.frame_time:g} fps "
+    played = capture_rate(bvh, t)[0].frame_time  # the capture's rate where the header carries a converter's
+    seconds = (bvh.num_frames - 1) * played
+    lines = [f"clip: {bvh.path}: {len(bvh.joints)} joints, {bvh.num_frames} frames at {1 / played:g} fps "
              f"({seconds:.2f} s)",
              f"dialect: {t.dialect or 'unknown'}; units: {motion.units} ({motion.metres_per_unit:g} m per unit); "
              f"skeleton height {motion.height_m:.2f} m; rest pose: {motion.rest_pose}"

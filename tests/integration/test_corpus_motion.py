@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from pbc.motion.bvh import BvhError, read_bvh
+from pbc.motion.inspect import describe
 from pbc.motion.retarget import bvh_to_poses, choose_joint_map, load_joint_map, poses_from_clip
 
 PERSON_UNITS = {"cm", "cmu", "dm"}  # Bandai Namco and CMU's Daz release in cm, CMU's others, MakeHuman
@@ -65,6 +66,9 @@ def test_amc2bvh_clip_plays_at_the_capture_rate(corpus, anny_body):
     assert m.fps == pytest.approx(120.0, rel=1e-3)
     assert any("converter default" in n for n in m.notes)
     assert m.times[-1] == pytest.approx((len(m.poses) - 1) / 120.0, rel=1e-3)
+    # `pbc motion inspect` reports the rate it plays at, the header's in the note beside it
+    bvh = read_bvh(corpus / "motion" / "cmu" / "cmu_16_02_f0140-0259.bvh")
+    assert "120 frames at 120 fps (0.99 s)" in describe(bvh, m, anny_body.skeleton)[0]
 
 
 def _cut(src, dst, frames):
