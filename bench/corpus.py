@@ -9,7 +9,9 @@ One row per corpus clip (CMU in three releases, Bandai Namco, MakeHuman poses, a
 - per model, on every frame: the frames **flagged** past the model's data (pbc.motion.known: the nearest
   training pose farther than the model's own test poses are) and the **shattered** frames, as asked and under
   the default guard (the predicted garment's longest edge past 3x its usual length, the median over the
-  model's shipped drapes);
+  model's shipped drapes), under the guard past the model's worst stretch on its own test poses, and as asked
+  with the garment skinned through every joint (`ClothPredictor.hold_unread` off: a shirt's hem follows the
+  thighs it never learnt);
 - with drapes (not --no-drape), on K frames spread over each clip: the drapes **kept** by pbc's simulator
   (the model's own data config) and the model's vertex error against them beside the training mean shape's,
   on the kept frames, for the clips the model trained on, the clips held out of its training and the clips of
@@ -127,6 +129,7 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
     edges = mesh_edges(ds.garment.faces.numpy())
     usual = median_edge_lengths(np.asarray(ds.verts), edges)
     known = run_known(pred, float(motion_settings().known.quantile))
+    own = float(edge_stretch(predict(pred, np.asarray(ds.poses)[np.asarray(ds.split("test"))]), edges, usual).max())
     scene = Scene(ds.body, ds.garment, ds.cage, ds.embedding, cfg.sim) if drape else None
     rows = []
     for path in clips:
@@ -142,8 +145,13 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
         flagged[k["flagged"] if k else report["frames_outside"]] = True
         raw = edge_stretch(predict(pred, m.poses), edges, usual)
         safe = edge_stretch(predict(pred, guarded), edges, usual)
+        pred.hold_unread = False
+        unheld = edge_stretch(predict(pred, m.poses), edges, usual)
+        pred.hold_unread = True
         row.update(flagged=int(flagged.sum()), shattered_raw=int((raw > SHATTER).sum()),
                    shattered=int((safe > SHATTER).sum()), stretch_max=round(float(safe.max()), 2),
+                   past_own=int((safe > own).sum()), shattered_unheld=int((unheld > SHATTER).sum()),
+                   stretch_unheld_max=round(float(unheld.max()), 2),
                    stretch_raw_max=round(float(raw.max()), 2), guard=report["guard"],
                    distance_median_deg=None if not k else round(float(np.median(k["distance_deg"])), 2))
         if drape:
@@ -158,10 +166,13 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
         row["seconds"] = round(time.time() - t0, 1)
         rows.append(row)
         print(f"{name:9s} {row['clip'][:44]:44s} {row['role']:8s} flagged {row['flagged']:4d}/{len(m.poses):<4d} "
-              f"shattered {row['shattered_raw']:4d} -> {row['shattered']:3d}"
+              f"shattered {row['shattered_raw']:4d} -> {row['shattered']:3d} (past own {row['past_own']:3d}; "
+              f"every joint skinned {row['shattered_unheld']:4d})"
               + (f"  kept {row['kept']}/{row['draped']}" if drape else "") + f"  {row['seconds']:.0f} s", flush=True)
     info = {"model": name, "known_limit_deg": None if known is None else round(known.limit_deg, 3),
-            "training_poses": None if known is None else len(known.poses), "read_joints": len(pred.read_joints())}
+            "training_poses": None if known is None else len(known.poses), "read_joints": len(pred.read_joints()),
+            "held_joints": [ds.body.skeleton.names[j] for j in pred.held_joints()],
+            "own_test_stretch_max": round(own, 3)}
     return rows, info
 
 
@@ -172,6 +183,8 @@ def summarise(rows: list[dict], drape: bool) -> dict:
     frames = sum(r["frames"] for r in read)
     out = {"clips": len(rows), "refused": len(rows) - len(read), "frames": frames,
            "shattered_raw": sum(r["shattered_raw"] for r in read), "shattered": sum(r["shattered"] for r in read),
+           "past_own": sum(r["past_own"] for r in read),
+           "shattered_unheld": sum(r["shattered_unheld"] for r in read),
            "flagged": sum(r["flagged"] for r in read)}
     trained = [r for r in read if r["role"] == "trained"]
     out["flagged_trained_rate"] = (round(sum(r["flagged"] for r in trained) / max(1, sum(r["frames"] for r in trained)),
@@ -224,16 +237,20 @@ def main(argv: list[str] | None = None) -> dict:
         figures["models"][name] = dict(info, **summarise(rows, not args.no_drape))
     for name, fig in figures["models"].items():
         print(f"\n## {name}: limit {fig['known_limit_deg']} degrees over {fig['read_joints']} joints, "
-              f"{fig['training_poses']} training poses")
-        print("| clip | role | read | units | rest | sanity | flagged | shattered (as asked -> guarded) |"
+              f"{fig['training_poses']} training poses; held at rest: {', '.join(fig['held_joints']) or 'none'}; "
+              f"worst stretch on its test poses {fig['own_test_stretch_max']:.2f}x")
+        print("| clip | role | read | units | rest | sanity | flagged | shattered (as asked -> guarded) | "
+              "guarded past its test poses | as asked, every joint skinned |"
               + (" kept | model / mean shape (cm) |" if not args.no_drape else ""))
-        print("| --- | --- | --- | --- | --- | --- | --- | --- |" + (" --- | --- |" if not args.no_drape else ""))
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
+              + (" --- | --- |" if not args.no_drape else ""))
         for r in all_rows[name]:
             if r["read"] != "read":
-                print(f"| {r['clip']} | {r['role']} | refused: {r['reason']} | | | | | |")
+                print(f"| {r['clip']} | {r['role']} | refused: {r['reason']} | | | | | | | |")
                 continue
             cells = (f"| {r['clip']} | {r['role']} | {r['dialect']} | {r['units']} | {r['rest']} | {r['sanity']} | "
-                     f"{r['flagged']}/{r['frames']} | {r['shattered_raw']} -> {r['shattered']} |")
+                     f"{r['flagged']}/{r['frames']} | {r['shattered_raw']} -> {r['shattered']} | {r['past_own']} | "
+                     f"{r['shattered_unheld']} |")
             if not args.no_drape:
                 mc = np.mean(r["model_cm"]) if r["model_cm"] else float("nan")
                 bc = np.mean(r["mean_shape_cm"]) if r["mean_shape_cm"] else float("nan")

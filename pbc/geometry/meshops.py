@@ -97,6 +97,25 @@ def uv_islands(faces: np.ndarray, face_uv_coords: np.ndarray, tol: float = 1e-7)
     return np.asarray([first[int(lab)] for lab in label], np.int64)
 
 
+def paired_quads(triangles: np.ndarray) -> np.ndarray:
+    """Quads (Q, 4) of triangles (2Q, 3) that are quads cut in two, as Anny writes its mesh: rows 2q and 2q+1
+    are quad (a, b, c, d) cut along a-c as [a, b, c], [c, d, a] or along b-d as [a, b, d], [d, b, c].
+
+    Two meshes whose quads are the same but cut along other diagonals give the same quads. ValueError when a
+    pair is not a quad so cut."""
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    first, second = tri[0::2], tri[1::2]
+    if len(tri) % 2:
+        raise ValueError(f"{len(tri)} triangles are not pairs of quads")
+    shared = second[:, 0] == first[:, 2]
+    along_ac = shared & (second[:, 2] == first[:, 0])
+    along_bd = shared & (second[:, 1] == first[:, 1])
+    if not (along_ac | along_bd).all():
+        raise ValueError(f"triangles {2 * int(np.argmin(along_ac | along_bd))} and the next are not one quad")
+    return np.stack([first[:, 0], first[:, 1], np.where(along_ac, first[:, 2], second[:, 2]),
+                     np.where(along_ac, second[:, 1], first[:, 2])], 1)
+
+
 def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) triangle areas of points (V, 3) or (V, 2)."""
     p = np.asarray(points, np.float64)

@@ -24,7 +24,9 @@ from pbc.core.io import load_checkpoint, user_cache_dir
 from pbc.core.runs import ModelKind, Run, find_runs, read_run, run_image_config, select_patch_runs
 from pbc.core.validate import as_poses
 from pbc.data.dataset import dataset_fingerprint, person_kw
+from pbc.data.trimmed import recorded_known_poses
 from pbc.models.decoder import ConvDecoder, pose_features
+from pbc.motion.known import still_joints
 from pbc.pixels.frames import from_offsets, to_offsets
 from pbc.pixels.operators import image_sizes
 from pbc.pixels.target import dataset_skinner, image_operators, make_target, patch_crops
@@ -379,6 +381,8 @@ class ClothPredictor:
                           if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval() if patches else None
         if pca is not None:
             self.use_pca(pca)
+        self._held: Tensor | None = None
+        self.hold_unread = True  # False: skin the garment with every joint as posed (`held_joints`, for study)
         self.to(device)
 
     @property
@@ -482,6 +486,27 @@ class ClothPredictor:
         read = {j for n in nets for j in (every if getattr(n, "input_joints", None) is None else n.input_joints)}
         return sorted(read)
 
+    def held_joints(self) -> list[int]:
+        """The body joints the garment is skinned with at rest, whatever the pose: those no model reads and no
+        pose of its data moved (its dataset's and its recorded training poses). A shirt learnt with the legs at
+        rest follows the trunk on a walk: skinned through the thighs, the hem embedded in body triangles the
+        hips' weights move would stretch between them to several times its length."""
+        if self._held is None:
+            ds, read = self.dataset, set(self.read_joints())
+            poses = [np.asarray(ds.poses)] + [k for k in (recorded_known_poses(ds),) if k is not None]
+            still = still_joints(np.concatenate(poses))
+            self._held = torch.tensor([j for j in range(len(still)) if still[j] and j not in read], dtype=torch.long)
+        return self._held.tolist()
+
+    def skinned_pose(self, pose: Tensor) -> Tensor:
+        """pose (B, J, 3, 3) as the garment is skinned with it: the `held_joints` at rest (with `hold_unread`)."""
+        held = self.held_joints() if self.hold_unread else []
+        if not held:
+            return pose
+        out = pose.clone()
+        out[:, held] = torch.eye(3, dtype=pose.dtype, device=pose.device)
+        return out
+
     def check_person(self, person) -> None:
         """Refuse a `person` (None, one int, or one per pose) this predictor's dataset does not have, before
         anything is predicted or written (`Skinner.people`)."""
@@ -490,13 +515,13 @@ class ClothPredictor:
 
     # -------------------------------------------------------------------- pieces
     def frames(self, pose: Tensor) -> tuple[Tensor, Tensor]:
-        return self.skinner(pose)
+        return self.skinner(self.skinned_pose(pose))
 
     def offsets_of(self, pose: Tensor, verts: Tensor, person: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Garment positions verts (B, V, 3) at poses (B, J, 3, 3) -> (offsets (B, V, 3) in the models'
         space, anchors (B, V, 3), frames (B, V, 3, 3)): what the models would have to predict. person (B,):
         each sample's person in a dataset of several people (`ClothDataset.person_kw`); None: the base one."""
-        anchors, frames = self.skinner(pose, person)
+        anchors, frames = self.skinner(self.skinned_pose(pose), person)
         return to_offsets(verts, anchors, frames, self.space), anchors, frames
 
     @torch.inference_mode()
@@ -536,7 +561,7 @@ class ClothPredictor:
             method = method or self.method
             whole = self.whole_offsets(pose) if method in NEEDS_WHOLE else None
             off = self.stitcher(self.patch_crops(pose), method, whole)
-        anchors, frames = self.skinner(pose, person)
+        anchors, frames = self.skinner(self.skinned_pose(pose), person)
         x = from_offsets(off, anchors, frames, self.space)
         return x[0] if single else x
 

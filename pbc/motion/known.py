@@ -60,6 +60,16 @@ def nearest_known(poses, known, joints, chunk: int = 2048) -> Nearest:
     return Nearest(_rms_deg(dist, j), index, _rms_deg(per_joint.max(1), 1))
 
 
+STILL_TOL = 1e-4  # a joint whose rotation matrix is within this of the identity, entry by entry, is at rest
+
+
+def still_joints(poses) -> np.ndarray:
+    """(J,) bool: the joints at rest in every one of `poses` (N, J, 3, 3), the joints the data never moved
+    (all of them for N = 0)."""
+    p = np.asarray(poses, dtype=np.float32)
+    return ~(np.abs(p - np.eye(3, dtype=np.float32)) > STILL_TOL).any(axis=(0, 2, 3))
+
+
 def pull_towards_known(poses, known, joints, nearest: Nearest, limit_deg: float) -> np.ndarray:
     """Poses (N, J, 3, 3) with each pose farther than `limit_deg` from the known poses (`nearest`, over
     `joints`) turned towards its nearest known pose, every read joint along its own geodesic by one shared

@@ -25,19 +25,22 @@ IMAGE = {"whole_resolution": 32, "patch_resolution": 64, "reference_resolution":
          "margin": 16, "pad": 8, "exact_sample": True, "method": "sparse"}
 
 
-def _net(out_channels, size, start, first, channels):
-    return {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 90, "out_channels": out_channels,
-            "output_size": [size, size], "start_size": [start, start], "start_channels": channels,
-            "first_layer": first}
+def _net(out_channels, size, start, first, channels, reads=None):
+    joints = {} if reads is None else {"input_joints": list(reads), "num_joints": 10}
+    return {"_target_": "pbc.models.decoder.ConvDecoder", "in_features": 9 * len(reads or range(10)),
+            "out_channels": out_channels, "output_size": [size, size], "start_size": [start, start],
+            "start_channels": channels, "first_layer": first, **joints}
 
 
 def fake_run(d: Path, data_dir: Path, kind: str = "whole", patch_id: int | None = None, seed: int = 0,
-             space: str = "local") -> Path:
-    """A finished training run dir: metrics.json (identity, config) and checkpoints/epoch_000.ckpt."""
+             space: str = "local", reads=None) -> Path:
+    """A finished training run dir: metrics.json (identity, config) and checkpoints/epoch_000.ckpt; its net
+    reads the joints `reads` (None: all)."""
     from hydra.utils import instantiate
 
     torch.manual_seed(seed)
-    net_cfg = _net(6, 32, 8, "conv_transpose", 16) if kind == "whole" else _net(3, 20, 5, "linear", 16)
+    net_cfg = (_net(6, 32, 8, "conv_transpose", 16, reads) if kind == "whole"
+               else _net(3, 20, 5, "linear", 16, reads))
     net = instantiate(net_cfg)
     with torch.no_grad():  # small non-zero outputs: the prediction is the skinned rest plus a few mm
         net.output_scale.fill_(1e-3)
@@ -80,6 +83,32 @@ def test_whole_model_alone_is_a_predictor(setup):
         pred(pose, model="patches")
     with pytest.raises(ValueError, match="needs a whole-shirt run"):
         ClothPredictor.from_runs(None, None)
+
+
+def test_a_joint_the_data_kept_at_rest_and_no_model_reads_never_moves_the_garment(body, tmp_path):
+    """A shirt learnt with the legs at rest, on a walk: its garment is skinned with the legs at rest, so the
+    hem follows the trunk and not the thighs; a joint the data moved, or the model reads, moves it as posed."""
+    data = stand_in_dataset(tmp_path / "data", body)
+    pred = ClothPredictor.from_runs(fake_run(tmp_path / "all", data))
+    names = list(body.skeleton.names)
+    weights = body.weights.numpy()[body.faces.numpy()[pred.dataset.embedding.face]].sum((0, 1))[1:]
+    joint = int(np.argmax(weights))  # the joint the garment's body triangles follow most
+    poses = np.load(data / "poses.npy")
+    turned = torch.tensor(poses[:2])
+    assert pred.held_joints() == []  # every joint moves in its data, and its model reads every joint
+    poses[:, joint] = np.eye(3)
+    np.save(data / "poses.npy", poses)
+    reads = [j for j in range(len(names)) if j != joint]
+    pred = ClothPredictor.from_runs(fake_run(tmp_path / "some", data, reads=reads))
+    assert pred.held_joints() == [joint], names[joint]
+    at_rest = turned.clone()
+    at_rest[:, joint] = torch.eye(3)
+    torch.testing.assert_close(pred(turned), pred(at_rest), rtol=0, atol=0)
+    pred.hold_unread = False  # skinned through every joint as posed: the garment follows the joint
+    assert (pred(turned) - pred(at_rest)).abs().max() > 1e-3
+    pred = ClothPredictor.from_runs(fake_run(tmp_path / "reads", data))
+    assert pred.held_joints() == []  # the model reads it: it moves the garment
+    assert (pred(turned) - pred(at_rest)).abs().max() > 1e-3
 
 
 def test_cli_writes_meshes_sheet_and_metrics(setup, tmp_path, capsys):
