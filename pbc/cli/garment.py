@@ -22,6 +22,7 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
+from pbc.core.validate import check_bounds
 from pbc.geometry.body import body_from_config
 from pbc.geometry.garment.outfit import split_outfit
 from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture
@@ -73,6 +74,7 @@ def run(argv: list[str]) -> int:
             print(f"{name:<10} {n:>6} polygons  {target}")
         return 0
     cfg = load_config([*garment_overrides(path, args.overrides), *args.overrides])
+    check_bounds(cfg)  # the image sizes its garment node reads (${image.crop_size}) and any sim override given
     with tempfile.TemporaryDirectory() as scratch:  # MakeHuman clothes' fitted .obj, kept under --out
         report = inspect_file(path, cfg, body_from_config(cfg.body), Path(args.out or scratch),
                               wrap=not args.no_wrap)

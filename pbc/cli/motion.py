@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
+from pbc.core.validate import check_motion_settings
 from pbc.geometry.body import body_from_config
 from pbc.motion.bvh import check_skeleton, read_bvh
 from pbc.motion.inspect import clip_figure, describe
@@ -41,6 +42,7 @@ def run(argv: list[str]) -> int:
                     "clip's most neutral standing frame)")
     ap.add_argument("--no-figure", action="store_true", help="the report only")
     args = ap.parse_args(argv)
+    check_motion_settings()  # conf/motion's numbers, before the clip is read
     clip = Path(args.clip)
     if clip.suffix.lower() != ".bvh":
         raise ValueError(f"{clip}: give a .bvh motion clip")

@@ -1,12 +1,14 @@
 """Checks at the doors: poses, configs and training identities, each failure one message saying what was
 passed and what to pass instead.
 
-On the ground floor (it imports only the run record's model kinds, pbc.core.runs), so every stage (data,
-models, inference, the jobs, the CLIs) can call it first thing.
+On the ground floor (it imports only the run record's model kinds, pbc.core.runs, and where conf/ lies,
+pbc.core.paths), so every stage (data, models, inference, the jobs, the CLIs) can call it first thing.
 
     as_poses(pose, J)           any pose input -> (B, J, 3, 3) float32 tensor, or one clear ValueError/TypeError
     rotation_errors(R)          (..., 3, 3) -> per-matrix orthonormality and det errors (vectorised)
     check_config(cfg)           one ValueError listing every mistyped / out-of-range config value
+    check_bounds(cfg)           the sim and image values against conf/bounds.yaml alone (check_config does it too)
+    check_motion_settings()     conf/motion/sequence.yaml and dialects.yaml against conf/bounds.yaml
     training_identity(cfg, fp)  what a resumed run must share with its checkpoint
     identity_diff(a, b)         the differences between two identities, one readable line each
     check_resume(ck, ident, p)  refuse a checkpoint of another training identity, listing the differences
@@ -19,8 +21,11 @@ from __future__ import annotations
 import difflib
 import functools
 import inspect
+import math
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,6 +33,7 @@ import torch
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from torch import Tensor
 
+from pbc.core.paths import CONF_DIR
 from pbc.core.runs import ModelKind
 
 # Matrices stored as float32 drift ~1e-6 from orthonormal; 1e-3 (0.06 deg) admits any honest rotation
@@ -37,7 +43,9 @@ ROTATION_TOL = 1e-3
 __all__ = [
     "ROTATION_TOL",
     "as_poses",
+    "check_bounds",
     "check_config",
+    "check_motion_settings",
     "check_resume",
     "identity_diff",
     "rotation_errors",
@@ -214,6 +222,7 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     Only keys present are checked, so any entry point may call it on the root config (pbc.train,
     pbc.evaluate, pbc.generate, pbc.predict). Typed checks catch what Hydra coerces silently from the
     command line: `model.patch_id=3.0` (a float) or `model.patch_id=true` (a bool) is not patch 3 or 1.
+    Every sim and image number is held to its range in conf/bounds.yaml (`bounds_problems`).
     `num_patches`, when known (the dataset's cage), bounds patch ids; otherwise they must be >= 0.
     """
     problems: list[str] = []
@@ -246,19 +255,10 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     want("data.seed", nonneg_int, "an integer >= 0")
     want("data.workers", pos_int, "a positive integer")
     want("data.num_shards", pos_int, "a positive integer")
-    want("sim.batch_size", pos_int, "a positive integer (1: one pose at a time)")
-    want("sim.reuse_model", lambda v: isinstance(v, bool), "true (one model a process, reused) or false (one a drape)")
     want("seed", nonneg_int, "an integer >= 0")
     choice("garment.made_on_forearms", ("to_rest", "as_made"))
-    for key in ("whole_resolution", "patch_resolution", "reference_resolution", "crop_size"):
-        want(f"image.{key}", pos_int, "a positive integer (pixels)")
-    for key in ("margin", "pad"):
-        want(f"image.{key}", nonneg_int, "an integer >= 0 (pixels)")
-    want("image.whole_sides", lambda v: _is_list(v) and 0 < len(v) == len(set(v)) and all(s in (0, 1) and _is_int(s)
-                                                                                      for s in v),
-         "a list of distinct chart sides: [0, 1] (front and back) or [0]")
-    want("image.whole_rows", lambda v: _is_list(v) and len(v) == 2 and all(map(_is_real, v)) and 0 <= v[0] < v[1] <= 1,
-         "[first, last] fractions of the image height with 0 <= first < last <= 1, e.g. [0.0, 1.0]")
+    choice("image.method", ("sparse", "gather"))
+    problems += bounds_problems(cfg)  # every sim and image number: conf/bounds.yaml
     want("data.pose_joints", lambda v: _is_list(v) and len(v) > 0 and all(isinstance(n, str) for n in v),
          "null (every joint of the body) or a list of joint names, e.g. [lower_back, spine, neck, neck1]",
          optional=True)
@@ -283,6 +283,170 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     if problems:
         raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
     check_work_bounds(cfg)
+
+
+# ------------------------------------------------------------------------------------------ bounds
+BOUNDS_FILE = CONF_DIR / "bounds.yaml"
+# the table's sections that are not config nodes: the files the motion reader loads (pbc.motion.retarget)
+SETTINGS_FILES = {"motion": CONF_DIR / "motion" / "sequence.yaml", "dialects": CONF_DIR / "motion" / "dialects.yaml"}
+CONFIG_SECTIONS = ("sim", "image")
+
+_SPEC = re.compile(r"(?P<kind>int|real|bool)"
+                   r"(?:\s*(?P<lb>[\[(])\s*(?P<lo>[^,\s]+)\s*,\s*(?P<hi>[^\])\s]+)\s*(?P<rb>[\])]))?"
+                   r"(?:\s+(?P<shape>x\d+|list|set|pair|each)(?=\s|$))?"
+                   r"(?P<null>\s+or null(?=\s|$))?\s*(?P<meaning>.*)")
+_NOUN = {"int": ("an integer", "integers"), "real": ("a number", "numbers"), "bool": ("true or false", "booleans")}
+
+
+@dataclass(frozen=True)
+class Bound:
+    """One row of conf/bounds.yaml: what a setting may be (its kind, range, shape, null or not)."""
+
+    kind: str                       # int | real | bool
+    lo: str = "-inf"                # the bounds as the table writes them
+    hi: str = "inf"
+    lo_open: bool = True
+    hi_open: bool = True
+    shape: str | None = None        # None (one value), xN, list, set, pair, each
+    nullable: bool = False
+    meaning: str = ""
+
+    @classmethod
+    def parse(cls, key: str, spec: str) -> Bound:
+        m = _SPEC.fullmatch(str(spec).strip())
+        if m is None:
+            raise ValueError(f"{BOUNDS_FILE}: {key}: {spec!r} is not KIND [RANGE] [SHAPE] [or null] [meaning]")
+        ranged = m["lb"] is not None
+        return cls(m["kind"], m["lo"] if ranged else "-inf", m["hi"] if ranged else "inf",
+                   m["lb"] != "[", m["rb"] != "]", m["shape"], bool(m["null"]), m["meaning"].strip())
+
+    def scalar_ok(self, v: Any) -> bool:
+        if self.kind == "bool":
+            return isinstance(v, bool | np.bool_)
+        if not (_is_int(v) if self.kind == "int" else _is_real(v)):
+            return False
+        lo, hi, x = float(self.lo), float(self.hi), float(v)
+        return (x > lo if self.lo_open else x >= lo) and (x < hi if self.hi_open else x <= hi)
+
+    def scalar_range(self, plural: bool = False) -> str:
+        noun = _NOUN[self.kind][plural]
+        if self.kind == "bool":
+            return noun
+        lo, hi = math.isinf(float(self.lo)), math.isinf(float(self.hi))
+        if lo and hi:
+            return f"finite {noun}" if plural else f"a finite {noun.split()[-1]}"
+        if hi:
+            return f"{noun} {'>' if self.lo_open else '>='} {self.lo}"
+        if lo:
+            return f"{noun} {'<' if self.hi_open else '<='} {self.hi}"
+        return f"{noun} in {'(' if self.lo_open else '['}{self.lo}, {self.hi}{')' if self.hi_open else ']'}"
+
+    def describe(self) -> str:
+        """What the setting may be, in words: "a number in [1, 240] (frames per simulated second)"."""
+        shape = self.shape or ""
+        text = {"": self.scalar_range(), "each": self.scalar_range(),
+                "list": f"a list of one or more {self.scalar_range(True)}",
+                "set": f"a list of one or more distinct {self.scalar_range(True)}",
+                "pair": f"[first, last] with first < last, {self.scalar_range(True)}"}.get(
+                    shape, f"a list of {shape[1:]} {self.scalar_range(True)}")
+        return ("null or " if self.nullable else "") + text + (f" ({self.meaning})" if self.meaning else "")
+
+    def ok(self, v: Any) -> bool:
+        """Whether `v` is what this row allows (for `each`: one value of the mapping)."""
+        if v is None:
+            return self.nullable
+        if self.shape in (None, "each"):
+            return self.scalar_ok(v)
+        if not _is_list(v) or len(v) == 0 or not all(self.scalar_ok(x) for x in v):
+            return False
+        if self.shape == "set":
+            return len(set(v)) == len(v)
+        if self.shape == "pair":
+            return len(v) == 2 and float(v[0]) < float(v[1])
+        return self.shape == "list" or len(v) == int(self.shape[1:])
+
+
+def _rows(node: Any, prefix: str = "") -> dict[str, str]:
+    out: dict[str, str] = {}
+    for k, v in node.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        out.update(_rows(v, key) if isinstance(v, Mapping) else {key: v})
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def bounds_table() -> tuple[dict[str, Bound], tuple[tuple[str, str], ...]]:
+    """conf/bounds.yaml, read once a process: {dotted key: Bound}, and the (first, second) pairs whose first
+    may not exceed their second."""
+    raw = OmegaConf.to_container(OmegaConf.load(BOUNDS_FILE))
+    order = tuple((str(a), str(b)) for a, b in raw.pop("order", None) or ())
+    return {key: Bound.parse(key, spec) for key, spec in _rows(raw).items()}, order
+
+
+def _shown(path: Path) -> Path:
+    """A shipped file as conf/..., any other as given."""
+    try:
+        return path.relative_to(CONF_DIR.parent)
+    except ValueError:
+        return path
+
+
+def _type_name(v: Any) -> str:
+    return "list" if isinstance(v, ListConfig) else "dict" if isinstance(v, DictConfig) else type(v).__name__
+
+
+def bounds_problems(root: Any, sections: Sequence[str] = CONFIG_SECTIONS) -> list[str]:
+    """The values of `root` (a config, or {section: node}) in `sections` of conf/bounds.yaml that are out of
+    their range or of another type, one line each: "sim.fps=-5 (int): expected a number in [1, 240] (...)";
+    a setting of a file (SETTINGS_FILES) is named by the file and its key there. Keys absent from `root` are
+    not judged; a pair of `order` only once both of its values passed."""
+    table, order = bounds_table()
+    problems, bad = [], set()
+    for key, bound in table.items():
+        section = key.split(".", 1)[0]
+        if section not in sections:
+            continue
+        present, v = _get(root, key)
+        if not present:
+            continue
+        # a file's setting is named as its line there reads: "conf/motion/sequence.yaml: max_frames=0"
+        shown = f"{_shown(SETTINGS_FILES[section])}: {key.split('.', 1)[1]}" if section in SETTINGS_FILES else key
+        if bound.shape == "each" and not isinstance(v, Mapping):
+            problems.append(f"{shown}={_plain(v)!r} ({_type_name(v)}): expected a mapping of names to "
+                            f"{bound.scalar_range(True)}")
+            bad.add(key)
+            continue
+        for name, x in [(f"{shown}.{k}", x) for k, x in v.items()] if bound.shape == "each" else [(shown, v)]:
+            if not bound.ok(x):
+                problems.append(f"{name}={_plain(x)!r} ({_type_name(x)}): expected {bound.describe()}")
+                bad.add(key)
+    for first, second in order:
+        if first.split(".", 1)[0] not in sections or {first, second} & bad:
+            continue
+        (p1, a), (p2, b) = _get(root, first), _get(root, second)
+        if p1 and p2 and a is not None and b is not None and float(a) > float(b):
+            problems.append(f"{first}={a!r} is more than {second}={b!r}: expected {first} <= {second}")
+    return problems
+
+
+def check_bounds(cfg: Any) -> None:
+    """Refuse a config whose sim or image values leave their range in conf/bounds.yaml (or are of another
+    type): one ValueError listing every one, key, value and range. check_config does this and more; this is
+    for doors that read the sim and image nodes without training (pbc garment inspect)."""
+    problems = bounds_problems(cfg)
+    if problems:
+        raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
+
+
+def check_motion_settings(settings: Mapping[str, Any] | None = None) -> None:
+    """Refuse motion settings out of their range in conf/bounds.yaml: one ValueError listing every value, key,
+    value, range and file. `settings`: {"motion": node, "dialects": node}; None reads SETTINGS_FILES, the files
+    the motion reader loads (conf/motion/sequence.yaml and dialects.yaml)."""
+    if settings is None:
+        settings = {name: OmegaConf.load(path) for name, path in SETTINGS_FILES.items()}
+    problems = bounds_problems(settings, sections=tuple(settings))
+    if problems:
+        raise ValueError("invalid motion settings:\n  - " + "\n  - ".join(problems))
 
 
 def check_work_bounds(cfg: Any) -> None:

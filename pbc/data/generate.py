@@ -22,9 +22,7 @@ import logging
 import math
 import multiprocessing as mp
 import shutil
-import signal
 import sys
-import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -36,6 +34,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from pbc.core import stops
 from pbc.core.io import (
     DiskFull,
     LockHeld,
@@ -49,7 +48,7 @@ from pbc.core.io import (
     save_npy,
     write_json,
 )
-from pbc.core.validate import check_config, identity_diff, moving_joints
+from pbc.core.validate import check_config, check_motion_settings, identity_diff, moving_joints
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
 from pbc.data.mirror import MirrorMap, mirror_map, mirror_poses, mirror_verts, symmetrised
 from pbc.data.mocap import motion_capture_poses, source_files_hash
@@ -422,11 +421,13 @@ def map_in_workers(fn, jobs: list, workers: int, initializer=None, initargs: tup
     inherited default, which a launcher may have set to its own method, see _standard_start_method). Fails
     fast: the first job that raises (or a worker whose `initializer` raised) stops every worker and the
     exception is re-raised here; a worker killed from outside (out of memory) is a RuntimeError saying so.
+    A stop (SIGINT, SIGTERM: pbc.core.stops) stops every worker before it leaves.
     """
     ctx = mp.get_context("spawn")
-    with _standard_start_method("spawn"), _workers_stop_on_sigterm() as watch:
+    # SIGINT and SIGTERM as exceptions here (the entry floor's, or set for this block): the `finally` stops
+    # the workers (Python's default for SIGTERM ends the process past it, and the workers drape on as orphans)
+    with _standard_start_method("spawn"), stops.handled():
         ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=initializer, initargs=initargs)
-        watch.append(ex)
         try:
             pending = {ex.submit(fn, job) for job in jobs}
             while pending:
@@ -445,29 +446,6 @@ def map_in_workers(fn, jobs: list, workers: int, initializer=None, initargs: tup
                         ) from err
         finally:
             _stop(ex)
-
-
-@contextlib.contextmanager
-def _workers_stop_on_sigterm():
-    """SIGTERM (a `kill`, a scheduler's cancel) ends the process at once, past every `finally`: the drape
-    workers were left as orphans, draping on (two of them held both cores for half an hour after their job was
-    killed). While the block runs, SIGTERM stops the pools put in the yielded list, then exits (status 143).
-    Only the main thread may set a handler; elsewhere the block changes nothing."""
-    pools: list[ProcessPoolExecutor] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield pools
-        return
-
-    def terminated(signum, frame):
-        for ex in pools:
-            _stop(ex)
-        raise SystemExit(128 + signum)
-
-    previous = signal.signal(signal.SIGTERM, terminated)
-    try:
-        yield pools
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _stop(ex: ProcessPoolExecutor) -> None:
@@ -533,16 +511,22 @@ def generate(cfg: DictConfig, wait_s: float = 0.0) -> Path:
     `wait_s` > 0 waits that long for the holder instead, with a log line (training's `ensure_dataset`:
     the jobs of a multirun started from nothing wait for the one making the data, then find it finished).
     """
-    check_config(cfg)  # typed values before any work: data.shard=1.0 is not shard 1
+    check_config(cfg)  # typed values and ranges before any folder is made: data.shard=1.0, sim.fps=0
+    check_motion_settings()  # the poses' clips and clear_arms (conf/motion/sequence.yaml) are read here too
     out = dataset_dir(cfg)
     if (out / "manifest.json").is_file() and cfg.data.shard is None:
         return _generate(cfg)  # finished: only reads (the directory may be read-only)
     shard = cfg.data.shard
-    with _lock_or_wait(out / ".generate.lock", f"dataset {out}", shard is not None, wait_s):
+    with (stops.step(f"making the dataset {out}", STOP_NOTE),
+          _lock_or_wait(out / ".generate.lock", f"dataset {out}", shard is not None, wait_s)):
         if shard is None:
             return _generate(cfg)
         with _lock_or_wait(out / f".generate-shard{shard}.lock", f"shard {shard} of dataset {out}", False, wait_s):
             return _generate(cfg)
+
+
+# what a stop line adds to the command that continues a stopped generation
+STOP_NOTE = "the same command resumes: the finished drapes in work/samples are kept"
 
 
 def _lock_or_wait(path: Path, what: str, shared: bool, wait_s: float) -> contextlib.ExitStack:
@@ -680,7 +664,8 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
     if cfg.sim.get("kernel_cache_dir") and not _warp_cache_filled(cfg.sim):
         log.info("the first drape of each worker compiles warp's kernels into %s (about a minute on a CPU; "
                  "later runs reuse them)", cfg.sim.get("kernel_cache_dir"))
-    discarded = 0
+    discarded, done = 0, 0
+    stops.at(f"the drapes ({n_samples} to make)")
     if workers == 1:
         global _SCENE, _INIT_ERROR
         _SCENE, _INIT_ERROR = scene, None
@@ -693,7 +678,9 @@ def _run_drapes(cfg: DictConfig, scene: Scene, poses: np.ndarray, todo: list[lis
         for result in results:
             for _, ok, _reason in result if batched else [result]:
                 discarded += not ok
+                done += 1
                 bar.update(1)
+            stops.at(f"the drapes ({done} of {n_samples} made)")
             bar.set_postfix(discarded=discarded, refresh=False)  # shown at the bar's next (timed) refresh
     finally:
         bar.close()

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pbc.core.validate import as_poses
+from pbc.core.validate import as_poses, check_motion_settings
 from pbc.data.trimmed import recorded_known_poses, recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
@@ -112,7 +112,9 @@ def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frame
     `rest_frame` the clip frame whose posture is its rest (None: found); a clip failing the sanity check
     (pbc.motion.retarget.sanity_report) refused unless `trust`.
     Arms the retarget hangs inside the torso are raised out of it (`pbc.motion.fit`; a note says so).
-    Bad files: one ValueError naming the line and the fix (pbc.motion.bvh)."""
+    Bad files: one ValueError naming the line and the fix (pbc.motion.bvh); motion settings out of their range
+    (conf/bounds.yaml): one ValueError listing them, before the clip is read."""
+    check_motion_settings()
     motion = poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames,
                              rest_frame, trust)
     motion.poses, turned = clear_clip_arms(motion.poses, dataset.body, motion_settings().clear_arms)

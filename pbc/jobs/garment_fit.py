@@ -33,9 +33,11 @@ import sys
 import time
 from pathlib import Path
 
+from pbc.core import stops
 from pbc.core.config import load_config
 from pbc.core.io import read_json, require_writable_dir, write_json, write_text
 from pbc.core.runs import OK, RunRecord
+from pbc.core.validate import check_config
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import scene_garment
@@ -157,6 +159,7 @@ class Fit:
         self.python = python
         self.t0 = time.time()
         self.overrides: list[str] = []  # every step's: the garment's, the settings inspect chose, the user's, data
+        self.here: stops.Step | None = None  # the step a stop is reported in, while `run` runs
         self.notes: dict[str, str] = {}
 
     # ------------------------------------------------------------------------------------------ helpers
@@ -165,6 +168,10 @@ class Fit:
         return self.out / "data"
 
     def say(self, step: str, text: str) -> None:
+        """A line of `step`, which a stop (SIGINT, SIGTERM) from here on is reported in (`run`)."""
+        where = f"step {STEPS.index(step) + 1}/{len(STEPS)} {step}"
+        if self.here is not None and not self.here.where.startswith(where):
+            self.here.where = where
         print(f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: {text}", flush=True)
 
     def _recorded(self) -> dict | None:
@@ -188,11 +195,12 @@ class Fit:
             for step in ("inspect", "checks"):
                 self.say(step, f"skipped (done: {self.out / RECORD})")
             return
+        base = garment_overrides(self.garment, self.user)
+        cfg = load_config(base + self.user)
+        check_config(cfg)  # the overrides every step gets (sim.fps=0): refused before the fit's folder is made
         require_writable_dir(self.out, "garment fit folder", "give the fit a writable folder with --out DIR "
                              "(the default is runs/fit/<name> under PBC_ROOT, else the current folder)")
-        base = garment_overrides(self.garment, self.user)
         self.say("inspect", f"{self.garment.name} with {' '.join(base + self.user)}")
-        cfg = load_config(base + self.user)
         body = body_from_config(cfg.body)
         report = inspect_file(self.garment, cfg, body, self.out / "inspect", wrap=False)  # the checks wrap it
         derived = self.derived_settings(report, body)
@@ -251,6 +259,8 @@ class Fit:
         log = self.out / "logs" / f"{log_name}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
         self.say(step, f"python {shlex.join(argv[1:])}  (log: {log})")
+        if self.here is not None:
+            self.here.where += f" (python -m {argv[2]}, its log: {log})"
         t0 = time.time()
         prefix = f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: "
         code, error = run_logged(argv, log, show=lambda line: (m := PROGRESS.search(line.rstrip())) and
@@ -335,9 +345,13 @@ class Fit:
             f"the overrides of every step: G=\"{' '.join(self.overrides)}\""])
 
     def run(self) -> str:
-        self.inspect_and_check()
-        for step, go in (("data", self.data), ("whole", self.whole), ("preview", self.preview)):
-            if STEPS.index(step) > STEPS.index(self.until):
-                return self.stopped()
-            go()
-        return self.summary()
+        """Every step up to --until, then the summary. A stop (SIGINT, SIGTERM) stops the step's command and its
+        processes (run_logged), and the stop line names the step; the same command goes on from there."""
+        with stops.step(f"step 1/{len(STEPS)} inspect", "the same command goes on from the last finished step; "
+                        "a stopped step's finished drapes or last checkpoint are kept") as self.here:
+            self.inspect_and_check()
+            for step, go in (("data", self.data), ("whole", self.whole), ("preview", self.preview)):
+                if STEPS.index(step) > STEPS.index(self.until):
+                    return self.stopped()
+                go()
+            return self.summary()

@@ -66,7 +66,14 @@ from pbc.core.io import (
     require_writable_dir,
 )
 from pbc.core.runs import RunRecord, monitor
-from pbc.core.validate import check_config, check_pose_joints, check_resume, identity_diff, training_identity
+from pbc.core.validate import (
+    check_config,
+    check_motion_settings,
+    check_pose_joints,
+    check_resume,
+    identity_diff,
+    training_identity,
+)
 from pbc.data.datamodule import ClothDataModule
 from pbc.data.dataset import dataset_fingerprint, run_data_record
 from pbc.inference.poses import training_pose_range
@@ -366,7 +373,8 @@ def train(cfg: DictConfig, past_the_door: Callable[[Path], None] | None = None) 
     the first file of the training is written: the entry point writes Hydra's `.hydra/` there, so a refused
     job leaves another run's config as it was."""
     t0, out = time.time(), output_dir(cfg)
-    check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3
+    check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3, sim.fps=0 no drape
+    check_motion_settings()  # read when the data is made on the way (ensure_dataset)
     require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
     if not is_rank_zero():  # DDP starts ranks > 0 as copies of this command in rank 0's (held) run dir
         return fit_and_test(cfg, out, t0)
