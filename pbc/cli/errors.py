@@ -4,6 +4,10 @@ A user error is a mistake in what the user gave (a path, a value, an override, d
 settings): pbc's layers raise it with a message that names the problem and the fix, and here it becomes
 that one line on stderr and exit status 2, in every command. Anything else is a bug: its traceback stays.
 `--debug` (any command) or HYDRA_FULL_ERROR=1 shows the traceback of a user error too.
+
+SIGINT and SIGTERM (pbc.core.stops) stop every command the same way: its child processes stopped, one line
+`pbc CMD: stopped by SIGTERM in <step>; its processes are stopped and every file it wrote is whole; to continue:
+pbc CMD ...`, exit status 130 or 143.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import functools
 import os
 import re
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 
 import hydra
@@ -25,6 +30,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
+from pbc.core import stops
 from pbc.core.config import override_hint
 from pbc.core.io import DiskFull, LockHeld, free_bytes, out_of_space
 from pbc.core.paths import CONF_DIR
@@ -81,22 +87,28 @@ def full_disk_line(exc: BaseException) -> str:
 
 
 def entry_point(name: str, run: Callable[[list[str]], int | None]) -> Callable[[Sequence[str] | None], None]:
-    """`main(argv=None)` of command `name`: `run(args)` under the one handler; exits with run's status."""
+    """`main(argv=None)` of command `name`: `run(args)` under the one handler; exits with run's status. Under
+    SIGINT or SIGTERM (pbc.core.stops.handled) it exits with 128 + the signal after one line naming the step it
+    stopped in and the command that continues (stops.stop_line); any exception after the signal is that stop."""
 
     def main(argv: Sequence[str] | None = None) -> None:
         args = list(sys.argv[1:] if argv is None else argv)
         debug = DEBUG_FLAG in args or os.environ.get("HYDRA_FULL_ERROR") == "1"
         args = [a for a in args if a != DEBUG_FLAG]
-        try:
-            rc = run(args)
-        except KeyboardInterrupt:
-            print(f"pbc {name}: interrupted", file=sys.stderr)
-            sys.exit(130)
-        except Exception as exc:
-            if debug or not is_user_error(exc):
-                raise
-            print(f"pbc {name}: error: {one_line(exc)}", file=sys.stderr)
-            sys.exit(EXIT_USER_ERROR)
+        with stops.handled():
+            try:
+                rc = run(args)
+            except BaseException as exc:
+                signum = stops.stopped_by(exc)
+                if signum is not None:  # SIGINT, SIGTERM: its children are stopped on the way here
+                    if debug:
+                        traceback.print_exc()
+                    print(f"pbc {name}: {stops.stop_line(signum, name, args)}", file=sys.stderr, flush=True)
+                    sys.exit(128 + signum)
+                if not isinstance(exc, Exception) or debug or not is_user_error(exc):
+                    raise
+                print(f"pbc {name}: error: {one_line(exc)}", file=sys.stderr)
+                sys.exit(EXIT_USER_ERROR)
         sys.exit(int(rc or 0))
 
     main.__doc__ = f"`pbc {name} [args]` (see `pbc {name} --help`)."

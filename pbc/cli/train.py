@@ -15,8 +15,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from pbc.cli.errors import entry_point, run_hydra
+from pbc.core import stops
 from pbc.core.io import write_text
-from pbc.jobs.train import record_failure, train
+from pbc.jobs.train import output_dir, record_failure, train
 
 log = logging.getLogger(__name__)
 
@@ -37,9 +38,19 @@ def write_hydra_files(cfg: DictConfig, out: Path) -> None:
         write_text(Path(out) / HYDRA_SUBDIR / name, OmegaConf.to_yaml(node))
 
 
+def resume_note(out: Path) -> str:
+    """How a stopped training goes on: from its last.ckpt (Lightning writes it at the step a SIGTERM reached)."""
+    last = Path(out) / "checkpoints" / "last.ckpt"
+    if last.is_file():
+        return f"with ckpt_path=last added: it resumes from {last}"
+    return "no checkpoint was written yet: the same command starts it again"
+
+
 def train_job(cfg: DictConfig) -> float:
+    out = output_dir(cfg)
     try:
-        metrics = train(cfg, past_the_door=lambda out: write_hydra_files(cfg, out))
+        with stops.step(f"the training in {out}", lambda: resume_note(out)):
+            metrics = train(cfg, past_the_door=lambda out: write_hydra_files(cfg, out))
     except Exception as e:
         record_failure(cfg, e)
         raise

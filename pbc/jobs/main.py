@@ -12,11 +12,11 @@ step (`pbc.generate`, then `pbc.train` twice).
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
+from pbc.core import stops
 from pbc.core.runs import ModelKind, RunRecord, scoped_name
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
@@ -27,6 +27,8 @@ STEPS = [
     ("train the whole-shirt model", "whole", ["pbc.train", "+experiment=whole"]),
     ("train patch model 7", "patch_07", ["pbc.train", "+experiment=patch_07"]),
 ]
+# what a stop line adds to `pbc main ARGS`: generate resumes from the finished drapes, training starts again
+RESUME = "in a new run dir: the dataset's finished drapes are kept, the trainings start again"
 SHOWN = ("vertex_error_cm", "normal_distance", "image_loss")
 
 
@@ -72,14 +74,17 @@ def closing_table(runs: Path) -> str:
 
 def run_steps(extra: list[str]) -> Path:
     """Every step in a fresh run dir with the overrides `extra`, then the closing table. A failed step stops
-    the job naming the step and its run dir (the step printed its own error above). Returns the run dir."""
+    the job naming the step and its run dir (the step printed its own error above); a stop (SIGINT, SIGTERM)
+    stops the step's process and its own (pbc.core.stops.child). Returns the run dir."""
     runs = fresh_run_dir()
     print(f"== run dir {runs}", flush=True)
     t_start = time.time()
-    for title, name, step in STEPS:
+    for n, (title, name, step) in enumerate(STEPS, 1):
         print(f"== {title}", flush=True)
         t0 = time.time()
-        rc = subprocess.run([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra]).returncode
+        with (stops.step(f"step {n}/{len(STEPS)} '{title}' (its run dir: {runs / name})", RESUME),
+              stops.child([sys.executable, "-m", *step, f"hydra.run.dir={runs}/{name}", *extra]) as proc):
+            rc = proc.wait()
         if rc:  # the step printed its own error above; say which step and where its log is, no traceback here
             sys.exit(f"pbc.main: step '{title}' failed (exit {rc}); its run dir: {runs / name}")
         print(f"   ({time.time() - t0:.0f} s)", flush=True)

@@ -9,17 +9,20 @@ own: `pbc.jobs.robustness.build_report`); it records the exact commands and wall
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
 import re
 import shlex
+import signal
 import subprocess
 import sys
 import time
 import traceback
 from pathlib import Path
 
+from pbc.core import stops
 from pbc.core.config import load_config
 from pbc.core.io import write_text
 from pbc.core.paths import CONF_DIR
@@ -154,20 +157,28 @@ def run_seed(run) -> int:
 
 def run_logged(argv: list[str], log: Path, show=None) -> tuple[int, str | None]:
     """Run argv, echoing its output and keeping it in log; -> (exit code, last error line or None).
-    show: line -> the text to echo for it, or None to keep it in the log only (default: every line)."""
+    show: line -> the text to echo for it, or None to keep it in the log only (default: every line).
+    A stop (SIGINT, SIGTERM) or an error here stops the command and its processes (pbc.core.stops.child); what
+    it printed until it ended (its own stop line) is in the log."""
     last_err = None
     with (
         open(log, "w") as f,
-        subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
+        stops.child(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc,
     ):
-        for line in proc.stdout:
-            shown = line if show is None else show(line)
-            if shown:
-                sys.stdout.write(shown)
-                sys.stdout.flush()
-            f.write(line)
-            if "Error" in line or "Exception" in line or ": error: " in line:  # the last, a command's one line
-                last_err = line.strip()
+        try:
+            for line in proc.stdout:
+                shown = line if show is None else show(line)
+                if shown:
+                    sys.stdout.write(shown)
+                    sys.stdout.flush()
+                f.write(line)
+                if "Error" in line or "Exception" in line or ": error: " in line:  # the last, a command's one line
+                    last_err = line.strip()
+        except BaseException as exc:
+            stops.stop_group(proc, stops.stopped_by(exc) or signal.SIGTERM)
+            with contextlib.suppress(Exception):
+                f.write(proc.stdout.read())  # the rest of its output: the group is gone, so this ends
+            raise
         code = proc.wait()
     return code, (last_err or f"exit {code}, see {log.name}") if code else None
 
@@ -234,7 +245,9 @@ def run_sweep(
                 code = 1
             else:
                 print(f"[pbc.sweeps] {step}: {shlex.join(argv)}", flush=True)
-                code, error = run_logged(argv, sweep_dir / f"{step}.log")
+                with stops.step(f"step {step} (its log: {sweep_dir / f'{step}.log'})",
+                                f"with --dir {sweep_dir}: a finished data set is kept, the steps run again"):
+                    code, error = run_logged(argv, sweep_dir / f"{step}.log")
         entry.update(argv=argv, returncode=code, error=error, seconds=round(time.time() - ts, 1))
         record["steps"].append(entry)
         rc = rc or code
@@ -468,7 +481,9 @@ def run_paper(overrides: list[str], sweep_dir: Path | None = None, report: bool 
                     argv = paper_train_command(table, seed, key, vals, scale, overrides, varied,
                                                _attempt_dir(table_dir, seed), python)
                     print(f"[pbc.sweeps] {table}, seed {seed}: {shlex.join(argv)}", flush=True)
-                    code, error = run_logged(argv, table_dir / f"train_seed{seed}.log")
+                    with stops.step(f"{table}, seed {seed} (its log: {table_dir / f'train_seed{seed}.log'})",
+                                    f"with --dir {sweep_dir}: it trains only the settings still missing"):
+                        code, error = run_logged(argv, table_dir / f"train_seed{seed}.log")
                     step(f"{table}: train seed {seed}", argv, code, error, ts, estimate_s=round(est, 1))
                     rc = rc or code
                     ts = time.time()
