@@ -11,6 +11,14 @@ parent of that, the hand its child. Legs likewise from the shin (else the foot).
 structure only: the spine is the chain from the root to the joint the arms hang from, the neck the joints
 from there to the head, and they are spread over the body's own spine and neck joints, lowest on lowest
 and highest on highest. Each match keeps its reason (`JointMap.why`), which `pbc motion inspect` prints.
+
+Names are then checked against the skeleton's shape, read with no name (`skeleton_structure`): the trunk is
+the chain from the root to the head that the paired branches leave (the legs at the pelvis, the arms at the
+chest); a branch is one of two sibling subtrees alike in depth and reach. An automatic match never drives a
+body spine, neck or head joint with a joint of such a branch, nor a body limb joint with a joint of the
+trunk, nor a body arm with a branch leaving the trunk no higher than the legs' (`check_structure`); a match
+that would, or a clip whose names tell nothing (no side, no head), is refused in one line naming the file
+and giving the `--bvh-map` table to write with the clip's own joints, as its skeleton chains them.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from pbc.core.paths import CONF_DIR
-from pbc.motion.bvh import Bvh
+from pbc.motion.bvh import Bvh, BvhError
 
 DIALECTS_FILE = CONF_DIR / "motion" / "dialects.yaml"
 _WORDS = re.compile(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+")
@@ -113,6 +121,215 @@ def _subtree(kids, j) -> list[int]:
     return out
 
 
+PAIR_REACH_RATIO = 1.25  # two sibling subtrees of one depth whose reaches agree this well are a mirrored pair
+LIMB_DEPTH = 3  # a pair of branches at least this many joints deep ...
+LIMB_REACH = 0.3  # ... and reaching this share of the longest path down from the first branching (the pelvis)
+# is a pair of limbs (arms, legs), not of eyes, fingers, toes or a face's bones
+
+
+@dataclass(frozen=True)
+class Structure:
+    """A clip's skeleton read from its shape alone (no name plays a part). `trunk`: the chain from the root to
+    the head's end that the branches leave (joint indices, root first); it ends where its next joint cannot be
+    told (no child, or several unpaired children none of which alone carries a pair of limbs). `branches`:
+    each subtree leaving the trunk as one of a mirrored pair (two sibling subtrees of one depth in joints and
+    of one reach, within PAIR_REACH_RATIO: the legs, the arms, the eyes), its joints with the one hanging off
+    the trunk first, and `attach` the trunk position it leaves from. `limbs`: how many of those pairs are
+    limbs (LIMB_DEPTH joints deep, reaching LIMB_REACH of the longest path down from the first joint with
+    several children). A joint on neither (an unpaired side branch, what lies past the trunk's end) is not
+    classified."""
+
+    trunk: tuple[int, ...]
+    branches: tuple[tuple[int, ...], ...]
+    attach: tuple[int, ...]  # per branch: its position along `trunk`
+    limbs: int
+
+    @property
+    def clear(self) -> bool:
+        """The trunk carries a pair of limbs: the shape tells the trunk from the arms and legs."""
+        return self.limbs > 0
+
+    def place(self, j: int) -> tuple[str, int] | None:
+        """("trunk", position along it) or ("branch", branch index) for joint j; None: not classified."""
+        if j in self.trunk:
+            return "trunk", self.trunk.index(j)
+        for b, joints in enumerate(self.branches):
+            if j in joints:
+                return "branch", b
+        return None
+
+
+def _depth_and_reach(bvh: Bvh, kids) -> tuple[list[int], list[float]]:
+    """Per joint: its subtree's depth in joints, and its reach, the rest length of the longest path from its
+    parent down through it (its OFFSET, then its children's, or its End Site)."""
+    n = len(bvh.joints)
+    depth, reach = [1] * n, [0.0] * n
+    for j in reversed(range(n)):  # children come after their parents
+        jt = bvh.joints[j]
+        below = [reach[k] for k in kids[j]] + ([float(np.linalg.norm(jt.end))] if jt.end is not None else [])
+        depth[j] = 1 + max((depth[k] for k in kids[j]), default=0)
+        reach[j] = (float(np.linalg.norm(jt.offset)) if jt.parent >= 0 else 0.0) + max(below, default=0.0)
+    return depth, reach
+
+
+def _pairs(children: list[int], depth, reach) -> list[tuple[int, int]]:
+    """The mirrored pairs among siblings: one depth, reaches within PAIR_REACH_RATIO, the closest first."""
+    scale = max((reach[c] for c in children), default=0.0)
+    cands = []
+    for i, a in enumerate(children):
+        for b in children[i + 1:]:
+            if depth[a] != depth[b]:
+                continue
+            lo, hi = sorted((reach[a], reach[b]))
+            if hi <= 1e-9 * max(scale, 1.0):
+                cands.append((0.0, a, b))
+            elif lo > 0 and hi / lo <= PAIR_REACH_RATIO:
+                cands.append((float(np.log(hi / lo)), a, b))
+    out, used = [], set()
+    for _, a, b in sorted(cands):
+        if a not in used and b not in used:
+            out.append((a, b))
+            used |= {a, b}
+    return out
+
+
+def skeleton_structure(bvh: Bvh) -> Structure:
+    """The clip's trunk and branches from its shape (`Structure`): from the root, each trunk joint's children
+    in mirrored pairs are branches; the one unpaired child (else the one unpaired child whose subtree holds a
+    pair of limbs) continues the trunk."""
+    kids = _children(bvh)
+    depth, reach = _depth_and_reach(bvh, kids)
+    first = 0
+    while len(kids[first]) == 1:  # a root on the floor above the pelvis (Bandai Namco's joint_Root)
+        first = kids[first][0]
+    longest = max((reach[k] for k in kids[first]), default=0.0)  # its OFFSET (a world position there) left out
+
+    def limb(a) -> bool:
+        return depth[a] >= LIMB_DEPTH and reach[a] >= LIMB_REACH * longest
+
+    def carries_limbs(j) -> bool:
+        return any(limb(a) for k in _subtree(kids, j) for a, _ in _pairs(kids[k], depth, reach))
+
+    trunk, branches, attach, limbs = [0], [], [], 0
+    while True:
+        j = trunk[-1]
+        pairs = _pairs(kids[j], depth, reach)
+        for a, b in pairs:
+            for c in (a, b):
+                sub = _subtree(kids, c)
+                branches.append(tuple([c] + sorted(k for k in sub if k != c)))
+                attach.append(len(trunk) - 1)
+            limbs += limb(a)
+        paired = {c for p in pairs for c in p}
+        unpaired = [c for c in kids[j] if c not in paired]
+        if len(unpaired) > 1:
+            unpaired = [c for c in unpaired if carries_limbs(c)]
+        if len(unpaired) != 1:
+            break
+        trunk.append(unpaired[0])
+    return Structure(tuple(trunk), tuple(branches), tuple(attach), limbs)
+
+
+def _main_chain(kids, j) -> list[int]:
+    """j and, down its subtree, the child with the largest subtree at each branching."""
+    chain = [j]
+    while kids[chain[-1]]:
+        chain.append(max(kids[chain[-1]], key=lambda k: (len(_subtree(kids, k)), -k)))
+    return chain
+
+
+def clip_chains(bvh: Bvh, structure: Structure | None = None, limit: int = 60) -> str:
+    """The clip's joints as its skeleton chains them, for a person writing its joint map: its trunk, then each
+    branch's main chain and where it leaves the trunk; a shape that tells nothing: the joint names."""
+    st = structure or skeleton_structure(bvh)
+    names = bvh.names
+    if not st.clear:
+        shown = ", ".join(names[:limit])
+        return shown + (f" ... ({len(names)} joints)" if len(names) > limit else "")
+    kids = _children(bvh)
+    parts = [" > ".join(names[j] for j in st.trunk) + " (the trunk, the chain the others branch off)"]
+    by_attach: dict[int, list[str]] = {}
+    for joints, at in list(zip(st.branches, st.attach, strict=True))[:16]:
+        by_attach.setdefault(at, []).append(" > ".join(names[k] for k in _main_chain(kids, joints[0])))
+    for at, chains in by_attach.items():
+        parts.append(f"{' and '.join(chains)} (branching off at {names[st.trunk[at]]})")
+    more = len(st.branches) - 16
+    return "; ".join(parts) + (f"; {more} more branches" if more > 0 else "")
+
+
+def body_joint_roles(cfg=None) -> dict[str, str]:
+    """Every pbc body joint (conf/motion/dialects.yaml body: the mannequin's and Anny's) -> "trunk", "arm" or
+    "leg", trunk first, in the table's order (spine, neck, head, the left limbs, the right)."""
+    body = (cfg or dialect_settings()).body
+    out = {str(j): "trunk" for j in [*body.spine, *body.neck, body.head]}
+    for side in body.limbs.values():
+        for role, j in side.items():
+            out[str(j)] = "leg" if role in ("thigh", "shin", "foot") else "arm"
+    return out
+
+
+def table_to_write(bvh: Bvh, structure: Structure | None = None, chains: bool = True) -> str:
+    """The advice ending a refused match: the `--bvh-map` table to write (a YAML mapping, one row per body
+    joint, each `...` to fill with one of the clip's joints) and, with `chains`, the clip's joints as its
+    skeleton chains them."""
+    rows = ", ".join(f"{j}: ..." for j in body_joint_roles())
+    return (f"write its joint map and give it with --bvh-map FILE.yaml (--allow-rest does not go on without "
+            f"one): joints: {{{rows}}}, each ... the clip joint that drives that body joint (a row the body lacks "
+            "is skipped)" + (f", from the clip's joints: {clip_chains(bvh, structure)}" if chains else ""))
+
+
+def names_tell_nothing(bvh: Bvh, cfg=None) -> bool:
+    """No joint's name gives a side or names the head: names cannot tell the arms, the legs and the trunk
+    apart."""
+    cfg = cfg or dialect_settings()
+    heads = set(cfg.synonyms.head)
+    return not any(side is not None or base in heads for side, base, _ in (split_name(n, cfg) for n in bvh.names))
+
+
+def check_structure(bvh: Bvh, table: JointMap, structure: Structure | None = None) -> None:
+    """Refuse (BvhError, one line naming the file, the crossed rows and the table to write) an automatic
+    joint map that drives a body trunk joint (spine, neck, head) with a joint of a branch of the clip's trunk
+    (an arm, a leg), a body arm or leg joint with a joint of the trunk, or a body arm with a branch leaving
+    the trunk no higher than the one driving a body leg. A clip whose shape tells nothing (`Structure.clear`)
+    passes: the names are all there is."""
+    st = structure or skeleton_structure(bvh)
+    if not st.clear:
+        return
+    roles = body_joint_roles()
+    index = {n: i for i, n in enumerate(bvh.names)}
+    names = bvh.names
+    crossed: dict[str, list[str]] = {}  # where the clip joints lie -> the body joints they would drive
+    at_branch: dict[str, int] = {}
+    for body_joint, clip_joint in table.joints.items():
+        if body_joint not in roles or clip_joint not in index:
+            continue
+        place = st.place(index[clip_joint])
+        if place is None:
+            continue
+        kind, where = place
+        if roles[body_joint] == "trunk" and kind == "branch":
+            crossed.setdefault(f"a branch leaving its trunk at {names[st.trunk[st.attach[where]]]} (an arm or a leg)",
+                               []).append(body_joint)
+        elif roles[body_joint] != "trunk" and kind == "trunk":
+            crossed.setdefault(f"its trunk ({' > '.join(names[j] for j in st.trunk)})", []).append(body_joint)
+        elif kind == "branch":
+            at_branch[body_joint] = st.attach[where]
+    legs = {j: a for j, a in at_branch.items() if roles[j] == "leg"}
+    if legs:
+        high = max(legs.values())
+        for j, a in at_branch.items():
+            if roles[j] == "arm" and a <= high:
+                crossed.setdefault(f"a branch leaving its trunk at {names[st.trunk[a]]}, no higher than the legs' "
+                                   f"({', '.join(legs)})", []).append(j)
+    if crossed:
+        how = "name" if table.path is None else f"the rows of {table.path.name}"
+        said = "; ".join(f"{', '.join(js)} by {', '.join(table.joints[j] for j in js)}, of {where}"
+                         for where, js in crossed.items())
+        raise BvhError(f"{bvh.path}:{bvh.joints[0].line}: the joints matched by {how} cross the clip's skeleton: "
+                       f"they drive the body's {said}; its names mislead, so no joint of it is matched by them; "
+                       f"{table_to_write(bvh, st)}")
+
+
 def _spread(n_file: int, n_body: int, single: int) -> list[tuple[int, int]]:
     """(file index, body index) pairs spreading n_file joints over n_body, lowest on lowest, highest on
     highest; one file joint goes on body joint `single` (the spine's: the highest, where the arms hang; the
@@ -129,10 +346,18 @@ def _spread(n_file: int, n_body: int, single: int) -> list[tuple[int, int]]:
 def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
     """Match the clip's joints to pbc's body joints (conf/motion/dialects.yaml's `body`) by name and structure.
     rest (J, 3): the positions to measure links with (default: the file's rest). Body joints it cannot
-    match are left out (bvh_to_poses says which the body needs)."""
+    match are left out (bvh_to_poses says which the body needs). Raises BvhError, naming the table to write,
+    for a clip whose names tell nothing (`names_tell_nothing`) and for a match crossing the skeleton's shape
+    (`check_structure`)."""
     cfg = dialect_settings()
     rest = bvh.rest_positions() if rest is None else rest
     names = bvh.names
+    structure = skeleton_structure(bvh)
+    if names_tell_nothing(bvh, cfg):
+        raise BvhError(f"{bvh.path}:{bvh.joints[0].line}: the clip's joint names tell nothing (none names a side or "
+                       "the head), so its arms, legs and trunk cannot be told apart and the body would stay at "
+                       f"rest: no joint of it is matched (the clip's unmatched joints: {clip_chains(bvh, structure)}); "
+                       f"{table_to_write(bvh, structure, chains=False)}")
     parts = [split_name(n, cfg) for n in names]
     kids = _children(bvh)
     helpers = set(cfg.helpers)
@@ -251,7 +476,9 @@ def match_joints(bvh: Bvh, rest: np.ndarray | None = None) -> JointMap:
     for i, j in enumerate(centre[:-1]):
         toward.setdefault(names[j], names[centre[i + 1]])
     dialect = guess_dialect(names, cfg)
-    return JointMap("auto", None, joints, tuple(names), why, toward, dialect, units=dialect_units(dialect, cfg))
+    matched = JointMap("auto", None, joints, tuple(names), why, toward, dialect, units=dialect_units(dialect, cfg))
+    check_structure(bvh, matched, structure)
+    return matched
 
 
 def lowest_common_ancestor(bvh: Bvh, joints: list[int]) -> int:

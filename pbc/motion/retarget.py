@@ -16,18 +16,29 @@ parent's, in its rest frame F_j: R_j = F_j^T M_parent^T M_j F_j. A body joint th
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from scipy.spatial.transform import Rotation, Slerp
 
 from pbc.core.paths import CONF_DIR
 from pbc.geometry.body.skeleton import Skeleton, forward_kinematics
 from pbc.motion.bvh import Bvh, BvhError, check_skeleton, read_bvh
-from pbc.motion.dialects import JointMap, ancestors, dialect_settings, lowest_common_ancestor, match_joints
+from pbc.motion.dialects import (
+    JointMap,
+    ancestors,
+    body_joint_roles,
+    check_structure,
+    dialect_settings,
+    lowest_common_ancestor,
+    match_joints,
+)
 
 MOTION_CONF = CONF_DIR / "motion"
 SETTINGS = "sequence"  # conf/motion/sequence.yaml: not a joint map
@@ -43,8 +54,15 @@ def shipped_joint_maps() -> list[str]:
     return sorted(p.stem for p in MOTION_CONF.glob("*.yaml") if p.stem not in NOT_TABLES)
 
 
+TABLE_FORM = ("a joint map is a YAML mapping: 'joints:', one row 'body joint: clip joint' each (joints: {l_arm: "
+              "LeftArm, l_forearm: LeftForeArm, spine1: Spine2, ...}), and optionally 'bones:', a list of the "
+              "dialect's joints, as conf/motion/cmu_mb.yaml")
+
+
 def load_joint_map(name_or_path: str | Path) -> JointMap:
-    """A shipped table by name (conf/motion/<name>.yaml) or a YAML file of the same layout."""
+    """A shipped table by name (conf/motion/<name>.yaml) or a YAML file of the same layout. Raises ValueError
+    in one line naming the file and the form (`TABLE_FORM`) for a file that is not YAML, not a mapping, or
+    whose 'joints' is not a mapping of names."""
     p = Path(name_or_path)
     if p.suffix not in (".yaml", ".yml") and str(name_or_path) in NOT_TABLES:
         raise ValueError(f"BVH joint map {name_or_path!r}: conf/motion/{name_or_path}.yaml holds settings, not a "
@@ -54,17 +72,85 @@ def load_joint_map(name_or_path: str | Path) -> JointMap:
     if not p.is_file():
         raise ValueError(f"BVH joint map {name_or_path!r} not found: give a YAML file (layout of "
                          f"{MOTION_CONF / 'cmu_mb.yaml'}) or a shipped table: {', '.join(shipped_joint_maps())}")
-    cfg = OmegaConf.to_container(OmegaConf.load(p))
-    if not isinstance(cfg, dict) or not isinstance(cfg.get("joints"), dict):
-        raise ValueError(f"BVH joint map {p}: needs a 'joints' mapping (body joint: BVH joint name) and a "
-                         "'bones' list, as conf/motion/cmu_mb.yaml")
+    try:
+        cfg = OmegaConf.to_container(OmegaConf.load(p))
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise ValueError(f"BVH joint map {p}: not YAML ({problem}{where}); {TABLE_FORM}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"BVH joint map {p}: not a text file; {TABLE_FORM}") from None
+    except OSError as e:
+        raise ValueError(f"BVH joint map {p} cannot be read: {e.strerror}") from None
+    except OmegaConfBaseException as e:
+        raise ValueError(f"BVH joint map {p}: {str(e).splitlines()[0]}; {TABLE_FORM}") from None
+    if isinstance(cfg, list):
+        raise ValueError(f"BVH joint map {p}: holds a list; {TABLE_FORM}")
+    if not isinstance(cfg, dict) or cfg.get("joints") is None:
+        raise ValueError(f"BVH joint map {p}: has no 'joints'; {TABLE_FORM}")
+    if not isinstance(cfg["joints"], dict):
+        raise ValueError(f"BVH joint map {p}: its 'joints' is a {type(cfg['joints']).__name__}, not a mapping; "
+                         f"{TABLE_FORM}")
+    odd = [f"'{k}: {v}'" for k, v in cfg["joints"].items() if isinstance(v, (dict, list))]
+    if odd:
+        raise ValueError(f"BVH joint map {p}: row {', '.join(odd)} is not one clip joint's name; {TABLE_FORM}")
+    bones = cfg.get("bones") or []
+    if not isinstance(bones, list):
+        raise ValueError(f"BVH joint map {p}: its 'bones' is a {type(bones).__name__}, not a list; {TABLE_FORM}")
     joints = {str(k): str(v) for k, v in cfg["joints"].items() if v is not None}
     why = {j: f"row of {p.name}" for j in joints}
     ft = cfg.get("frame_time")
-    return JointMap(p.stem, p, joints, tuple(str(b) for b in cfg.get("bones") or ()), why,
+    return JointMap(p.stem, p, joints, tuple(str(b) for b in bones), why,
                     dialect=f"table {p.stem}",
                     frame_time=(float(ft["header"]), float(ft["capture"])) if isinstance(ft, dict) else None,
                     units=str(cfg["units"]) if cfg.get("units") else None)
+
+
+def is_shipped(table: JointMap) -> bool:
+    """A table of conf/motion (its rows name the whole dialect: a clip may lack some, a body some)."""
+    return table.path is not None and table.path.resolve().parent == MOTION_CONF.resolve()
+
+
+def _did_you_mean(name: str, choices) -> str:
+    """': did you mean X?' for the closest of `choices` (case, a namespace, then spelling), else ''."""
+    choices = list(choices)
+    low = {c.lower(): c for c in choices}
+    bare = {c.rsplit(":", 1)[-1].lower(): c for c in choices}
+    hit = (low.get(name.lower()) or bare.get(name.rsplit(":", 1)[-1].lower())
+           or next(iter(difflib.get_close_matches(name.lower(), list(low), n=1, cutoff=0.6)), None))
+    hit = low.get(hit, hit)
+    return f": did you mean {hit}?" if hit else ""
+
+
+def check_table_rows(bvh: Bvh, skeleton: Skeleton, table: JointMap) -> None:
+    """A joint map given as a file (not shipped): every row names a pbc body joint (this body's, or another
+    body's, whose rows this body skips) and a joint of the clip. Raises BvhError in one line naming each bad
+    row and the nearest name (difflib), or saying the rows are the wrong way round (clip joint: body joint)."""
+    if table.path is None or is_shipped(table):
+        return
+    body = set(skeleton.names) | set(body_joint_roles())
+    clip = set(bvh.names)
+    bad = [(j, c) for j, c in table.joints.items() if j not in body or c not in clip]
+    if not bad:
+        return
+    if sum(j in clip and c in body for j, c in table.joints.items()) > len(table.joints) / 2:
+        raise BvhError(f"{table.path}: its rows are the wrong way round ('{bad[0][0]}: {bad[0][1]}' names a clip "
+                       f"joint, then a body joint): a row is 'body joint: clip joint', e.g. "
+                       f"'{bad[0][1]}: {bad[0][0]}'; {TABLE_FORM}")
+    said = []
+    for j, c in bad:
+        problems = ([f"no body joint {j}{_did_you_mean(j, sorted(body))}"] if j not in body else []) + (
+            [f"{bvh.path} has no joint {c}{_did_you_mean(c, bvh.names)}"] if c not in clip else [])
+        said.append(f"'{j}: {c}' ({'; '.join(problems)})")
+    known = []
+    if any(j not in body and not _did_you_mean(j, sorted(body)) for j, _ in bad):
+        known.append(f"the body joints: {', '.join([*body_joint_roles(), *sorted(body - set(body_joint_roles()))])}")
+    if any(c not in clip and not _did_you_mean(c, bvh.names) for _, c in bad):
+        known.append(f"the clip's joints: {', '.join(bvh.names[:40])}{' ...' if len(bvh.names) > 40 else ''}")
+    rows = "1 row of the joint map names" if len(bad) == 1 else f"{len(bad)} rows of the joint map name"
+    raise BvhError(f"{table.path}: {rows} no joint: {', '.join(said)}; a row is 'body joint: clip joint'"
+                   + "".join(f"; {k}" for k in known))
 
 
 def capture_rate(bvh: Bvh, table: JointMap) -> tuple[Bvh, str | None]:
@@ -81,13 +167,16 @@ def capture_rate(bvh: Bvh, table: JointMap) -> tuple[Bvh, str | None]:
 def choose_joint_map(bvh: Bvh, spec: str | Path = "auto") -> JointMap:
     """`spec`: a shipped table's name or a YAML file (it wins); "auto": the shipped table that knows every
     joint name of the clip (the CMU releases), else the joints matched by name and structure
-    (pbc.motion.dialects.match_joints: Mixamo, Bandai Namco, LAFAN1, Blender, Rokoko, ...)."""
+    (pbc.motion.dialects.match_joints: Mixamo, Bandai Namco, LAFAN1, Blender, Rokoko, ...). Either automatic
+    choice drives the body's trunk with the clip's trunk and its limbs with the branches off it, or raises
+    BvhError with the table to write (pbc.motion.dialects.check_structure)."""
     if str(spec) != "auto":
         return load_joint_map(spec)
     tables = [load_joint_map(n) for n in shipped_joint_maps()]
     names = set(bvh.names)
     best = max(tables, key=lambda t: (len(names & t.known()), -tables.index(t)))
     if names <= best.known():
+        check_structure(bvh, best)
         return best
     return match_joints(bvh)
 
@@ -405,10 +494,12 @@ def bvh_to_poses(bvh: Bvh, skeleton: Skeleton, table: JointMap, frames: slice = 
     OFFSETs' layout, or for a skeleton lying flat a frame standing as a rest, `choose_rest_frame`). Raises
     BvhError when no joint of the clip is in the table, when the body's arms, legs or spine would stay at rest
     (`allow_rest` goes on with them at rest), when no frame stands as a rest, or when the retargeted clip fails
-    `sanity_report` (`trust` goes on, the problems in Motion.sanity); ValueError for a request of more than
+    `sanity_report` (`trust` goes on, the problems in Motion.sanity), or when a row of a table given as a
+    file names no body joint or no joint of the clip (`check_table_rows`); ValueError for a request of more than
     `max_frames` poses (None: conf/motion/sequence.yaml's) or a rest_frame outside the clip."""
     settings = motion_settings()
     check_skeleton(bvh)
+    check_table_rows(bvh, skeleton, table)
     bvh, rate_note = capture_rate(bvh, table)
     names = list(skeleton.names)
     index = {n: i for i, n in enumerate(bvh.names)}
