@@ -18,11 +18,10 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
-from pbc.core.validate import check_motion_settings
 from pbc.geometry.body import body_from_config
 from pbc.motion.bvh import check_skeleton, read_bvh
 from pbc.motion.inspect import clip_figure, describe
-from pbc.motion.retarget import bvh_to_poses, choose_joint_map
+from pbc.motion.retarget import bvh_to_poses, check_motion_files, choose_joint_map
 
 STARTERS_BODY = "anny"  # conf/body: the body of the shipped models (pbc/pretrained)
 
@@ -42,7 +41,7 @@ def run(argv: list[str]) -> int:
                     "clip's most neutral standing frame)")
     ap.add_argument("--no-figure", action="store_true", help="the report only")
     args = ap.parse_args(argv)
-    check_motion_settings()  # conf/motion's numbers, before the clip is read
+    check_motion_files()  # conf/motion's numbers, before the clip is read
     clip = Path(args.clip)
     if clip.suffix.lower() != ".bvh":
         raise ValueError(f"{clip}: give a .bvh motion clip")

@@ -8,7 +8,7 @@ pbc.core.paths), so every stage (data, models, inference, the jobs, the CLIs) ca
     rotation_errors(R)          (..., 3, 3) -> per-matrix orthonormality and det errors (vectorised)
     check_config(cfg)           one ValueError listing every mistyped / out-of-range config value
     check_bounds(cfg)           the sim and image values against conf/bounds.yaml alone (check_config does it too)
-    check_motion_settings()     conf/motion/sequence.yaml and dialects.yaml against conf/bounds.yaml
+    check_motion_settings(s, n, p)  one motion settings file's node against conf/bounds.yaml (its loader calls it)
     training_identity(cfg, fp)  what a resumed run must share with its checkpoint
     identity_diff(a, b)         the differences between two identities, one readable line each
     check_resume(ck, ident, p)  refuse a checkpoint of another training identity, listing the differences
@@ -287,9 +287,7 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
 
 # ------------------------------------------------------------------------------------------ bounds
 BOUNDS_FILE = CONF_DIR / "bounds.yaml"
-# the table's sections that are not config nodes: the files the motion reader loads (pbc.motion.retarget)
-SETTINGS_FILES = {"motion": CONF_DIR / "motion" / "sequence.yaml", "dialects": CONF_DIR / "motion" / "dialects.yaml"}
-CONFIG_SECTIONS = ("sim", "image")
+CONFIG_SECTIONS = ("sim", "image")  # the table's other sections are files the motion reader loads
 
 _SPEC = re.compile(r"(?P<kind>int|real|bool)"
                    r"(?:\s*(?P<lb>[\[(])\s*(?P<lo>[^,\s]+)\s*,\s*(?P<hi>[^\])\s]+)\s*(?P<rb>[\])]))?"
@@ -395,11 +393,13 @@ def _type_name(v: Any) -> str:
     return "list" if isinstance(v, ListConfig) else "dict" if isinstance(v, DictConfig) else type(v).__name__
 
 
-def bounds_problems(root: Any, sections: Sequence[str] = CONFIG_SECTIONS) -> list[str]:
+def bounds_problems(root: Any, sections: Sequence[str] = CONFIG_SECTIONS,
+                    files: Mapping[str, Path] | None = None) -> list[str]:
     """The values of `root` (a config, or {section: node}) in `sections` of conf/bounds.yaml that are out of
     their range or of another type, one line each: "sim.fps=-5 (int): expected a number in [1, 240] (...)";
-    a setting of a file (SETTINGS_FILES) is named by the file and its key there. Keys absent from `root` are
-    not judged; a pair of `order` only once both of its values passed."""
+    a setting of a section read from a file (`files`: {section: path}) is named by the file and its key there.
+    Keys absent from `root` are not judged; a pair of `order` only once both of its values passed."""
+    files = files or {}
     table, order = bounds_table()
     problems, bad = [], set()
     for key, bound in table.items():
@@ -410,7 +410,7 @@ def bounds_problems(root: Any, sections: Sequence[str] = CONFIG_SECTIONS) -> lis
         if not present:
             continue
         # a file's setting is named as its line there reads: "conf/motion/sequence.yaml: max_frames=0"
-        shown = f"{_shown(SETTINGS_FILES[section])}: {key.split('.', 1)[1]}" if section in SETTINGS_FILES else key
+        shown = f"{_shown(files[section])}: {key.split('.', 1)[1]}" if section in files else key
         if bound.shape == "each" and not isinstance(v, Mapping):
             problems.append(f"{shown}={_plain(v)!r} ({_type_name(v)}): expected a mapping of names to "
                             f"{bound.scalar_range(True)}")
@@ -438,13 +438,12 @@ def check_bounds(cfg: Any) -> None:
         raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
 
 
-def check_motion_settings(settings: Mapping[str, Any] | None = None) -> None:
-    """Refuse motion settings out of their range in conf/bounds.yaml: one ValueError listing every value, key,
-    value, range and file. `settings`: {"motion": node, "dialects": node}; None reads SETTINGS_FILES, the files
-    the motion reader loads (conf/motion/sequence.yaml and dialects.yaml)."""
-    if settings is None:
-        settings = {name: OmegaConf.load(path) for name, path in SETTINGS_FILES.items()}
-    problems = bounds_problems(settings, sections=tuple(settings))
+def check_motion_settings(section: str, node: Any, path: Path) -> None:
+    """Refuse a motion settings file's `node` (section `motion`: conf/motion/sequence.yaml, `dialects`:
+    dialects.yaml, read from `path`) with values out of their range in conf/bounds.yaml: one ValueError listing
+    every one, by file, key, value and range. The loaders call it on what they read
+    (pbc.motion.retarget.motion_settings, pbc.motion.dialects.dialect_settings)."""
+    problems = bounds_problems({section: node}, sections=(section,), files={section: Path(path)})
     if problems:
         raise ValueError("invalid motion settings:\n  - " + "\n  - ".join(problems))
 

@@ -48,7 +48,7 @@ from pbc.core.io import (
     save_npy,
     write_json,
 )
-from pbc.core.validate import check_config, check_motion_settings, identity_diff, moving_joints
+from pbc.core.validate import check_config, identity_diff, moving_joints
 from pbc.data.dataset import FORMAT_VERSION, ClothDataset, save_embedding
 from pbc.data.mirror import MirrorMap, mirror_map, mirror_poses, mirror_verts, symmetrised
 from pbc.data.mocap import motion_capture_poses, source_files_hash
@@ -60,7 +60,7 @@ from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
 from pbc.geometry.shrinkwrap import Embedding, shrinkwrap, start_points
-from pbc.motion.retarget import motion_settings
+from pbc.motion.retarget import check_motion_files, motion_settings
 from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
 
 log = logging.getLogger(__name__)
@@ -512,7 +512,7 @@ def generate(cfg: DictConfig, wait_s: float = 0.0) -> Path:
     the jobs of a multirun started from nothing wait for the one making the data, then find it finished).
     """
     check_config(cfg)  # typed values and ranges before any folder is made: data.shard=1.0, sim.fps=0
-    check_motion_settings()  # the poses' clips and clear_arms (conf/motion/sequence.yaml) are read here too
+    check_motion_files()  # the poses' clips and clear_arms (conf/motion/sequence.yaml) are read here too
     out = dataset_dir(cfg)
     if (out / "manifest.json").is_file() and cfg.data.shard is None:
         return _generate(cfg)  # finished: only reads (the directory may be read-only)

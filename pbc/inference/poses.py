@@ -12,14 +12,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pbc.core.validate import as_poses, check_motion_settings
+from pbc.core.validate import as_poses
 from pbc.data.trimmed import recorded_known_poses, recorded_training_range
 from pbc.geometry.body.base import pose_body
 from pbc.inference.predictor import ClothPredictor
 from pbc.motion.fit import clear_clip_arms, cleared_note
 from pbc.motion.known import nearest_known
 from pbc.motion.ranges import PoseRange, angle_range, range_from_record
-from pbc.motion.retarget import Motion, motion_settings, poses_from_clip
+from pbc.motion.retarget import Motion, check_motion_files, motion_settings, poses_from_clip
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +114,7 @@ def read_motion(path: str | Path, dataset, joint_map: str | Path = "auto", frame
     Arms the retarget hangs inside the torso are raised out of it (`pbc.motion.fit`; a note says so).
     Bad files: one ValueError naming the line and the fix (pbc.motion.bvh); motion settings out of their range
     (conf/bounds.yaml): one ValueError listing them, before the clip is read."""
-    check_motion_settings()
+    check_motion_files()
     motion = poses_from_clip(path, dataset.body.skeleton, joint_map, frames, fps, allow_rest, max_frames,
                              rest_frame, trust)
     motion.poses, turned = clear_clip_arms(motion.poses, dataset.body, motion_settings().clear_arms)

@@ -68,7 +68,6 @@ from pbc.core.io import (
 from pbc.core.runs import RunRecord, monitor
 from pbc.core.validate import (
     check_config,
-    check_motion_settings,
     check_pose_joints,
     check_resume,
     identity_diff,
@@ -80,6 +79,7 @@ from pbc.inference.poses import training_pose_range
 from pbc.models.module import TEST_SPLITS, ClothModule, flat_summary
 from pbc.models.progress import metric_table, silence_training_noise
 from pbc.motion.ranges import range_table_record
+from pbc.motion.retarget import check_motion_files
 from pbc.pixels.target import VertexTarget
 
 log = logging.getLogger(__name__)
@@ -374,7 +374,7 @@ def train(cfg: DictConfig, past_the_door: Callable[[Path], None] | None = None) 
     job leaves another run's config as it was."""
     t0, out = time.time(), output_dir(cfg)
     check_config(cfg)  # before anything is made: model.patch_id=3.0 is not patch 3, sim.fps=0 no drape
-    check_motion_settings()  # read when the data is made on the way (ensure_dataset)
+    check_motion_files()  # read when the data is made on the way (ensure_dataset)
     require_writable_dir(out, "run dir", "set hydra.run.dir (or PBC_ROOT) to a writable place")
     if not is_rank_zero():  # DDP starts ranks > 0 as copies of this command in rank 0's (held) run dir
         return fit_and_test(cfg, out, t0)

@@ -32,6 +32,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from pbc.core.paths import CONF_DIR
+from pbc.core.validate import check_motion_settings
 from pbc.motion.bvh import Bvh, BvhError
 
 DIALECTS_FILE = CONF_DIR / "motion" / "dialects.yaml"
@@ -61,8 +62,10 @@ class JointMap:
 
 @functools.lru_cache(maxsize=1)
 def dialect_settings():
-    """conf/motion/dialects.yaml, read once a process (every joint name asks for it), read-only."""
+    """conf/motion/dialects.yaml, read once a process (every joint name asks for it), read-only; its numbers
+    held to conf/bounds.yaml (one ValueError naming the file, the key and the range)."""
     cfg = OmegaConf.load(DIALECTS_FILE)
+    check_motion_settings("dialects", cfg, DIALECTS_FILE)
     OmegaConf.set_readonly(cfg, True)
     return cfg
 

@@ -28,6 +28,7 @@ from omegaconf.errors import OmegaConfBaseException
 from scipy.spatial.transform import Rotation, Slerp
 
 from pbc.core.paths import CONF_DIR
+from pbc.core.validate import check_motion_settings
 from pbc.geometry.body.skeleton import Skeleton, forward_kinematics
 from pbc.motion.bvh import Bvh, BvhError, check_skeleton, read_bvh
 from pbc.motion.dialects import (
@@ -42,12 +43,23 @@ from pbc.motion.dialects import (
 
 MOTION_CONF = CONF_DIR / "motion"
 SETTINGS = "sequence"  # conf/motion/sequence.yaml: not a joint map
+SETTINGS_FILE = MOTION_CONF / f"{SETTINGS}.yaml"
 NOT_TABLES = (SETTINGS, "dialects")  # conf/motion/dialects.yaml: the matching without a table
 
 
 def motion_settings():
-    """conf/motion/sequence.yaml (units, range tolerance, video)."""
-    return OmegaConf.load(MOTION_CONF / f"{SETTINGS}.yaml")
+    """conf/motion/sequence.yaml (units, range tolerance, video), its numbers held to conf/bounds.yaml: a value
+    out of its range is one ValueError naming the file, the key and the range."""
+    cfg = OmegaConf.load(SETTINGS_FILE)
+    check_motion_settings("motion", cfg, SETTINGS_FILE)
+    return cfg
+
+
+def check_motion_files() -> None:
+    """Both motion settings files read and held to conf/bounds.yaml, as every reader of them is
+    (`motion_settings`, `dialect_settings`): for a door to refuse them before it writes anything."""
+    motion_settings()
+    dialect_settings()
 
 
 def shipped_joint_maps() -> list[str]:
@@ -138,15 +150,17 @@ def check_table_rows(bvh: Bvh, skeleton: Skeleton, table: JointMap) -> None:
         raise BvhError(f"{table.path}: its rows are the wrong way round ('{bad[0][0]}: {bad[0][1]}' names a clip "
                        f"joint, then a body joint): a row is 'body joint: clip joint', e.g. "
                        f"'{bad[0][1]}: {bad[0][0]}'; {TABLE_FORM}")
+    body_hint = {j: _did_you_mean(j, sorted(body)) for j, _ in bad if j not in body}
+    clip_hint = {c: _did_you_mean(c, bvh.names) for _, c in bad if c not in clip}
     said = []
     for j, c in bad:
-        problems = ([f"no body joint {j}{_did_you_mean(j, sorted(body))}"] if j not in body else []) + (
-            [f"{bvh.path} has no joint {c}{_did_you_mean(c, bvh.names)}"] if c not in clip else [])
+        problems = ([f"no body joint {j}{body_hint[j]}"] if j in body_hint else []) + (
+            [f"{bvh.path} has no joint {c}{clip_hint[c]}"] if c in clip_hint else [])
         said.append(f"'{j}: {c}' ({'; '.join(problems)})")
     known = []
-    if any(j not in body and not _did_you_mean(j, sorted(body)) for j, _ in bad):
+    if not all(body_hint.values()):
         known.append(f"the body joints: {', '.join([*body_joint_roles(), *sorted(body - set(body_joint_roles()))])}")
-    if any(c not in clip and not _did_you_mean(c, bvh.names) for _, c in bad):
+    if not all(clip_hint.values()):
         known.append(f"the clip's joints: {', '.join(bvh.names[:40])}{' ...' if len(bvh.names) > 40 else ''}")
     rows = "1 row of the joint map names" if len(bad) == 1 else f"{len(bad)} rows of the joint map name"
     raise BvhError(f"{table.path}: {rows} no joint: {', '.join(said)}; a row is 'body joint: clip joint'"

@@ -17,6 +17,9 @@ import pbc.core.validate as validate
 from pbc.core.config import load_config
 from pbc.core.paths import CONF_DIR
 from pbc.core.validate import bounds_table, check_bounds, check_config, check_motion_settings
+from pbc.motion import retarget
+from pbc.motion.dialects import dialect_settings
+from pbc.motion.retarget import check_motion_files
 
 FPS_TEXT = "expected a number in [1, 240] (frames per simulated second)"
 FPS_RANGE = re.escape(FPS_TEXT)
@@ -114,7 +117,7 @@ def test_motion_settings_out_of_range_are_refused_naming_the_file_and_the_key():
     motion.max_frames, motion.known.quantile, motion.units.cm = 0, 1.5, -0.01
     motion.sanity.height_m = [2.4, 1.0]
     with pytest.raises(ValueError) as err:
-        check_motion_settings({"motion": motion, "dialects": OmegaConf.load(CONF_DIR / "motion" / "dialects.yaml")})
+        check_motion_settings("motion", motion, CONF_DIR / "motion" / "sequence.yaml")
     assert _problems(err) == [
         "conf/motion/sequence.yaml: units.cm=-0.01 (float): expected a number > 0 (metres per file unit)",
         "conf/motion/sequence.yaml: max_frames=0 (int): expected an integer >= 1 (poses one request may make)",
@@ -132,7 +135,7 @@ def test_the_motion_doors_read_the_settings_first(tmp_path, monkeypatch):
     bad = tmp_path / "sequence.yaml"
     shutil.copy(CONF_DIR / "motion" / "sequence.yaml", bad)
     bad.write_text(bad.read_text().replace("max_frames: 100000", "max_frames: -1"))
-    monkeypatch.setitem(validate.SETTINGS_FILES, "motion", bad)
+    monkeypatch.setattr(retarget, "SETTINGS_FILE", bad)
     needle = re.escape(f"{bad}: max_frames=-1 (int): expected an integer >= 1")
     with pytest.raises(ValueError, match=needle):
         run(["inspect", str(CLIP), "--no-figure"])
@@ -154,7 +157,8 @@ def test_every_shipped_preset_passes(override):
 
 
 def test_the_shipped_motion_settings_pass():
-    check_motion_settings()
+    dialect_settings.cache_clear()  # read again, not taken from an earlier test's load
+    check_motion_files()
 
 
 @pytest.mark.parametrize("metrics", MODELS, ids=lambda p: p.parent.name)
