@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -16,6 +15,7 @@ import pytest
 from conftest import TINY_SAMPLES as N
 from conftest import tiny_overrides
 from helpers.generate_runs import tiny_cfg
+from helpers.processes import alive, descendants
 
 from pbc.core.config import load_config
 from pbc.data.dataset import load_dataset
@@ -68,28 +68,6 @@ def test_resume_after_sigkill_is_byte_identical(reference: Path, tmp_path: Path)
         assert (out / name).read_bytes() == (reference / name).read_bytes(), name
 
 
-def _descendants(pid: int) -> set[int]:
-    """Every process below `pid` (Linux /proc)."""
-    out, todo = set(), [pid]
-    while todo:
-        p = todo.pop()
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            with contextlib.suppress(OSError):
-                kids = {int(c) for c in (task / "children").read_text().split()}
-                todo += list(kids - out)
-                out |= kids
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    state = Path(f"/proc/{pid}/stat")
-    return not (state.exists() and state.read_text().split(") ")[-1].startswith("Z"))  # a zombie is gone
-
-
 def test_sigterm_stops_the_drape_workers_with_their_job(tmp_path: Path):
     # a killed job (kill, a scheduler's cancel) left its two drape workers draping on as orphans for half an hour
     cfg_args = tiny_overrides(tmp_path, "data.workers=2")
@@ -100,16 +78,16 @@ def test_sigterm_stops_the_drape_workers_with_their_job(tmp_path: Path):
     # both workers started and one drape written: the next drapes are under way, as when a job is cancelled
     while time.time() < deadline and proc.poll() is None and (
             len(workers) < 2 or not list((out / "work" / "samples").glob("[0-9]*.npz"))):
-        workers = {p for p in _descendants(proc.pid)
+        workers = {p for p in descendants(proc.pid)
                    if "multiprocessing.spawn" in Path(f"/proc/{p}/cmdline").read_text()}
         time.sleep(0.2)
     assert proc.poll() is None and len(workers) >= 2, "the drape workers never started"
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=60) == 128 + signal.SIGTERM
     deadline = time.time() + 15
-    while time.time() < deadline and any(_alive(p) for p in workers):
+    while time.time() < deadline and any(alive(p) for p in workers):
         time.sleep(0.2)
-    assert not [p for p in workers if _alive(p)], "drape workers outlived their killed job"
+    assert not [p for p in workers if alive(p)], "drape workers outlived their killed job"
 
 
 def test_shards_then_merge_equal_single_run(reference: Path, tmp_path: Path):

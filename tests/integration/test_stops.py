@@ -7,7 +7,6 @@ SIGINTed in the same step. Processes are followed through /proc (psutil is not i
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shlex
 import signal
@@ -21,6 +20,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from helpers.a_pose import outfit_obj  # noqa: E402
+from helpers.processes import alive, cmdline, descendants  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["trainer=smoke", "image.whole_resolution=64", "image.patch_resolution=128", "datamodule.batch_size=4",
@@ -32,47 +32,19 @@ def _env(root: Path) -> dict:
                 PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
 
 
-def _descendants(pid: int) -> set[int]:
-    """Every process below `pid` now (Linux /proc)."""
-    out, todo = set(), [pid]
-    while todo:
-        p = todo.pop()
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            with contextlib.suppress(OSError, ValueError):
-                kids = {int(c) for c in (task / "children").read_text().split()}
-                todo += list(kids - out)
-                out |= kids
-    return out
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
-def _alive(pid: int) -> bool:
-    """A process that runs (a zombie is gone: it only waits to be reaped)."""
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
-    except (OSError, IndexError):
-        return False
-
-
 def _stop_when(proc: subprocess.Popen, ready, signum: int, timeout: float = 300) -> dict[int, str]:
     """Follow `proc`'s descendants until `ready(cmdlines)`; then send `signum` to `proc` alone (as `kill` does)
     and return every descendant seen, with its command line."""
     seen: set[int] = set()
     deadline = time.time() + timeout
     while time.time() < deadline and proc.poll() is None:
-        seen |= _descendants(proc.pid)
-        if ready([_cmdline(p) for p in seen if _alive(p)]):
+        seen |= descendants(proc.pid)
+        if ready([cmdline(p) for p in seen if alive(p)]):
             break
         time.sleep(0.2)
     assert proc.poll() is None, f"the command ended before it was stopped: {proc.communicate()}"
-    seen |= _descendants(proc.pid)
-    kinds = {p: _cmdline(p) for p in seen}
+    seen |= descendants(proc.pid)
+    kinds = {p: cmdline(p) for p in seen}
     proc.send_signal(signum)
     return kinds
 
@@ -101,7 +73,7 @@ def test_sigterm_stops_a_garment_fit_with_its_generate_and_drape_workers(stopped
     root, out, res, seen = stopped_fit
     assert res.returncode == 143, res.stderr[-3000:]
     assert any("pbc.generate" in c for c in seen.values()) and _drape_workers(list(seen.values())) >= 2, seen
-    assert not [p for p in seen if _alive(p)], "processes outlived their stopped fit"
+    assert not [p for p in seen if alive(p)], "processes outlived their stopped fit"
     line = res.stderr.strip().splitlines()[-1]
     assert line.startswith("pbc garment: stopped by SIGTERM in step 3/5 data (python -m pbc.generate, its log: "), line
     assert f"to continue: pbc garment fit shirt.obj garment.position_unit=dm {' '.join(TINY)} --samples 4 --out {out}" \
@@ -130,5 +102,5 @@ def test_sigint_to_the_command_that_continues_it_stops_it_again_in_its_step(stop
     line = stderr.strip().splitlines()[-1]
     assert line.startswith("pbc garment: stopped by SIGINT in step 3/5 data (python -m pbc.generate"), line
     assert f"to continue: {shlex.join(again)} (" in line
-    assert not [p for p in seen if _alive(p)], "processes outlived their interrupted fit"
+    assert not [p for p in seen if alive(p)], "processes outlived their interrupted fit"
     assert not (out / "data" / "manifest.json").exists()
