@@ -6,8 +6,8 @@ where it stopped and the command that continues, and exit status 128 + the signa
   thread, so every `finally` and `with` on the way out runs (Python's default for SIGTERM ends the process past
   them). Neither is an Exception: an `except Exception` (a failed-run record, a sweep step's) passes them on.
   A handler set over this one that calls it (Lightning's trainer: it stops after the current batch, writes
-  `last.ckpt` and raises its SystemExit) owns that SIGTERM; this one records it (`received`), and the exception
-  leaving the command is reported as the stop. A second signal while a stop is under way is ignored.
+  `last.ckpt` and raises its SystemExit) owns that SIGTERM; this one records it (`stopped_by` reads it), and the
+  exception leaving the command is reported as the stop. A second signal while a stop is under way is ignored.
 - `child(argv, ...)`: a child process in a process group of its own, for a `with` block; an exception leaving
   the block (a stop, an error) stops it and everything in its group (`stop_group`: the same signal to the
   child, SIGKILL to the group for what is left after `GRACE_S`), so its own children (drape workers, data
@@ -59,15 +59,6 @@ _steps: list[Step] = []
 _received: int | None = None  # the stop signal that arrived, None before one
 _at: Step | None = None  # the innermost step when it arrived
 _installed = 0  # depth of `handled` blocks that set the handlers
-
-
-def signal_name(signum: int) -> str:
-    return signal.Signals(signum).name
-
-
-def received() -> int | None:
-    """The stop signal (SIGINT, SIGTERM) this process received inside `handled`, None when none did."""
-    return _received
 
 
 def stopped_by(exc: BaseException) -> int | None:
@@ -143,8 +134,8 @@ def stop_line(signum: int, command: str, args: Sequence[str]) -> str:
     again = shlex.join(["pbc", command, *args])
     where = f" in {here.where}" if here is not None else ""
     note = here.note_text() if here is not None else ""
-    return (f"stopped by {signal_name(signum)}{where}; its processes are stopped and every file it wrote is whole; "
-            + (f"to continue: {again} ({note})" if note else f"to run it again: {again}"))
+    return (f"stopped by {signal.Signals(signum).name}{where}; its processes are stopped and every file it wrote "
+            "is whole; " + (f"to continue: {again} ({note})" if note else f"to run it again: {again}"))
 
 
 # ------------------------------------------------------------------------------------------ child processes

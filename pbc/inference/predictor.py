@@ -381,7 +381,7 @@ class ClothPredictor:
                           if backend == "stacked" else LoopPatchNet(self.patch_nets)).eval() if patches else None
         if pca is not None:
             self.use_pca(pca)
-        self._held: Tensor | None = None
+        self._held: list[int] | None = None  # held_joints, found on first use
         self.hold_unread = True  # False: skin the garment with every joint as posed (`held_joints`, for study)
         self.to(device)
 
@@ -495,8 +495,8 @@ class ClothPredictor:
             ds, read = self.dataset, set(self.read_joints())
             poses = [np.asarray(ds.poses)] + [k for k in (recorded_known_poses(ds),) if k is not None]
             still = still_joints(np.concatenate(poses))
-            self._held = torch.tensor([j for j in range(len(still)) if still[j] and j not in read], dtype=torch.long)
-        return self._held.tolist()
+            self._held = [j for j in range(len(still)) if still[j] and j not in read]
+        return list(self._held)
 
     def skinned_pose(self, pose: Tensor) -> Tensor:
         """pose (B, J, 3, 3) as the garment is skinned with it: the `held_joints` at rest (with `hold_unread`)."""
