@@ -124,23 +124,17 @@ def _subtree(kids, j) -> list[int]:
     return out
 
 
-PAIR_REACH_RATIO = 1.25  # two sibling subtrees of one depth whose reaches agree this well are a mirrored pair
-LIMB_DEPTH = 3  # a pair of branches at least this many joints deep ...
-LIMB_REACH = 0.3  # ... and reaching this share of the longest path down from the first branching (the pelvis)
-# is a pair of limbs (arms, legs), not of eyes, fingers, toes or a face's bones
-
-
 @dataclass(frozen=True)
 class Structure:
-    """A clip's skeleton read from its shape alone (no name plays a part). `trunk`: the chain from the root to
-    the head's end that the branches leave (joint indices, root first); it ends where its next joint cannot be
-    told (no child, or several unpaired children none of which alone carries a pair of limbs). `branches`:
-    each subtree leaving the trunk as one of a mirrored pair (two sibling subtrees of one depth in joints and
-    of one reach, within PAIR_REACH_RATIO: the legs, the arms, the eyes), its joints with the one hanging off
-    the trunk first, and `attach` the trunk position it leaves from. `limbs`: how many of those pairs are
-    limbs (LIMB_DEPTH joints deep, reaching LIMB_REACH of the longest path down from the first joint with
-    several children). A joint on neither (an unpaired side branch, what lies past the trunk's end) is not
-    classified."""
+    """A clip's skeleton read from its shape alone (no name plays a part; the thresholds are
+    conf/motion/dialects.yaml's `structure`). `trunk`: the chain from the root to the head's end that the
+    branches leave (joint indices, root first); it ends where its next joint cannot be told (no child, or several
+    unpaired children none of which alone carries a pair of limbs). `branches`: each subtree leaving the trunk as
+    one of a mirrored pair (two sibling subtrees of one depth in joints and of one reach, within
+    pair_reach_ratio: the legs, the arms, the eyes), its joints with the one hanging off the trunk first, and
+    `attach` the trunk position it leaves from. `limbs`: how many of those pairs are limbs (limb_depth joints
+    deep, reaching limb_reach of the longest path down from the first joint with several children). A joint on
+    neither (an unpaired side branch, what lies past the trunk's end) is not classified."""
 
     trunk: tuple[int, ...]
     branches: tuple[tuple[int, ...], ...]
@@ -175,8 +169,8 @@ def _depth_and_reach(bvh: Bvh, kids) -> tuple[list[int], list[float]]:
     return depth, reach
 
 
-def _pairs(children: list[int], depth, reach) -> list[tuple[int, int]]:
-    """The mirrored pairs among siblings: one depth, reaches within PAIR_REACH_RATIO, the closest first."""
+def _pairs(children: list[int], depth, reach, ratio: float) -> list[tuple[int, int]]:
+    """The mirrored pairs among siblings: one depth, reaches within `ratio` of each other, the closest first."""
     scale = max((reach[c] for c in children), default=0.0)
     cands = []
     for i, a in enumerate(children):
@@ -186,7 +180,7 @@ def _pairs(children: list[int], depth, reach) -> list[tuple[int, int]]:
             lo, hi = sorted((reach[a], reach[b]))
             if hi <= 1e-9 * max(scale, 1.0):
                 cands.append((0.0, a, b))
-            elif lo > 0 and hi / lo <= PAIR_REACH_RATIO:
+            elif lo > 0 and hi / lo <= ratio:
                 cands.append((float(np.log(hi / lo)), a, b))
     out, used = [], set()
     for _, a, b in sorted(cands):
@@ -200,6 +194,8 @@ def skeleton_structure(bvh: Bvh) -> Structure:
     """The clip's trunk and branches from its shape (`Structure`): from the root, each trunk joint's children
     in mirrored pairs are branches; the one unpaired child (else the one unpaired child whose subtree holds a
     pair of limbs) continues the trunk."""
+    shape = dialect_settings().structure
+    ratio = float(shape.pair_reach_ratio)
     kids = _children(bvh)
     depth, reach = _depth_and_reach(bvh, kids)
     first = 0
@@ -208,15 +204,15 @@ def skeleton_structure(bvh: Bvh) -> Structure:
     longest = max((reach[k] for k in kids[first]), default=0.0)  # its OFFSET (a world position there) left out
 
     def limb(a) -> bool:
-        return depth[a] >= LIMB_DEPTH and reach[a] >= LIMB_REACH * longest
+        return depth[a] >= int(shape.limb_depth) and reach[a] >= float(shape.limb_reach) * longest
 
     def carries_limbs(j) -> bool:
-        return any(limb(a) for k in _subtree(kids, j) for a, _ in _pairs(kids[k], depth, reach))
+        return any(limb(a) for k in _subtree(kids, j) for a, _ in _pairs(kids[k], depth, reach, ratio))
 
     trunk, branches, attach, limbs = [0], [], [], 0
     while True:
         j = trunk[-1]
-        pairs = _pairs(kids[j], depth, reach)
+        pairs = _pairs(kids[j], depth, reach, ratio)
         for a, b in pairs:
             for c in (a, b):
                 sub = _subtree(kids, c)
