@@ -16,10 +16,11 @@ intermediates (building another rig, topology or phenotype set makes them again)
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
-from pbc.core.io import naming_full_disk
+from pbc.core.io import naming_full_disk, require_out_dir
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.anny import anny_cache_dir, cache_files, trim_anny_cache
 from pbc.geometry.body.measure import inside_test_gap, measurements
@@ -75,6 +76,8 @@ def run(argv: list[str]) -> int:
         ap.error("export needs --out FILE.obj (or .ply)")
     if args.out and not args.out.lower().endswith((".obj", ".ply")):
         raise ValueError(f"--out {args.out}: give a .obj or .ply file name")
+    if args.action == "export":
+        require_out_dir(Path(args.out).parent, holds_file=True)  # before the body is built (seconds for Anny)
     cfg = load_config(args.overrides).body
     body = body_from_config(cfg)  # every check (phenotype, topology, joint table) runs before anything is written
     if args.action == "show":

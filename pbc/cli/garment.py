@@ -22,10 +22,12 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
-from pbc.core.validate import check_bounds
+from pbc.core.io import require_out_dir
+from pbc.core.validate import check_bounds, made_on_rest_problems
 from pbc.geometry.body import body_from_config
 from pbc.geometry.garment.outfit import split_outfit
 from pbc.geometry.inspect import format_report, save_body_picture, save_uv_picture
+from pbc.geometry.meshio import not_an_obj_file
 from pbc.jobs.garment_fit import STEPS, Fit, default_out, garment_overrides, inspect_file
 
 
@@ -58,8 +60,9 @@ def run(argv: list[str]) -> int:
     if rest and (args.command != "fit" or any(r.startswith("-") for r in rest)):
         ap.error(f"unrecognized arguments: {' '.join(rest)}")
     path = Path(args.obj)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such garment file")
+    problem = not_an_obj_file(path, "garment")  # a folder: its OBJ files named
+    if problem is not None:
+        raise FileNotFoundError(problem)
     if args.command == "fit":
         out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")), [*args.overrides, *rest])
         print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs, until=args.until).run())
@@ -73,8 +76,12 @@ def run(argv: list[str]) -> int:
         for name, target, n in split_outfit(path, args.out, position_unit=unit):
             print(f"{name:<10} {n:>6} polygons  {target}")
         return 0
+    if args.out:
+        require_out_dir(args.out)  # before the garment is read: the pictures and fitted.obj are written last
     cfg = load_config([*garment_overrides(path, args.overrides), *args.overrides])
     check_bounds(cfg)  # the image sizes its garment node reads (${image.crop_size}) and any sim override given
+    if problems := made_on_rest_problems(cfg):  # before the body is turned to it
+        raise ValueError("invalid configuration:\n  - " + "\n  - ".join(problems))
     with tempfile.TemporaryDirectory() as scratch:  # MakeHuman clothes' fitted .obj, kept under --out
         report = inspect_file(path, cfg, body_from_config(cfg.body), Path(args.out or scratch),
                               wrap=not args.no_wrap)

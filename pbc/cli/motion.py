@@ -18,6 +18,7 @@ from pathlib import Path
 
 from pbc.cli.errors import entry_point
 from pbc.core.config import load_config
+from pbc.core.io import require_out_dir
 from pbc.geometry.body import body_from_config
 from pbc.motion.bvh import check_skeleton, read_bvh
 from pbc.motion.inspect import clip_figure, describe
@@ -48,6 +49,8 @@ def run(argv: list[str]) -> int:
     out = Path(args.out or f"{clip.stem}.inspect.png")
     if not args.no_figure and out.suffix.lower() != ".png":
         raise ValueError(f"--out {out}: give a .png file name")
+    if not args.no_figure:
+        require_out_dir(out.parent, holds_file=True)  # before the clip is read: the figure is the last thing written
     bvh = read_bvh(clip)
     check_skeleton(bvh)
     frame = bvh.num_frames // 2 if args.frame is None else args.frame

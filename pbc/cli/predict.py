@@ -24,7 +24,8 @@ EXAMPLES = """examples:
   pbc predict --pretrained tshirt --poses test                     # the model shipped with pbc, no training
   pbc predict runs/main/latest/whole --poses my_poses.npy --body   # (N, 10, 3, 3) or (N, 90) rotations
   pbc predict runs/main/latest/whole --patches runs/patches --method pca --poses test --format ply
-  pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: meshes, video, GLB
+  pbc predict runs/main/latest/whole --poses walk.bvh --frames 0:300:4   # a BVH clip: video, GLB, contact sheet
+  pbc predict runs/main/latest/whole --poses walk.bvh --obj               # ... and an OBJ per frame
   pbc predict runs/main/latest/whole --poses walk.bvh --fps 30 --guard range --bvh-map my_rig.yaml
   pbc predict --pretrained tshirt --poses dance.bvh --rest-frame 40     # a clip whose rest is its frame 40
   pbc predict runs/shapes/whole --poses walk.bvh --person 3            # a data.body_shape run: on person 3
@@ -55,14 +56,19 @@ def parser() -> argparse.ArgumentParser:
                                                    "clip, or a split of the run's dataset: train, val or test")
     ap.add_argument("--max", type=int, metavar="N", help="the first N poses only (N >= 1)")
     ap.add_argument("--out", help="output dir (default $PBC_ROOT/runs/predict/<date>_<time>)")
-    ap.add_argument("--format", choices=("obj", "ply"), default="obj", help="mesh format (default obj)")
+    ap.add_argument("--format", choices=("obj", "ply"), help="mesh format (default obj; for a clip: a mesh per "
+                    "frame in it)")
+    ap.add_argument("--obj", action="store_true", help="for a clip: also a mesh per frame (meshes/, OBJ unless "
+                    "--format ply; without it a clip writes its video, garment.glb and contact sheet)")
     ap.add_argument("--body", action="store_true", help="also write each posed body mesh")
     ap.add_argument("--person", type=int, metavar="K", help="in a dataset of several people (data.body_shape): "
                     "the garment on person K (0..K-1, shapes.npz) for every pose; default: a split's poses each on "
                     "its own person, other poses on the base person (body.npz)")
-    ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png (0: none)")
+    ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png, for a clip "
+                    "frames spread over it (0: none)")
     ap.add_argument("--batch-size", type=int, default=16)
-    motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): a mesh per frame, motion.mp4, garment.glb")
+    motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): motion.mp4, garment.glb, contact_sheet.png "
+                                   "(a mesh per frame with --obj)")
     motion.add_argument("--bvh-map", default="auto", metavar="TABLE",
                         help="the joint map: a table of conf/motion (" + ", ".join(shipped_joint_maps())
                         + ") or a YAML file of that layout; auto (default): a shipped table knowing every joint, "
@@ -124,10 +130,10 @@ def run(argv: list[str]) -> int:
             truth = None  # simulated on other people: no error to report against them
             print(f"--person {args.person}: the split's poses were simulated on their own people, so no vertex "
                   "error is reported")
-    res = predict_to_dir(predictor, chosen.poses, chosen.names, out, args.format, args.body, args.sheet,
+    res = predict_to_dir(predictor, chosen.poses, chosen.names, out, args.format or "obj", args.body, args.sheet,
                          args.batch_size, args.model, truth, info, person)
     err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
-    print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format} ({res['model']} model{err}), "
+    print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format or 'obj'} ({res['model']} model{err}), "
           f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
     return 0
 
@@ -141,17 +147,19 @@ def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
     if args.max is not None:
         motion = dataclasses.replace(motion, poses=motion.poses[:args.max], times=motion.times[:args.max],
                                      source_frames=motion.source_frames[:args.max])
-    res = predict_sequence(predictor, motion, out, args.format, None if args.video == "none" else args.video,
+    meshes = args.obj or args.format is not None or args.body  # asked for: a clip's meshes are its largest output
+    res = predict_sequence(predictor, motion, out, args.format or "obj", None if args.video == "none" else args.video,
                            not args.no_glb, args.body, "range" if args.clamp_to_range else args.guard,
                            args.batch_size, args.model,
-                           dict(info, frames=args.frames, fps=args.fps), person=args.person)
+                           dict(info, frames=args.frames, fps=args.fps), person=args.person, meshes=meshes,
+                           sheet=args.sheet)
     for note in res["notes"][len(motion.notes):]:  # where the training range came from when not the run
         print(note)
     print(clip_summary(motion, res["pose_range"]))
-    extra = ", ".join(res["files"][k] for k in ("video", "glb") if k in res["files"])
+    written = [res["files"][k] for k in ("meshes", "video", "glb", "contact_sheet") if k in res["files"]]
     print(f"{res['num_poses']} frames ({motion.table.name} joint map, {motion.units}, {motion.fps:g} fps) -> "
-          f"{out}/meshes/frame_*.{args.format} ({res['model']} model){', ' + extra if extra else ''}, "
-          f"predict.json ({res['seconds']:.1f} s)")
+          f"{out}/: {', '.join([*written, 'vertices.npy', 'predict.json'])} ({res['model']} model, "
+          f"{res['seconds']:.1f} s)" + ("" if meshes else "; a mesh per frame with --obj"))
     return 0
 
 

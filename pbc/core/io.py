@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import functools
 import hashlib
 import json
 import os
@@ -24,6 +25,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from pbc.core.paths import CONF_DIR
 
 
 @contextlib.contextmanager
@@ -201,6 +204,35 @@ def is_writable_dir(path: str | os.PathLike) -> bool:
     return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
 
 
+def out_dir_problem(path: str | os.PathLike) -> str | None:
+    """Why new files cannot be written in folder `path`, or None when they can: it is a folder this user may
+    write in, or it does not exist and the nearest existing folder above it is one (it can be created). Only
+    looks: nothing is created."""
+    p = Path(path).absolute()
+    existing = p
+    while not existing.exists() and existing.parent != existing:
+        existing = existing.parent
+    below = "" if existing == p else "it cannot be created: "
+    if not existing.is_dir():
+        return f"{below}{existing} is a file, not a folder"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"{below}{existing} is read-only to this user (chmod u+w {existing} to write there)"
+    return None
+
+
+def require_out_dir(path: str | os.PathLike, flag: str = "--out", holds_file: bool = False) -> Path:
+    """Refuse up front, in one PermissionError naming the folder `path` and the fix, an output folder that does
+    not exist and cannot be created, is a file, or is read-only (`out_dir_problem`): checked before any work,
+    so no write fails later naming a temporary file. `flag` names the option the folder came from, a file
+    inside it with `holds_file` (`--out body.obj`). Creates nothing."""
+    problem = out_dir_problem(path)
+    if problem is not None:
+        where = f"the folder of {flag}" if holds_file else f"{flag} folder"
+        want = "a file in a folder you can write to" if holds_file else "a folder you can write to"
+        raise PermissionError(f"{where} {path}: {problem}; give {flag} {want}")
+    return Path(path)
+
+
 def require_writable_dir(path: str | os.PathLike, what: str = "output directory", fix: str = "") -> Path:
     """Create `path` if needed and return it; one PermissionError naming it when it cannot be written
     (a read-only runs dir otherwise surfaces as a misleading FileNotFoundError deep in a logger)."""
@@ -244,6 +276,11 @@ def _human(n: int) -> str:
     return str(n)
 
 
+def human_bytes(n: int) -> str:
+    """`n` bytes as people read them: 934.3 KiB, 1.2 GiB."""
+    return _human(n)
+
+
 def free_bytes(path: str | os.PathLike) -> int:
     """Bytes free to this user on the file system that holds `path` (or its nearest existing parent)."""
     p = Path(path).absolute()
@@ -259,12 +296,35 @@ def _disk_full_message(path, what: str, fix: str, needed: int | None, free: int 
     return f"no space left on the device holding {what} {path}{amount}; {fix or 'free space there'}"
 
 
+IO_FILE = CONF_DIR / "io.yaml"  # free_space_margin_bytes
+
+
+@functools.cache
+def free_space_margin() -> int:
+    """conf/io.yaml's free_space_margin_bytes: what a free-space check asks for beyond the files' own bytes (their
+    blocks and folder entries), held to conf/bounds.yaml."""
+    import yaml  # noqa: PLC0415 - only a free-space check reads the file
+
+    from pbc.core.validate import check_settings_file  # noqa: PLC0415 - validate imports io
+
+    node = yaml.safe_load(IO_FILE.read_text()) or {}
+    check_settings_file("io", node, IO_FILE)
+    return int(node["free_space_margin_bytes"])
+
+
 def require_free_space(path: str | os.PathLike, needed: int, what: str = "output", fix: str = "") -> None:
-    """Refuse up front (DiskFull naming `path`, `needed` and the free bytes) when `needed` bytes will not fit
-    at `path`, so nothing is half-written; a little headroom (1 MiB) is kept for metadata."""
+    """Refuse up front (DiskFull naming `path`, the bytes asked for and the free bytes) when `needed` bytes of
+    files and the margin of conf/io.yaml (`free_space_margin`) will not fit at `path`, so nothing is
+    half-written; the message states the files' bytes and the margin, which add up to what it asks for."""
     free = free_bytes(path)
-    if needed + 2**20 > free:
-        raise DiskFull(_disk_full_message(path, what, fix, int(needed), int(free)))
+    margin = free_space_margin()
+    if needed + margin > free:
+        asked, left = _human(needed + margin), _human(free)
+        if asked == left:  # equal when rounded: the bytes show which is more
+            asked, left = f"{needed + margin:,} B", f"{free:,} B"
+        amount = (f": {asked} needed ({_human(needed)} of files + a {_human(margin)} margin for the file system's "
+                  f"blocks, conf/io.yaml), {left} free")
+        raise DiskFull(f"no space left on the device holding {what} {path}{amount}; {fix or 'free space there'}")
 
 
 @contextlib.contextmanager

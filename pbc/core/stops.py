@@ -10,8 +10,8 @@ where it stopped and the command that continues, and exit status 128 + the signa
   exception leaving the command is reported as the stop. A second signal while a stop is under way is ignored.
 - `child(argv, ...)`: a child process in a process group of its own, for a `with` block; an exception leaving
   the block (a stop, an error) stops it and everything in its group (`stop_group`: the same signal to the
-  child, SIGKILL to the group for what is left after `GRACE_S`), so its own children (drape workers, data
-  loader workers) go with it. A normal end waits for it.
+  child, SIGKILL to the group for what is left after conf/stops.yaml's `grace_s`), so its own children (drape
+  workers, data loader workers) go with it. A normal end waits for it.
 - `step(where, note)`: what the stop line says (`stop_line`): the innermost step at the moment of the signal.
 
 Every file pbc writes is written beside its place and renamed (pbc.core.io), so a stop leaves it whole or absent.
@@ -20,6 +20,7 @@ Every file pbc writes is written beside its place and renamed (pbc.core.io), so 
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shlex
 import signal
@@ -31,8 +32,25 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import yaml
+
+from pbc.core.paths import CONF_DIR
+
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
-GRACE_S = 10.0  # a child's own stop (its workers terminated, joined, killed after 5 s) fits in it
+STOPS_FILE = CONF_DIR / "stops.yaml"  # grace_s, kill_wait_s
+
+
+@functools.cache
+def stop_settings() -> dict[str, float]:
+    """conf/stops.yaml (`grace_s`: how long a stopped child has before its group is killed; `kill_wait_s`: how
+    long the killed group may take to go), read once a process and held to conf/bounds.yaml: a value out of its
+    range is one ValueError naming the file, the key and the range. `child` reads it before its process starts,
+    so a stop never waits on a file."""
+    from pbc.core.validate import check_settings_file  # noqa: PLC0415 - validate loads torch; only children need it
+
+    node = yaml.safe_load(STOPS_FILE.read_text()) or {}
+    check_settings_file("stops", node, STOPS_FILE)
+    return {k: float(node[k]) for k in ("grace_s", "kill_wait_s")}
 
 
 class Stopped(SystemExit):
@@ -76,7 +94,7 @@ def stopped_by(exc: BaseException) -> int | None:
 
 def _on_signal(signum, frame) -> None:
     global _received, _at
-    if _received is not None:  # a stop is under way: it ends within GRACE_S
+    if _received is not None:  # a stop is under way: it ends within stop_settings()'s grace
         return
     _received, _at = signum, (_steps[-1] if _steps else None)
     if signum == signal.SIGTERM and signal.getsignal(signal.SIGTERM) is not _on_signal:
@@ -145,6 +163,7 @@ def child(argv: Sequence[str], **popen_kwargs) -> Iterator[subprocess.Popen]:
     the block stops the child and its group (`stop_group`, with the stop's own signal, else SIGTERM) before it
     goes on; a normal end waits for the child. No signal is taken between the start and the block."""
     group = {"process_group": 0} if sys.version_info >= (3, 11) else {"start_new_session": True}
+    stop_settings()  # read (and checked) now: a stop must not wait on a file
     in_main = threading.current_thread() is threading.main_thread()
     if in_main:
         signal.pthread_sigmask(signal.SIG_BLOCK, SIGNALS)
@@ -183,10 +202,13 @@ def _group_alive(pgid: int) -> bool:
     return False
 
 
-def stop_group(proc: subprocess.Popen, signum: int = signal.SIGTERM, grace: float = GRACE_S) -> None:
+def stop_group(proc: subprocess.Popen, signum: int = signal.SIGTERM, grace: float | None = None) -> None:
     """Stop `proc` (started by `child`: its pid is its group's) and every process of its group: `signum` to the
-    child (a pbc command stops its own children on it), then, for anything left in the group after `grace` s,
-    SIGKILL to the group. Returns once the child is reaped and the group is empty (or 5 s after the SIGKILL)."""
+    child (a pbc command stops its own children on it), then, for anything left in the group after `grace` s
+    (None: conf/stops.yaml's grace_s), SIGKILL to the group. Returns once the child is reaped and the group is
+    empty (or kill_wait_s after the SIGKILL)."""
+    settings = stop_settings()
+    grace = settings["grace_s"] if grace is None else grace
     pgid = proc.pid
     if proc.poll() is None:
         with contextlib.suppress(ProcessLookupError):
@@ -197,6 +219,6 @@ def stop_group(proc: subprocess.Popen, signum: int = signal.SIGTERM, grace: floa
     if proc.poll() is None or _group_alive(pgid):
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(pgid, signal.SIGKILL)
-        deadline = time.monotonic() + 5
+        deadline = time.monotonic() + settings["kill_wait_s"]
         while time.monotonic() < deadline and (proc.poll() is None or _group_alive(pgid)):
             time.sleep(0.05)

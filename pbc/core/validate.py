@@ -7,7 +7,7 @@ pbc.core.paths), so every stage (data, models, inference, the jobs, the CLIs) ca
     as_poses(pose, J)           any pose input -> (B, J, 3, 3) float32 tensor, or one clear ValueError/TypeError
     rotation_errors(R)          (..., 3, 3) -> per-matrix orthonormality and det errors (vectorised)
     check_config(cfg)           one ValueError listing every mistyped / out-of-range config value
-    check_bounds(cfg)           the sim and image values against conf/bounds.yaml alone (check_config does it too)
+    check_bounds(cfg)           the sim, image, garment values against conf/bounds.yaml alone (check_config does it too)
     check_motion_settings(s, n, p)  one motion settings file's node against conf/bounds.yaml (its loader calls it)
     training_identity(cfg, fp)  what a resumed run must share with its checkpoint
     identity_diff(a, b)         the differences between two identities, one readable line each
@@ -222,7 +222,7 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     Only keys present are checked, so any entry point may call it on the root config (pbc.train,
     pbc.evaluate, pbc.generate, pbc.predict). Typed checks catch what Hydra coerces silently from the
     command line: `model.patch_id=3.0` (a float) or `model.patch_id=true` (a bool) is not patch 3 or 1.
-    Every sim and image number is held to its range in conf/bounds.yaml (`bounds_problems`).
+    Every sim, image and garment number with a row is held to its range in conf/bounds.yaml (`bounds_problems`).
     `num_patches`, when known (the dataset's cage), bounds patch ids; otherwise they must be >= 0.
     """
     problems: list[str] = []
@@ -257,8 +257,10 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     want("data.num_shards", pos_int, "a positive integer")
     want("seed", nonneg_int, "an integer >= 0")
     choice("garment.made_on_forearms", ("to_rest", "as_made"))
+    choice("garment.uvs", ("file", "unwrap"))  # pbc.geometry.garment.unwrap.UV_SOURCES
+    problems += made_on_rest_problems(cfg)
     choice("image.method", ("sparse", "gather"))
-    problems += bounds_problems(cfg)  # every sim and image number: conf/bounds.yaml
+    problems += bounds_problems(cfg)  # every sim, image and garment number: conf/bounds.yaml
     want("data.pose_joints", lambda v: _is_list(v) and len(v) > 0 and all(isinstance(n, str) for n in v),
          "null (every joint of the body) or a list of joint names, e.g. [lower_back, spine, neck, neck1]",
          optional=True)
@@ -285,9 +287,38 @@ def check_config(cfg: Any, num_patches: int | None = None) -> None:
     check_work_bounds(cfg)
 
 
+def made_on_rest_problems(cfg: Any) -> list[str]:
+    """`garment.made_on_rest` (the rest pose the garment was made on: keys of `body.rest`, merged into it when
+    the garment is made) against the body's `rest` node, one line each: a key the body's rest has not, with the
+    key meant ("did you mean"), and a value of another type than that key takes (degrees or null, true or
+    false), each named as garment.made_on_rest.KEY. A body with no rest node is refused where the garment is
+    made (pbc.data.generate.made_on_body), naming the bodies that have one."""
+    present, node = _get(cfg, "garment.made_on_rest")
+    has_rest, rest = _get(cfg, "body.rest")
+    if not present or node is None or not has_rest or not isinstance(rest, Mapping):
+        return []
+    if not isinstance(node, Mapping):
+        return [f"garment.made_on_rest={_plain(node)!r} ({_type_name(node)}): expected null or a mapping of "
+                f"body.rest's keys ({', '.join(map(str, rest))}), e.g. garment.made_on_rest={{arm_angle_deg:0}}"]
+    problems = []
+    for key, value in node.items():
+        if key not in rest:
+            close = _closest(str(key), [str(k) for k in rest])
+            meant = f"did you mean garment.made_on_rest.{close}? " if close else ""
+            problems.append(f"garment.made_on_rest.{key}: unknown key; {meant}(its keys are body.rest's: "
+                            f"{', '.join(map(str, rest))})")
+        elif isinstance(rest[key], bool) and not isinstance(value, bool):
+            problems.append(f"garment.made_on_rest.{key}={_plain(value)!r} ({_type_name(value)}): expected true or "
+                            "false")
+        elif not isinstance(rest[key], bool) and value is not None and not _is_real(value):
+            problems.append(f"garment.made_on_rest.{key}={_plain(value)!r} ({_type_name(value)}): expected a "
+                            "number (degrees) or null")
+    return problems
+
+
 # ------------------------------------------------------------------------------------------ bounds
 BOUNDS_FILE = CONF_DIR / "bounds.yaml"
-CONFIG_SECTIONS = ("sim", "image")  # the table's other sections are files the motion reader loads
+CONFIG_SECTIONS = ("sim", "image", "garment")  # the table's other sections are files the motion reader loads
 
 _SPEC = re.compile(r"(?P<kind>int|real|bool)"
                    r"(?:\s*(?P<lb>[\[(])\s*(?P<lo>[^,\s]+)\s*,\s*(?P<hi>[^\])\s]+)\s*(?P<rb>[\])]))?"
@@ -430,7 +461,7 @@ def bounds_problems(root: Any, sections: Sequence[str] = CONFIG_SECTIONS,
 
 
 def check_bounds(cfg: Any) -> None:
-    """Refuse a config whose sim or image values leave their range in conf/bounds.yaml (or are of another
+    """Refuse a config whose sim, image or garment values leave their range in conf/bounds.yaml (or are of another
     type): one ValueError listing every one, key, value and range. check_config does this and more; this is
     for doors that read the sim and image nodes without training (pbc garment inspect)."""
     problems = bounds_problems(cfg)
@@ -446,6 +477,14 @@ def check_motion_settings(section: str, node: Any, path: Path) -> None:
     problems = bounds_problems({section: node}, sections=(section,), files={section: Path(path)})
     if problems:
         raise ValueError("invalid motion settings:\n  - " + "\n  - ".join(problems))
+
+
+def check_settings_file(section: str, node: Any, path: Path) -> None:
+    """Refuse a settings file's `node` (conf/bounds.yaml's `section`, read from `path`: conf/stops.yaml is
+    `stops`) with values out of their range: one ValueError listing every one, by file, key, value and range."""
+    problems = bounds_problems({section: node}, sections=(section,), files={section: Path(path)})
+    if problems:
+        raise ValueError(f"invalid settings in {_shown(Path(path))}:\n  - " + "\n  - ".join(problems))
 
 
 def check_work_bounds(cfg: Any) -> None:

@@ -16,11 +16,13 @@ identical too.
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import json
 import logging
 import math
 import multiprocessing as mp
+import re
 import shutil
 import sys
 import time
@@ -59,6 +61,8 @@ from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
 from pbc.geometry.garment.base import Garment, save_garment_obj
+from pbc.geometry.garment.checks import SLEEVE_OFF_DEG, body_region, chart_names_from_cage
+from pbc.geometry.meshops import face_areas, face_charts
 from pbc.geometry.shrinkwrap import Embedding, shrinkwrap, start_points
 from pbc.motion.retarget import check_motion_files, motion_settings
 from pbc.sim.poses import modes_record, sample_poses, sampling_settings_from_config
@@ -486,18 +490,61 @@ def _read_sample(path: Path) -> tuple[np.ndarray, dict]:
         raise ValueError(f"sample file {path} is corrupt ({err}); {fix}") from err
 
 
-def _check_or_write_fingerprint(out: Path, fp: dict) -> None:
+# config_mismatch's line of one setting: "sim.reuse_model: dataset True vs config False"
+_DIFF_LINE = re.compile(r"(?P<key>[\w.]+): dataset (?P<there>.+) vs config (?P<here>.+)")
+# a setting a dataset's fingerprint leaves out at this value (sim_fingerprint): absent = it
+_ABSENT_MEANS = {"sim.reuse_model": False, "sim.fold_frames": 0}
+# the fingerprint's keys that are no setting of their own: the setting a user changes for each
+_SETTING_OF = {"seed": "data.seed", "num_samples": "data.num_samples", "garment_hash": "garment (its mesh)",
+               "format_version": "pbc's dataset format"}
+
+
+def _printed_value(text: str, key: str):
+    """A value as config_mismatch printed it (its repr), '<absent>' read as the value its absence stands for."""
+    if text == "'<absent>'":
+        return _ABSENT_MEANS.get(key, "<absent>")
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        return text
+
+
+def _override_text(key: str, value) -> str:
+    return f"{key}={str(value).lower() if isinstance(value, bool) else value}"
+
+
+def other_settings_message(cfg: DictConfig, out: Path, record: dict, tops: list[str]) -> str:
+    """The refusal of a dataset folder `out` whose record (its manifest or fingerprint) was made with other
+    settings under the fingerprint's top keys `tops` (`sim`, `seed`, ...): one line naming each setting that
+    differs (`sim.reuse_model`), its value there and here, the overrides that go on with the dataset when every
+    difference is a setting, and the other fixes."""
+    diffs = [d for line in config_mismatch(cfg, record)
+             if (d := _DIFF_LINE.fullmatch(line)) and d["key"].split(".", 1)[0] in tops]
+    if not diffs:
+        return (f"{out} holds a dataset made with a different {', '.join(tops)}; choose another data.dir or delete "
+                f"{out} to regenerate")
+    shown, goes_on = [], []
+    for d in diffs:
+        key = _SETTING_OF.get(d["key"], d["key"])
+        there, here = _printed_value(d["there"], d["key"]), _printed_value(d["here"], d["key"])
+        shown.append(f"{key} {_override_text('', there)[1:]} there, {_override_text('', here)[1:]} here")
+        if key == d["key"] and there != "<absent>":
+            goes_on.append(_override_text(key, there))
+    keep = f"give {' '.join(goes_on)} to go on with it, " if len(goes_on) == len(diffs) else ""
+    return (f"{out} holds a dataset made with other settings ({'; '.join(shown)}): {keep}make a new dataset "
+            f"elsewhere (data.name=NAME or data.dir=DIR), or delete {out} to make it again")
+
+
+def _check_or_write_fingerprint(out: Path, fp: dict, cfg: DictConfig) -> None:
+    """Refuse `out` when its dataset (finished or in progress) was made with another fingerprint
+    (`other_settings_message`), else record `fp` for a dataset begun here."""
     path = out / "work" / "fingerprint.json"
     for existing in (out / "manifest.json", path):
         if existing.is_file():
-            old = read_json(existing, "dataset metadata")
-            old = {k: old.get(k) for k in fp}
+            record = read_json(existing, "dataset metadata")
+            old = {k: record.get(k) for k in fp}
             if old != fp:
-                diff = sorted(k for k in fp if old.get(k) != fp[k])
-                raise ValueError(
-                    f"{out} holds a dataset made with a different {', '.join(diff)}; "
-                    f"choose another data.dir or delete {out} to regenerate"
-                )
+                raise ValueError(other_settings_message(cfg, out, record, sorted(k for k in fp if old[k] != fp[k])))
             return
     write_json(path, fp)
 
@@ -559,7 +606,7 @@ def _generate(cfg: DictConfig) -> Path:
     if (out / "manifest.json").is_file() and data.shard is None:
         # already finished; still refuse a directory made with another configuration
         scene, _ = build_scene(cfg)
-        _check_or_write_fingerprint(out, fingerprint(cfg, scene))
+        _check_or_write_fingerprint(out, fingerprint(cfg, scene), cfg)
         return out
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -580,7 +627,7 @@ def _generate(cfg: DictConfig) -> Path:
     timings["sample_poses"] = time.perf_counter() - t0
     mirror = scene_mirror_map(cfg, scene, poses)
     (work / "samples").mkdir(parents=True, exist_ok=True)
-    _check_or_write_fingerprint(out, fp)
+    _check_or_write_fingerprint(out, fp, cfg)
 
     n_shards = int(data.num_shards)
     shards = range(n_shards) if data.shard is None else [int(data.shard)]
@@ -758,7 +805,7 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
                "where they stopped), then merge" if num_shards > 1 else "run the same command again to finish them")
         )
     kept, reasons, residuals, stage = [], {}, [], {"skin": 0.0, "drape": 0.0}
-    positions = []
+    positions, discarded = [], []
     first_discarded = None
     for i in range(len(poses)):
         pos, meta = _read_sample(_sample_path(work, i))
@@ -770,15 +817,18 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
             positions.append(pos)
         else:
             reasons[meta["reason"]] = reasons.get(meta["reason"], 0) + 1
+            discarded.append(pos)
             if first_discarded is None:
                 first_discarded = (i, pos, meta["reason"])
+    faces = discarded_faces(scene, discarded, wrap_stats) if discarded else None
+    del discarded
     if not kept:
         preview = write_discard_preview(out, scene, *first_discarded)
-        raise ValueError(f"every sample of {out} was discarded: {discard_summary(reasons, scene.sim)}; "
+        raise ValueError(f"every sample of {out} was discarded: {discard_summary(reasons, scene.sim, faces)}; "
                          f"the first discarded drape (sample {first_discarded[0]}) is in {preview}")
     if reasons:
         log.warning("%d of %d drapes discarded: %s", sum(reasons.values()), len(poses),
-                    discard_summary(reasons, scene.sim))
+                    discard_summary(reasons, scene.sim, faces))
     rng = np.random.default_rng(fp["seed"])
     order = rng.permutation(len(kept))
     n_train, n_val = split_sizes(len(kept))
@@ -857,6 +907,8 @@ def _add_mirrors(arrays: dict[str, np.ndarray], manifest: dict, mirror: MirrorMa
     return manifest["source_index"]
 
 
+# the faces past the drape's limits named one by one in the discard summary (`discarded_faces`)
+DISCARD_FACES_LISTED = 3
 # a discard reason (pbc.sim.drape.check_sample) -> what it measures and its likely cause, for the user
 DISCARD_REASONS = {
     "area_stretched": ("a face's draped area over its flat-pattern area passed 1 + sim.discard.max_area_expansion "
@@ -876,16 +928,91 @@ DISCARD_REASONS = {
 }
 
 
-def discard_summary(reasons: dict[str, int], sim) -> str:
+def discard_summary(reasons: dict[str, int], sim, faces: str | None = None) -> str:
     """One sentence on why drapes were discarded: the counts, the dominant reason, what it measures and its
-    likely cause (`DISCARD_REASONS`)."""
+    likely cause. For the area reasons the cause is ``faces`` when given (`discarded_faces`: the faces past the
+    limits, their place and the cause measured), else `DISCARD_REASONS`' (measured nothing: what it usually is)."""
     top = max(reasons, key=reasons.get)
-    d = (sim.get("discard") or {}) if hasattr(sim, "get") else {}
-    limits = {"limit_stretch": 1.0 + float(d.get("max_area_expansion", 1.0)),
-              "limit_compress": 1.0 - float(d.get("max_area_compression", 0.75))}
+    limits = _area_limits(sim)
     measures, cause = DISCARD_REASONS.get(top, ("an unknown check", "see pbc.sim.drape.check_sample"))
+    if faces is not None and top in ("area_stretched", "area_compressed"):
+        cause = faces
     counts = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1]))
-    return f"{counts}; mostly {top}: {measures.format(**limits)}; likely cause: {cause}"
+    return (f"{counts}; mostly {top}: "
+            f"{measures.format(limit_stretch=limits[1], limit_compress=limits[0])}; likely cause: {cause}")
+
+
+def _area_limits(sim) -> tuple[float, float]:
+    """The drape's (lowest, highest) face area ratio (pbc.sim.drape.area_limits, without importing the simulator)."""
+    d = (sim.get("discard") or {}) if hasattr(sim, "get") else {}
+    return 1.0 - float(d.get("max_area_compression", 0.75)), 1.0 + float(d.get("max_area_expansion", 1.0))
+
+
+def discarded_faces(scene: Scene, drapes: list[np.ndarray], wrap_stats: dict | None = None,
+                    listed: int = DISCARD_FACES_LISTED) -> str | None:
+    """Which faces discarded the drapes and why, measured: the faces past the drape's area limits
+    (sim.discard) in the most of the discarded drapes ``drapes`` (each (V, 3) positions), their chart and place on
+    the body, in how many drapes, and the cause, first that applies: the whole garment's wrapped area is past the
+    limits (the UV unit); the wrap (the drapes' start, `start_points` on the rest body) already had them past the
+    limit; a sleeve off its arm (``wrap_stats``' sleeve angles past checks.SLEEVE_OFF_DEG) with those faces on
+    it; else the drapes pulled them there. None when no face is past the limits (a drape discarded for not
+    converging or NaN)."""
+    lo, hi = _area_limits(scene.sim)
+    g = scene.garment
+    f = g.faces.cpu().numpy()
+    pattern = g.pattern().double().cpu().numpy()  # (F, 3, 2)
+    rest = face_areas(pattern.reshape(-1, 2), np.arange(3 * len(f)).reshape(-1, 3))
+    past, over = [], np.zeros(len(f), np.int64)  # (drape, face) past either limit; per face, past the highest
+    for pos in drapes:
+        ratio = face_areas(np.nan_to_num(np.asarray(pos, np.float64), nan=1e6), f) / np.maximum(rest, 1e-30)
+        past.append(~((ratio >= lo) & (ratio <= hi)))
+        over += ratio > hi
+    past = np.stack(past)
+    counts = past.sum(0)
+    if not counts.any():
+        return None
+    order = np.argsort(-counts, kind="stable")
+    top = order[(counts[order] >= 0.8 * counts.max())][:listed]  # the faces past in (nearly) the most drapes
+    stretched = bool(over[top].sum() * 2 >= counts[top].sum())
+    n_any = int(past[:, top].any(1).sum())
+    body = scene.body
+    start = start_points(body.vertices[None].double(), body.faces, scene.embedding)[0].numpy()
+    wrap = face_areas(start, f) / np.maximum(rest, 1e-30)
+    chart = face_charts(g)
+    names = chart_names_from_cage(scene.cage, chart, f)
+    charts = sorted({names[int(chart[k])] for k in top})
+    where = body_region(body, start[f[top[0]]].mean(0))
+    ids = ", ".join(str(int(k)) for k in top)
+    word = "stretched" if stretched else "compressed"
+    what = (f"{'face' if len(top) == 1 else f'the same {len(top)} faces'} {ids} (chart"
+            f"{'s' if len(charts) > 1 else ''} {', '.join(repr(c) for c in charts)}; the first's vertices "
+            f"{', '.join(str(int(v) + 1) for v in f[top[0]])}, at {where}) {word} past the limit in {n_any} of "
+            f"{len(drapes)} discarded drapes")
+    overall = float(face_areas(start, f).sum() / max(float(rest.sum()), 1e-30))
+    past_at_wrap = wrap[top] > hi if stretched else wrap[top] < lo
+    sleeves = {}
+    for side in ("left", "right"):
+        angle = (wrap_stats or {}).get(f"sleeve_{side}_angle_deg")
+        if angle is not None and float(angle) > SLEEVE_OFF_DEG:
+            sleeves[side] = float(angle)
+    part = scene.embedding.part.cpu().numpy()[f[top]]
+    on_arm = {side for side, row in (("left", 1), ("right", 2)) if (part == row).any()}
+    if not lo <= overall <= hi:
+        why = (f"the whole garment's wrapped area is {overall:.3g}x its pattern area: the pattern's scale is off, "
+               "check garment.uv_unit (`pbc garment inspect` names the one that fits)")
+    elif past_at_wrap.any():
+        w = float(wrap[top].max() if stretched else wrap[top].min())
+        why = (f"they were {word} {w:.3g}x already by the shrink-wrap, where every drape starts (`pbc garment "
+               f"inspect` names the faces past garment.shrinkwrap.max_face_stretch and why)")
+    elif sleeves.keys() & on_arm:
+        side = max(sleeves.keys() & on_arm, key=sleeves.get)
+        why = (f"they lie on the {side} sleeve, {sleeves[side]:.0f} degrees off the body's rest arm: match the rest "
+               "pose (rotate the sleeves onto the rest arms, or garment.made_on_rest)")
+    else:
+        why = (f"the wrap had them at {float(wrap[top].max()):.2f}x, within the limits, so the drapes {word} them "
+               f"there: cloth caught between body parts at that place, or poses that pull it (open the "
+               "discarded_<sample>.obj written beside the dataset)")
+    return f"{what}: {why}"
 
 
 def write_discard_preview(out: Path, scene: Scene, sample: int, positions: np.ndarray, reason: str) -> Path:

@@ -18,6 +18,7 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import torch
+from matplotlib import patheffects
 from matplotlib.collections import PolyCollection
 from omegaconf import OmegaConf
 
@@ -26,15 +27,26 @@ from pbc.geometry.body.anny import long_sleeves_rest
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.cage.auto import auto_cage
 from pbc.geometry.garment.checks import (
+    FaceLimits,
     LimbCloth,
     body_region,
     droop_deg,
+    face_cause,
     face_patches,
+    face_stretch,
+    faces_past,
     patch_stretch,
     rest_arm_directions,
     sleeve_axes,
 )
-from pbc.geometry.garment.obj_import import chart_names, check_mesh, garment_from_mesh
+from pbc.geometry.garment.obj_import import (
+    UNWRAP_FIX,
+    UV_PADDING,
+    chart_names,
+    check_mesh,
+    garment_from_mesh,
+    suggested_charts,
+)
 from pbc.geometry.garment.placement import Placement, has_rest_turn, placed_mesh, trouser_leg_stance
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, surface_distance, uv_islands
@@ -43,6 +55,9 @@ from pbc.geometry.units import metres_per_unit, name_unit, uv_unit_from_areas
 
 # a direction whose share of a chart's summed outward normal is below this faces no one way ("all round")
 FACING_MIN = 0.35
+# the pictures' legend names at most this many charts (the largest): a picture stays under 2,000 px wide
+LEGEND_CHARTS = 20
+FACES_LISTED = 3  # the faces past the face limit named one by one
 
 
 @dataclass
@@ -57,6 +72,7 @@ class ChartRow:
     distance_max: float  # m, the farthest vertex from the rest body (negative: inside)
     region: str  # the body region at that vertex
     stretch: float | None = None  # the shrink-wrap's largest patch stretch in this chart
+    face_stretch: float | None = None  # the shrink-wrap's largest face stretch in this chart (area ratio)
     wrapped_on: str | None = None  # the body part (shrinkwrap.REGIONS) most of its vertices are wrapped on
 
 
@@ -68,13 +84,17 @@ class Report:
     arm_droop_deg: float
     uv_range: float
     stated_unit: str
-    suggest_charts: dict[str, int]
+    suggest_charts: dict[str, int] | None  # every chart -> its image side; None: no mapping passes (UNWRAP_FIX)
     suggest_unit: str
     suggest_pose: str
     # the rest pose to make the garment on (garment.made_on_rest, keys of body.rest), where its sleeves or
     # trouser legs are off a turnable rest body's limbs and nothing else is: None when not needed or not possible
     suggest_made_on: dict | None = None
     notes: list[str] = field(default_factory=list)
+    # the faces the shrink-wrap stretches past garment.shrinkwrap.max_face_stretch, worst first, at most
+    # FACES_LISTED: {face, stretch, principal, chart, patch, where, vertices (1-based), cause}
+    bad_faces: list[dict] = field(default_factory=list)
+    faces_past: int = 0  # how many faces pass it
     # for the pictures
     positions: np.ndarray | None = None
     faces: np.ndarray | None = None
@@ -139,7 +159,12 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
         unit = stated
     else:
         unit = "auto" if uv_range <= 1.0 else name_unit(fit_all)
-    charts = {r.name: int(r.facing == "back") for r in rows}
+    # every chart on a side where no other overlaps it, its facing kept where it can be (back -> 1, front -> 0; a
+    # chart facing another way keeps its name's side: back* -> 1, as an unwrap names them)
+    padding = gcfg.get("uv_padding")
+    prefer = {r.name: int(r.facing == "back") for r in rows if r.facing in ("front", "back")}
+    charts = suggested_charts(mesh, prefer,
+                              uv_padding=UV_PADDING if padding is None else float(padding), where=str(path))
     sleeves = sleeve_axes(p, f, body, LimbCloth.from_config(gcfg.shrinkwrap))
     # the rest arms as the sleeves are compared with them (their skin there), else the arm bones
     arm_droop = (float(np.mean([a["arm_droop_deg"] for a in sleeves.values()])) if sleeves
@@ -170,7 +195,10 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
                     mesh=replace(mesh, vertices=p))
     if placement is not None:
         report.notes += placement.lines()
-    if wrap:
+    if charts is None:
+        report.notes.append(f"no garment.charts keeps these UVs apart on two image sides (or an island is folded "
+                            f"over): {UNWRAP_FIX} unwraps the mesh anew")
+    if wrap and charts is not None:
         _wrap_stretch(report, path, gcfg, body, charts, unit, mesh, island)
     return report
 
@@ -226,8 +254,9 @@ def _number(unit: str):
 
 
 def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, unit: str, mesh, island) -> None:
-    """The shrink-wrap's largest patch stretch per chart, with the suggested charts and unit and every
-    check off (inspect reports; the import and the wrap refuse)."""
+    """The shrink-wrap's largest patch and face stretch per chart, and the faces past
+    garment.shrinkwrap.max_face_stretch with their place and cause (report.bad_faces), with the suggested charts
+    and unit and every check off (inspect reports; the import and the wrap refuse)."""
     g = (OmegaConf.create(OmegaConf.to_container(gcfg, resolve=True)) if OmegaConf.is_config(gcfg)
          else copy.deepcopy(gcfg))
     try:
@@ -237,7 +266,7 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
                          chart_names=[r.name for r in report.rows], face_chart=face_chart,
                          **dict(g.get("autocage") or {}))
         sw = dict(g.shrinkwrap)
-        sw.update(max_start_distance=None, max_sleeve_angle_deg=None, max_patch_stretch=None)
+        sw.update(max_start_distance=None, max_sleeve_angle_deg=None, max_patch_stretch=None, max_face_stretch=None)
         x, region, _ = wrap_with_regions(garment, cage, body, OmegaConf.create(sw))
     except ValueError as err:
         report.notes.append(f"shrink-wrap stretch not measured: {err}")
@@ -245,8 +274,9 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
     f = garment.faces.cpu().numpy()
     pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
     fp = face_patches(cage, f)
-    stretch = patch_stretch(face_areas(x, f), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3)), fp,
-                            len(cage.patches))
+    pattern_area = face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3))
+    stretch = patch_stretch(face_areas(x, f), pattern_area, fp, len(cage.patches))
+    ratio, principal = face_stretch(x, f, pattern.reshape(-1, 3, 2))
     # a patch belongs to the chart of most of its faces (a seam face can sit in the other chart's patch)
     owner = np.array([np.bincount(face_chart[fp == k]).argmax() if (fp == k).any() else -1
                       for k in range(len(cage.patches))])
@@ -257,22 +287,43 @@ def _wrap_stretch(report: Report, path: Path, gcfg, body: Body, charts: dict, un
     for r in report.rows:
         mine = np.flatnonzero(owner == r.id)
         r.stretch = float(stretch[mine].max()) if len(mine) else None
+        own = face_chart == r.id
+        r.face_stretch = float(np.nan_to_num(ratio[own], nan=np.inf).max()) if own.any() else None
         verts = f.ravel()[corner == r.id]
         r.wrapped_on = REGIONS[int(np.bincount(region[verts]).argmax())] if len(verts) else None
         if len(verts) and off_skin[verts].mean() > 0.5:
             r.wrapped_on += ", on top of the garment's cloth there (a layer: collar, cuff, pocket)"
+    limits = FaceLimits.from_config(g.shrinkwrap)
+    if limits.limit is None:
+        return
+    bad = faces_past(ratio, limits.limit)
+    report.faces_past = int(len(bad))
+    if not len(bad):
+        return
+    with torch.no_grad():
+        start_gap = body_sdf(body, torch.eye(3).expand(1, body.skeleton.num_joints, 3, 3),
+                             garment.vertices.float()[None])[0].double().numpy()
+    names = [r.name for r in report.rows]
+    on = [REGIONS[int(v)] for v in region]
+    for k in (int(i) for i in bad[:FACES_LISTED]):
+        report.bad_faces.append({
+            "face": k, "stretch": float(ratio[k]), "principal": [float(v) for v in principal[k]],
+            "chart": names[int(face_chart[k])], "patch": cage.patches[int(fp[k])].name if fp[k] >= 0 else "none",
+            "where": body_region(body, x[f[k]].mean(0)), "vertices": [int(v) + 1 for v in f[k]],
+            "cause": face_cause(k, f, on, pattern_area, start_gap, limits)})
 
 
 def format_report(report: Report, limits: dict) -> str:
     """The table and the settings to paste, as `pbc garment inspect` prints them."""
     head = (f"{'id':>3}  {'chart':<14} {'centroid (m)':<22} {'faces':<9} {'3D m^2':>8} {'UV u^2':>9} "
-            f"{'uv_unit':>9} {'dist m':>7} {'stretch':>7}  body region at the farthest vertex")
+            f"{'uv_unit':>9} {'dist m':>7} {'stretch':>7} {'face':>7}  body region at the farthest vertex")
     lines = [f"{report.path}: {len(report.rows)} charts (UV islands), UVs span {report.uv_range:.3g} units", head]
     for r in report.rows:
         c = "[" + ", ".join(f"{v:+.2f}" for v in r.centroid) + "]"
         st = "-" if r.stretch is None else f"{r.stretch:.2f}x"
+        fs = "-" if r.face_stretch is None else f"{r.face_stretch:.3g}x"
         lines.append(f"{r.id:>3}  {r.name:<14} {c:<22} {r.facing:<9} {r.area_3d:>8.4f} {r.area_uv:>9.4g} "
-                     f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7}  {r.region}"
+                     f"{r.uv_unit:>9.4g} {r.distance_max:>7.2f} {st:>7} {fs:>7}  {r.region}"
                      + ("" if r.wrapped_on is None else f"; wrapped on the {r.wrapped_on}"))
     sleeve_limit = limits.get("max_sleeve_angle_deg")
     sleeve_limit = "null (no check)" if sleeve_limit is None else sleeve_limit
@@ -285,9 +336,18 @@ def format_report(report: Report, limits: dict) -> str:
     for r in far:
         lines.append(f"chart {r.id} '{r.name}' is {r.distance_max:.2f} m from the body (limit "
                      f"garment.shrinkwrap.max_start_distance = {limits['max_start_distance']}): {r.region}")
+    if report.bad_faces:
+        worst = "; ".join(
+            f"face {b['face']} {b['stretch']:.1f}x (principal {b['principal'][0]:.1f} x {b['principal'][1]:.2f}), "
+            f"chart '{b['chart']}', patch {b['patch']}, vertices {', '.join(map(str, b['vertices']))}, at {b['where']}"
+            for b in report.bad_faces)
+        lines.append(f"{report.faces_past} face{'s' if report.faces_past > 1 else ''} past "
+                     f"garment.shrinkwrap.max_face_stretch = {limits.get('max_face_stretch')}x (the wrap refuses "
+                     f"them: every drape would be discarded): {worst}; likely cause: {report.bad_faces[0]['cause']}")
     lines += report.notes
-    charts = ",".join(f"{k}:{v}" for k, v in report.suggest_charts.items())
-    lines += ["", "suggested settings:", f"  'garment.charts={{{charts}}}'", f"  garment.uv_unit={report.suggest_unit}",
+    charts = (UNWRAP_FIX if report.suggest_charts is None else
+              "'garment.charts={" + ",".join(f"{k}:{v}" for k, v in report.suggest_charts.items()) + "}'")
+    lines += ["", "suggested settings:", f"  {charts}", f"  garment.uv_unit={report.suggest_unit}",
               f"  body rest pose: {report.suggest_pose}"]
     return "\n".join(lines)
 
@@ -296,26 +356,59 @@ def _colours(n: int):
     return matplotlib.colormaps["tab20"](np.arange(n) % 20)
 
 
+def _legend(fig, report: Report, col) -> None:
+    """The legend of the LEGEND_CHARTS largest charts (3D area), "id name" beside its colour, right of the
+    figure: a picture of 90 charts stays as wide as one of 4."""
+    from matplotlib.patches import Patch  # noqa: PLC0415 - only the pictures need it
+
+    rows = sorted(sorted(report.rows, key=lambda r: -r.area_3d)[:LEGEND_CHARTS], key=lambda r: r.id)
+    title = "charts" if len(rows) == len(report.rows) else f"the {len(rows)} largest of {len(report.rows)} charts"
+    fig.legend(handles=[Patch(color=col[r.id], label=f"{r.id} {r.name}") for r in rows], loc="center left",
+               bbox_to_anchor=(1.0, 0.5), fontsize=8, title=title, title_fontsize=8, frameon=False)
+
+
+def _id_label(ax, x: float, y: float, text: str, size: int) -> None:
+    """A chart's id drawn on it, white-edged so it reads on any fill."""
+    ax.text(x, y, text, ha="center", va="center", fontsize=size, weight="bold", zorder=3,
+            path_effects=[patheffects.withStroke(linewidth=2, foreground="white")])
+
+
 def save_uv_picture(report: Report, path) -> Path:
-    """The UV layout (the file's UVs, v up) with each chart filled in its colour and its id at its centre."""
+    """The UV layout (the file's UVs, v up) with each chart filled in its colour and its id on it: one panel per
+    image side of the suggested charts (one panel when none passes), the title naming the chart count and a
+    legend the largest (`_legend`), so the picture is as wide for 90 charts as for 4."""
     import matplotlib.pyplot as plt  # noqa: PLC0415 - pyplot is heavy; only the pictures need it
 
     col = _colours(len(report.rows))
-    fig, ax = plt.subplots(figsize=(7, 7))
-    ax.add_collection(PolyCollection(report.uv_corners, facecolors=col[report.face_chart], edgecolors="none"))
-    for r in report.rows:
-        c = report.uv_corners[report.face_chart == r.id].reshape(-1, 2).mean(0)
-        ax.text(c[0], c[1], f"{r.id} {r.name}", ha="center", va="center", fontsize=9, weight="bold")
-    ax.autoscale()
-    ax.set_aspect("equal")
-    ax.set_title(f"{report.path.name}: UV layout, chart ids")
-    ax.set_xlabel("u")
-    ax.set_ylabel("v")
+    side = np.zeros(len(report.rows), np.int64)
+    if report.suggest_charts is not None:
+        side = np.array([report.suggest_charts.get(r.name, 0) for r in report.rows], np.int64)
+    panels = sorted(set(side.tolist()))
+    fig, axes = plt.subplots(1, len(panels), figsize=(7 * len(panels), 7), squeeze=False)
+    named = len(report.rows) <= LEGEND_CHARTS  # few charts: each is labelled with its name too
+    for ax, s in zip(axes[0], panels, strict=True):
+        mine = side[report.face_chart] == s
+        ax.add_collection(PolyCollection(report.uv_corners[mine], facecolors=col[report.face_chart[mine]],
+                                         edgecolors="none"))
+        for r in report.rows:
+            if side[r.id] == s:
+                c = report.uv_corners[report.face_chart == r.id].reshape(-1, 2).mean(0)
+                _id_label(ax, c[0], c[1], f"{r.id} {r.name}" if named else str(r.id), 9 if named else 7)
+        ax.autoscale()
+        ax.set_aspect("equal")
+        ax.set_xlabel("u")
+        ax.set_ylabel("v")
+        # the title above the panels (a figure title would stand above the whitespace of equal-aspect panels)
+        where = f"image side {s} ({('front', 'back')[s]}), " if len(panels) > 1 else ""
+        ax.set_title(f"{report.path.name}: UV layout, {where}{int((side == s).sum())} of {len(report.rows)} charts, "
+                     "ids on them", fontsize=10)
+    _legend(fig, report, col)
     return _save(fig, path)
 
 
 def save_body_picture(report: Report, path) -> Path:
-    """The garment on the rest body from the front and the back, coloured by chart, ids at the centroids."""
+    """The garment on the rest body from the front and the back, coloured by chart, ids at the centroids; the
+    title names the chart count, a legend the largest charts (`_legend`): as wide for 90 charts as for 4."""
     import matplotlib.pyplot as plt  # noqa: PLC0415 - pyplot is heavy; only the pictures need it
 
     col = _colours(len(report.rows))
@@ -329,13 +422,14 @@ def save_body_picture(report: Report, path) -> Path:
         ax.add_collection(PolyCollection(poly, facecolors=col[report.face_chart[order]], edgecolors="none",
                                          alpha=0.9, zorder=1))
         for r in report.rows:
-            ax.text(sgn * r.centroid[0], r.centroid[1], str(r.id), ha="center", va="center", fontsize=10,
-                    weight="bold", zorder=2)
+            _id_label(ax, sgn * r.centroid[0], r.centroid[1], str(r.id), 10 if len(report.rows) <= LEGEND_CHARTS
+                      else 7)
         ax.autoscale()
         ax.set_aspect("equal")
-        ax.set_title(title + " (x mirrored)" * (sgn < 0))
-    fig.suptitle(f"{report.path.name} on the rest body, by chart: "
-                 + ", ".join(f"{r.id} {r.name}" for r in report.rows), fontsize=9)
+        # the title above the panels (a figure title would stand above the whitespace of equal-aspect panels)
+        ax.set_title((f"{report.path.name} on the rest body, {len(report.rows)} charts\n" if sgn > 0 else "\n")
+                     + title + " (x mirrored)" * (sgn < 0), fontsize=10)
+    _legend(fig, report, col)
     return _save(fig, path)
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -173,6 +174,10 @@ def write_mesh(path: str | Path, vertices, faces, header: Sequence[str] = ()) ->
 
 # OBJ statements that carry nothing a garment needs (materials, smoothing, normals, objects, lines)
 IGNORED = {"usemtl", "mtllib", "s", "o", "vn", "vp", "l", "p", "#"}
+# an OBJ statement's keyword; one that is not (a number, a control byte, text of another file) is junk refused by
+# its line, and so is a data keyword run into its first number (`v1.0 2 3`), which would drop a vertex unseen
+STATEMENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+MISTYPED = re.compile(r"(v|vt|vn|f)[0-9+-]")
 
 
 @dataclass
@@ -289,7 +294,12 @@ def parse_obj(text: str, where: str = "<obj>", require_uv: bool = True) -> ObjMe
                 flines.append(lineno)
         elif key in IGNORED or key.startswith("#"):
             continue
-        # other statements (curves, surfaces, display attributes) carry nothing a garment needs
+        elif not STATEMENT.fullmatch(key) or MISTYPED.match(key):
+            raise ValueError(f"{where}: line {lineno}: {line.strip()[:60]!r} is not an OBJ statement (a line starts "
+                             "with a keyword: v, vt, vn, f, g, o, usemtl, ..., or # for a comment); fix or remove "
+                             "that line and read the file again")
+        # other statements (curves, surfaces, display attributes, a tool's own keywords) carry nothing a
+        # garment needs
     if not verts:
         raise ValueError(f"{where}: no vertices (v lines)")
     if not faces:
@@ -315,18 +325,99 @@ def parse_obj(text: str, where: str = "<obj>", require_uv: bool = True) -> ObjMe
     )
 
 
-def read_obj(path: str | os.PathLike, what: str = "OBJ", require_uv: bool = True) -> ObjMesh:
-    """An OBJ file parsed (``parse_obj``): any pbc garment mesh, any tool's textured OBJ. A file that cannot be
-    read or is not text is one ValueError naming it and ``what`` it was read as."""
+def not_an_obj_file(path: str | os.PathLike, what: str = "OBJ") -> str | None:
+    """Why `path` is no file to read as an OBJ, in one line naming it and what to give instead: missing, or a
+    folder (its OBJ files named); None for a file."""
     path = Path(path)
+    if path.is_file():
+        return None
+    if path.is_dir():
+        objs = sorted(p.name for p in path.iterdir() if p.suffix.lower() == ".obj" and p.is_file())
+        inside = (f"it holds {', '.join(objs[:8])}{', ...' if len(objs) > 8 else ''}: give one of them"
+                  if objs else "it holds no .obj file: give the OBJ file itself")
+        return f"{path} is a folder, not a file; {inside}"
+    return f"{path}: no such {what} file"
+
+
+def other_mesh_format(data: bytes) -> str | None:
+    """The mesh format of a file's bytes when its header says it is one an OBJ is often confused with: "PLY",
+    "STL" (text `solid ...` or binary, by its triangle count), "GLB", "FBX"; None otherwise."""
+    head = data[:256].lstrip()
+    if head[:3].lower() == b"ply" and head[3:4] in (b"\n", b"\r"):
+        return "PLY"
+    if head[:5].lower() == b"solid" and head[5:6] in (b" ", b"\t", b"\n", b"\r") and b"facet" in data[:4096]:
+        return "STL"
+    if len(data) >= 84 and 84 + 50 * int.from_bytes(data[80:84], "little") == len(data):
+        return "STL"
+    if data[:4] == b"glTF":
+        return "GLB"
+    if data[:18] == b"Kaydara FBX Binary":
+        return "FBX"
+    return None
+
+
+def _lenient_text(data: bytes) -> str:
+    """An OBJ's bytes as text: UTF-8 (a BOM dropped), and any line that is not UTF-8 (a Latin-1 comment, an
+    object name from an old exporter) read as Latin-1, so one such byte does not refuse the file; a statement
+    pbc reads is still checked by the parser, naming its line."""
     try:
-        text = path.read_bytes().decode("utf-8")
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        pass
+    lines = []
+    for raw in data.split(b"\n"):
+        try:
+            lines.append(raw.decode("utf-8"))
+        except UnicodeDecodeError:
+            lines.append(raw.decode("latin-1"))
+    return "\n".join(lines).removeprefix("\ufeff")
+
+
+def read_obj(path: str | os.PathLike, what: str = "OBJ", require_uv: bool = True) -> ObjMesh:
+    """An OBJ file parsed (``parse_obj``): any pbc garment mesh, any tool's textured OBJ. One ValueError naming
+    the file and ``what`` it was read as for a file that is missing or a folder (its OBJ files named), another
+    mesh format (PLY, STL, GLB, FBX: with the command that converts it) or binary (a NUL byte); a line that is
+    not UTF-8 is read as Latin-1 (a comment's accent is no reason to refuse a file)."""
+    path = Path(path)
+    problem = not_an_obj_file(path, what)
+    if problem is not None:
+        raise ValueError(problem)
+    try:
+        data = path.read_bytes()
     except OSError as exc:
-        raise ValueError(f"{path}: cannot read the {what} ({exc})") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: the {what} is not a text OBJ file (byte {exc.start} is not UTF-8): "
-                         "export it as OBJ (text), not a binary format") from None
-    return parse_obj(text, str(path), require_uv)
+        raise ValueError(f"{path}: cannot read the {what} ({exc.strerror}); check its permissions") from None
+    kind = other_mesh_format(data)
+    if kind is not None:
+        raise ValueError(other_format_message(path, kind))
+    nul = data.find(b"\0")
+    if nul >= 0:
+        raise ValueError(f"{path}: the {what} is not a text OBJ file (byte {nul} is NUL: binary content): export "
+                         "it as OBJ (text), not a binary format")
+    return parse_obj(_lenient_text(data), str(path), require_uv)
+
+
+def other_format_message(path: Path, kind: str) -> str:
+    """One line for a `kind` mesh file given as an OBJ: what it is, whether trimesh reads it (its vertex and face
+    counts), and the command that converts it."""
+    named = path.suffix.lower() == f".{kind.lower()}"  # trimesh picks its reader by the suffix
+    target = path.with_suffix(".obj") if named else path.with_name(f"{path.stem}_converted.obj")
+    file_type = "" if named else f", file_type='{kind.lower()}'"
+    convert = f"python -c \"import trimesh; trimesh.load('{path}'{file_type}).export('{target}')\""
+    try:
+        import trimesh  # noqa: PLC0415 - trimesh loads in ~0.4 s; only a mesh of another format needs it
+
+        mesh = trimesh.load(path, file_type=kind.lower(), force="mesh", process=False)
+        reads = f"trimesh reads it: {len(mesh.vertices):,} vertices, {len(mesh.faces):,} faces" if len(
+            mesh.vertices) else ""
+    except Exception:  # noqa: BLE001 - any reader failure only means the line promises no conversion
+        reads = ""
+    article = "an" if kind in ("STL", "FBX") else "a"
+    if kind == "STL":  # triangles alone: a conversion cannot give the UVs a garment needs
+        return (f"{path}: this is an STL file, not an OBJ, and an STL holds no UVs, which a garment needs: "
+                f"export an OBJ with UVs from the tool that made it (`{convert}` converts its shape alone"
+                f"{'; ' + reads if reads else ''})")
+    how = f"{reads}, so convert it" if reads else "convert it in the tool that made it, or"
+    return f"{path}: this is {article} {kind} file, not an OBJ: {how} with `{convert}`"
 
 
 def obj_mesh_text(mesh, header: str) -> str:

@@ -234,21 +234,122 @@ def push_out(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, margin
 
 
 def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Ordered vertex loops of the boundary edges of a manifold triangle mesh, faces (F, 3)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    """Vertex loops (each (L,) int64) of the boundary edges of a triangle mesh, faces (F, 3): the edges used by
+    one face. On a consistently wound mesh each loop follows its faces' winding, from the first boundary edge of
+    the faces' order (cage files record loops so); on one wound inconsistently, or where two openings touch at a
+    vertex, the loops are walked along the edges without a direction."""
+    f = np.asarray(faces, np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     key = {tuple(x) for x in e.tolist()}
-    nxt = {a: b for a, b in e.tolist() if (b, a) not in key}  # half-edges without a twin
+    nxt: dict[int, int] = {}
+    directed = True
+    for a, b in e.tolist():
+        if (b, a) not in key:  # a half-edge without a twin
+            directed = directed and a not in nxt
+            nxt[a] = b
+    edges, count = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)
+    directed = directed and len(nxt) == int((count == 1).sum()) and all(b in nxt for b in nxt.values())
     loops, seen = [], set()
-    for start in nxt:
+    if directed:
+        for start in nxt:
+            if start in seen:
+                continue
+            loop, v = [], start
+            while v not in seen:
+                seen.add(v)
+                loop.append(v)
+                v = nxt[v]
+            loops.append(np.asarray(loop, np.int64))
+        return loops
+    nbr: dict[int, list[int]] = {}
+    for a, b in edges[count == 1].tolist():
+        nbr.setdefault(a, []).append(b)
+        nbr.setdefault(b, []).append(a)
+    for start in nbr:
         if start in seen:
             continue
-        loop, v = [], start
+        loop, prev, v = [], -1, start
         while v not in seen:
             seen.add(v)
             loop.append(v)
-            v = nxt[v]
+            ahead = [w for w in nbr[v] if w != prev and w not in seen]
+            if not ahead:
+                break
+            prev, v = v, ahead[0]
         loops.append(np.asarray(loop, np.int64))
     return loops
+
+
+def split_nonmanifold(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The surface cut apart at its non-manifold edges (three faces or more on one edge) and vertices (fans that
+    touch at a point only), as Blender's Edge Split cuts them: (faces (F, 3) into new vertex ids, source (V',)
+    the old vertex id of each new one). Round each vertex, its faces joined through edges of exactly two faces
+    keep one vertex; each other such fan gets its own copy. A manifold mesh comes back as it is."""
+    f = np.asarray(faces, np.int64)
+    n = len(f)
+    key = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    edge = edge.ravel()
+    shared = np.flatnonzero(count[edge] == 2)
+    pairs = shared[np.argsort(edge[shared], kind="stable")].reshape(-1, 2)  # half-edge h: face h % n, slot h // n
+    rows, cols = [], []
+    for end in (0, 1):  # join the corners of both faces at each end vertex of each manifold edge
+        fa, sa = pairs[:, 0] % n, pairs[:, 0] // n
+        fb, sb = pairs[:, 1] % n, pairs[:, 1] // n
+        va = f[fa, (sa + end) % 3]
+        # the corner of face b at the same vertex: slot sb or sb + 1, whichever holds va
+        cb = np.where(f[fb, sb] == va, sb, (sb + 1) % 3)
+        rows.append(3 * fa + (sa + end) % 3)
+        cols.append(3 * fb + cb)
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * n, 3 * n))
+    _, fan = connected_components(graph, directed=False)
+    corner = f.ravel()
+    uniq, new = np.unique(np.stack([corner, fan], 1), axis=0, return_inverse=True)
+    return new.reshape(-1, 3), uniq[:, 0]
+
+
+def consistent_winding(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """faces (F, 3) wound one way across every edge two faces share: (faces (F, 3), flipped (F,) bool). Each
+    connected piece keeps the way most of its faces were written; a flipped face has its last two corners
+    swapped (swap its per-corner data, e.g. its ``vt`` ids, the same way). Faces meeting at a non-manifold edge
+    (three faces or more) are not related through it."""
+    f = np.asarray(faces, np.int64)
+    n = len(f)
+    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])  # (3F, 2) directed, face k at k, F+k, 2F+k
+    owner = np.tile(np.arange(n), 3)
+    key = np.sort(half, axis=1)
+    _, edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    edge = edge.ravel()
+    shared = count[edge] == 2
+    order = np.argsort(edge[shared], kind="stable")
+    pairs = np.flatnonzero(shared)[order].reshape(-1, 2)  # the two half-edges of each manifold edge
+    a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
+    clash = (half[pairs[:, 0], 0] == half[pairs[:, 1], 0]).astype(np.int64)  # walked the same way: one is flipped
+    graph = sp.coo_matrix((clash + 1, (a, b)), shape=(n, n))
+    graph = (graph + graph.T).tocsr()  # weight 1: agree, 2: clash
+    flip = np.zeros(n, bool)
+    seen = np.zeros(n, bool)
+    for root in range(n):
+        if seen[root]:
+            continue
+        seen[root] = True
+        stack, members = [root], []
+        while stack:
+            i = stack.pop()
+            members.append(i)
+            lo, hi = graph.indptr[i], graph.indptr[i + 1]
+            for j, w in zip(graph.indices[lo:hi], graph.data[lo:hi], strict=True):
+                if not seen[j]:
+                    seen[j] = True
+                    flip[j] = flip[i] ^ (w == 2)
+                    stack.append(int(j))
+        members = np.asarray(members)
+        if 2 * int(flip[members].sum()) > len(members):
+            flip[members] = ~flip[members]
+    out = f.copy()
+    out[flip] = out[flip][:, [0, 2, 1]]
+    return out, flip
 
 
 def nearest_segment(points: np.ndarray, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -29,14 +29,18 @@ from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.skeleton import MIDPLANE_TOL, descendants, limb_segments
 from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.checks import (
+    FaceLimits,
     LimbCloth,
     chart_names_from_cage,
     check_arm_flaps,
+    check_face_stretch,
     check_far,
     check_sleeves,
     check_stretch,
     cloth_encircled_degrees,
     face_patches,
+    face_stretch,
+    faces_past,
     patch_stretch,
     sleeve_axes,
 )
@@ -635,17 +639,24 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     after = area_ratio(garment, x)
     pattern = garment.pattern().double().cpu().numpy().reshape(-1, 2)
     wrapped_area, pattern_area = face_areas(x, faces), face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3))
-    stretch = patch_stretch(wrapped_area, pattern_area, face_patches(cage, faces), len(cage.patches))
+    fp = face_patches(cage, faces)
+    stretch = patch_stretch(wrapped_area, pattern_area, fp, len(cage.patches))
+    ratio, principal = face_stretch(x, faces, pattern.reshape(-1, 3, 2))
     stats = {"cage_vertices": int(len(ids)), "morph_inside": morph_inside, "relax_iterations": int(iters),
              "max_abs_sdf": float(np.abs(surface.sdf(x[~layered])).max()), "layer_vertices": int(layered.sum())}
     stats.update(_ratio_stats(before, "area_before"))
     stats.update(_ratio_stats(after, "area_after"))
     worst = int(stretch.argmax())
     stats.update(patch_stretch_max=float(stretch[worst]), patch_stretch_worst=cage.patches[worst].name)
+    worst_face = int(np.nan_to_num(ratio, nan=np.inf).argmax())
+    faces_limit = FaceLimits.from_config(sw)
+    stats.update(face_stretch_max=float(ratio[worst_face]), face_stretch_worst=worst_face,
+                 face_principal_max=float(principal[worst_face, 0]))
+    if faces_limit.limit is not None:
+        stats["faces_past_limit"] = int(len(faces_past(ratio, faces_limit.limit)))
     stats.update({f"sleeve_{side}_angle_deg": a["angle_deg"] for side, a in sleeves.items()})
     limit = sw.get("max_patch_stretch")
     if limit is not None:
-        fp = face_patches(cage, faces)
         patch_chart = [chart_names[int(np.bincount(face_chart[fp == p.id]).argmax())] if (fp == p.id).any() else "?"
                        for p in cage.patches]
         on = [REGIONS[int(np.bincount(region[p.vertices]).argmax())] if len(p.vertices) else "torso"
@@ -653,6 +664,10 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
         overall = float(wrapped_area.sum() / max(float(pattern_area.sum()), 1e-30))
         check_stretch(stretch, [p.name for p in cage.patches], patch_chart, float(limit), sleeves, on,
                       None if nearest is None else [REGIONS[r] for r in nearest], overall)
+    # one face past the limit is refused, as one face past the drape's limit discards a drape
+    check_face_stretch(ratio, principal, faces, faces_limit, x, body, chart_names, face_chart,
+                       [p.name for p in cage.patches], fp, [REGIONS[r] for r in region], pattern_area,
+                       surface.sdf(x0))
     stats["wrap_seconds"] = time.perf_counter() - t0
     return x, region, stats
 

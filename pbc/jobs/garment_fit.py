@@ -19,7 +19,8 @@ command without it goes on from there. Steps 3-5 are the
 commands a user would type, each its own process with its own Hydra run dir (as the main job's steps), run by
 the sweep runner's `run_logged`: the whole output goes to logs/<step>.log, and only the progress lines (the
 drapes done with their ETA, one line per epoch with its ETA) are echoed. fit.json records what the fit was
-asked and the overrides it settled on; an out dir holding another garment's fit is refused.
+asked and the overrides it settled on; an out dir holding another garment's fit (its drapes) is refused, one
+whose fit was refused before any drape is taken by a corrected retry.
 """
 
 from __future__ import annotations
@@ -44,8 +45,9 @@ from pbc.data.generate import scene_garment
 from pbc.geometry.body import body_from_config
 from pbc.geometry.cage.base import save_cage
 from pbc.geometry.garment.mhclo import mhclo_mesh
+from pbc.geometry.garment.obj_import import UNWRAP_FIX
 from pbc.geometry.garment.outfit import TOP_Y
-from pbc.geometry.garment.placement import openings
+from pbc.geometry.garment.placement import hem, openings
 from pbc.geometry.inspect import format_report, inspect_garment, made_on_override, save_body_picture, save_uv_picture
 from pbc.geometry.meshio import obj_mesh_text
 from pbc.geometry.shrinkwrap import shrinkwrap
@@ -64,6 +66,8 @@ LOWER_BODY = ("data=skirt_small", "++garment.shrinkwrap.arm_parts=false")
 # trousers (a bottom with three openings or more: a waistband and two legs) drape with the trousers' own preset:
 # the ankles posed, a softer body contact and a trouser-weight fabric (conf/data/trousers_small.yaml)
 TROUSERS_DATA = "data=trousers_small"
+# a dress (a top whose hem hangs past the hips) drapes with the trunk, the arms, the hips and the knees posed
+DRESS_DATA = "data=dress_small"
 # the progress lines of the steps' own output: generate's drape count (with its ETA) and training's epoch line
 # (with its ETA), after the log prefix
 PROGRESS = re.compile(r"(drape \(\d+ workers?\): \d+/\d+.*|epoch \d+/\d+ .*)$")
@@ -128,6 +132,19 @@ def empty_splits(manifest: dict, log: Path) -> str | None:
             f"are discarded in {log}")
 
 
+def is_dress(report, body, below: float) -> bool:
+    """Whether the inspected garment (`inspect_garment`'s report) is a dress: a top (a collar above its other
+    openings) whose hem (`hem`) hangs more than ``below`` m under the body's hip joints, on a body with legs."""
+    names = list(body.skeleton.names)
+    if not set(LEG_JOINTS) <= set(names) or (report.placement is not None and report.placement.kind != "top"):
+        return False
+    ops = openings(report.positions, report.faces)
+    if len(ops) < 3:  # a skirt or a tube: two openings
+        return False
+    hips = body.skeleton.rest_heads[[names.index("l_hip"), names.index("r_hip")], 1].double().numpy()
+    return float(hem(ops)["centre"][1]) < float(hips.min()) - below
+
+
 def default_out(path: Path, root: Path, overrides: list[str] = ()) -> Path:
     """Where a fit goes without --out: `<root>/runs/fit/<garment name>` (fixed, so a second call resumes), and
     `<name>_<piece>` for one piece of an outfit (`garment.piece=top`), so its pieces' fits do not collide."""
@@ -174,12 +191,22 @@ class Fit:
             self.here.where = where
         print(f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: {text}", flush=True)
 
+    def has_drapes(self) -> bool:
+        """Whether this out dir holds drapes: the dataset, or a finished drape of an unfinished one."""
+        samples = self.data_dir / "work" / "samples"
+        return (self.data_dir / "manifest.json").is_file() or (samples.is_dir() and any(samples.iterdir()))
+
     def _recorded(self) -> dict | None:
+        """fit.json when this out dir holds this fit (the same garment and settings asked), None when it holds
+        none or only one refused before any drape (which a corrected retry replaces); ValueError naming what
+        differs when it holds drapes made for another garment or other settings."""
         path = self.out / RECORD
         if not path.is_file():
             return None
         rec = read_json(path, "garment fit record")
         diff = [k for k in ASKED if rec.get("asked", {}).get(k) != self.asked[k]]
+        if diff and not self.has_drapes():
+            return None  # refused before a drape (at checks, or generate's own door): inspect and check it again
         if diff:
             what = ", ".join(f"{k} {rec.get('asked', {}).get(k)!r} -> {self.asked[k]!r}" for k in diff)
             raise ValueError(f"{self.out} holds the fit of another garment or other settings ({what}): give this "
@@ -203,7 +230,7 @@ class Fit:
         self.say("inspect", f"{self.garment.name} with {' '.join(base + self.user)}")
         body = body_from_config(cfg.body)
         report = inspect_file(self.garment, cfg, body, self.out / "inspect", wrap=False)  # the checks wrap it
-        derived = self.derived_settings(report, body)
+        derived = self.derived_settings(report, body, float(cfg.garment.dress_hem_below_hips))
         text = format_report(report, dict(cfg.garment.shrinkwrap))
         text += "\n\nused by pbc garment fit: " + (" ".join(derived) or "the overrides as given")
         write_text(self.out / "inspect" / "report.txt", text + "\n")
@@ -223,14 +250,18 @@ class Fit:
                            f"{stats.get('patch_stretch_max', float('nan')):.2f}x")
         write_json(self.out / RECORD, {"asked": self.asked, "overrides": self.overrides})
 
-    def derived_settings(self, report, body) -> list[str]:
+    def derived_settings(self, report, body, dress_below: float) -> list[str]:
         """The overrides inspect chose, for what the user's overrides leave unset: the suggested charts and UV
         unit, the rest pose to make a garment on whose sleeves alone are off the body's rest arms
-        (garment.made_on_rest), and for a garment centred below the waist on a body with legs, `LOWER_BODY`."""
+        (garment.made_on_rest), for a garment centred below the waist on a body with legs `LOWER_BODY`, and for a
+        dress (`is_dress`: a top whose hem hangs ``dress_below`` m past the hip joints) `DRESS_DATA`."""
         given = {_key(o) for o in self.user}
         out = []
         charts = report.suggest_charts
-        if "garment.charts" not in given and all(CHART_NAME.fullmatch(n) for n in charts):
+        if charts is None:  # no chart mapping keeps the file's UVs apart: the mesh is unwrapped anew
+            if "garment.uvs" not in given:
+                out.append(UNWRAP_FIX)
+        elif "garment.charts" not in given and all(CHART_NAME.fullmatch(n) for n in charts):
             out.append("garment.charts={" + ",".join(f"{k}:{v}" for k, v in charts.items()) + "}")
         if "garment.uv_unit" not in given and report.suggest_unit != "auto":
             out.append(f"garment.uv_unit={report.suggest_unit}")
@@ -241,6 +272,8 @@ class Fit:
         if centre_y < TOP_Y and set(LEG_JOINTS) <= set(body.skeleton.names):
             legs = len(openings(report.positions, report.faces)) >= 3
             out += [TROUSERS_DATA if legs and o == LOWER_BODY[0] else o for o in LOWER_BODY if _key(o) not in given]
+        elif "data" not in given and is_dress(report, body, dress_below):
+            out.append(DRESS_DATA)
         return out
 
     def step_overrides(self, garment: list[str], cfg) -> list[str]:

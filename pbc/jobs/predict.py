@@ -1,8 +1,10 @@
 """``pbc predict``'s job: the predictor's meshes of a set of poses (OBJ/PLY, the posed bodies, a contact
-sheet, ``predict.json``) or of a motion clip (a mesh per frame, the video, the animated GLB)."""
+sheet, ``predict.json``) or of a motion clip (the video, the animated GLB, a contact sheet of frames spread
+over it; a mesh per frame when asked)."""
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -11,12 +13,27 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pbc.core.io import naming_full_disk, require_free_space, require_writable_dir, save_npy, write_json
+from pbc.core.io import (
+    human_bytes,
+    naming_full_disk,
+    require_free_space,
+    require_writable_dir,
+    save_npy,
+    write_json,
+)
 from pbc.core.validate import as_poses
 from pbc.geometry.meshio import write_garment_mesh, write_mesh
 from pbc.inference.poses import posed_bodies, run_known, run_pose_range
 from pbc.inference.predictor import ClothPredictor, predict_poses
-from pbc.jobs.writers import FrameObjWriter, VideoWriter, camera, contact_sheet, render_frames, write_glb
+from pbc.jobs.writers import (
+    FrameObjWriter,
+    VideoWriter,
+    camera,
+    contact_sheet,
+    garment_gltf_vertices,
+    render_frames,
+    write_glb,
+)
 from pbc.motion.known import nearest_known, pull_towards_known
 from pbc.motion.ranges import clamp_to_range, range_report, range_summary
 from pbc.motion.retarget import Motion, motion_settings
@@ -137,17 +154,75 @@ def clip_summary(motion: Motion, report: dict) -> str:
     return "\n".join([*motion.notes, read, range_summary(report)])
 
 
+def sheet_frames(count: int, sheet: int) -> list[int]:
+    """The frames of a clip's contact sheet: `sheet` of its `count` frames spread evenly over it, first and
+    last included (all of them when it has fewer)."""
+    if sheet <= 0 or count <= 0:
+        return []
+    return np.unique(np.linspace(0, count - 1, min(int(sheet), count)).round().astype(np.int64)).tolist()
+
+
+def frame_mesh_bytes(ds, verts: Tensor, bodies: Tensor, fmt: str, body: bool) -> int:
+    """The bytes one frame's meshes take (the garment's, + the body's with `body`), measured by writing the first
+    frame's with the same writers into a scratch folder."""
+    with tempfile.TemporaryDirectory() as scratch:
+        garment = Path(scratch) / f"garment.{fmt}"
+        if fmt == "obj":
+            FrameObjWriter(ds.garment, garment, verts[0])
+        else:
+            write_garment_mesh(garment, ds.garment, verts[0])
+        size = garment.stat().st_size
+        if body:
+            size += write_mesh(Path(scratch) / f"body.{fmt}", bodies[0], ds.body.faces).stat().st_size
+    return size
+
+
+def clip_output_bytes(ds, verts: Tensor, bodies: Tensor, poses: Tensor, fmt: str, meshes: bool, body: bool,
+                      video: str | None, video_frames: int, video_size: tuple[int, int], glb: bool) -> dict[str, int]:
+    """What a clip's outputs will take, file (or folder) -> bytes, before any is written: the meshes measured on
+    the first frame (`frame_mesh_bytes`) times the frames, the arrays and the GLB from their shapes (the GLB: a
+    morph target of every glTF vertex per frame, and the N x N weights of its animation), the video from its
+    frames' pixels (conf/motion/sequence.yaml outputs.mp4_bytes_per_pixel, gif_bytes_per_pixel)."""
+    n, v = int(verts.shape[0]), int(verts.shape[1])
+    sizes = {"vertices.npy": n * v * 12 + 128, "poses.npy": int(poses.numel()) * 4 + 128}
+    if meshes:
+        sizes["meshes/"] = n * frame_mesh_bytes(ds, verts, bodies, fmt, body)
+    if glb:
+        g = len(garment_gltf_vertices(ds.garment)[0])
+        sizes["garment.glb"] = n * (g * 12 + n * 4 + 4 + 300) + g * 20 + int(ds.garment.faces.shape[0]) * 12
+    if video:
+        per_pixel = float(motion_settings().outputs[f"{video}_bytes_per_pixel"])
+        sizes[f"motion.{video}"] = int(video_frames * video_size[0] * video_size[1] * per_pixel)
+    return sizes
+
+
+def size_warning(sizes: dict[str, int], out: Path, meshes: bool) -> str:
+    """The line said before a clip's outputs pass outputs.warn_bytes: how much, where, the largest parts, and how
+    to write less."""
+    parts = ", ".join(f"{name} {human_bytes(b)}" for name, b in sorted(sizes.items(), key=lambda kv: -kv[1]))
+    less = ["fewer frames (--frames START:STOP:STEP, --fps 30 or --max N)"]
+    if meshes:
+        less.insert(0, "no per-frame meshes (drop --obj, --format and --body)")
+    if "garment.glb" in sizes:
+        less.append("--no-glb")
+    return (f"this writes about {human_bytes(sum(sizes.values()))} in all to {out} ({parts}); to write less: "
+            f"{', '.join(less)} (outputs.warn_bytes of conf/motion/sequence.yaml sets when this is said)")
+
+
 def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: str = "obj", video: str | None = "mp4",
                      glb: bool = True, body: bool = False, guard: str | None = None, batch_size: int = 32,
                      model: str | None = None, info: dict | None = None, progress: bool = True,
-                     person: int | None = None) -> dict:
-    """A clip's frames through the model in batches, written under `out`: meshes/frame_NNNNN.<fmt> (garment
-    with UVs and normals; + _body with `body`), motion.<video> (body + garment, fixed front camera, every
-    k-th frame for at most video.max_fps of conf/motion/sequence.yaml; None: none), garment.glb (the garment
-    animated, UVs; with `glb`), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the mapping,
-    the frames past the model's data and the guard taken against them (`guard_frames`; the flags are taken
-    before it), the seconds of each stage). person: the
-    dataset's person k the clip is played on (None: the base person). Returns predict.json's content."""
+                     person: int | None = None, meshes: bool = False, sheet: int = 12) -> dict:
+    """A clip's frames through the model in batches, written under `out`: motion.<video> (body + garment, fixed
+    front camera at conf/motion/sequence.yaml's video.height, every k-th frame for at most video.max_fps; None:
+    none), garment.glb (the garment animated, UVs; with `glb`), contact_sheet.png (`sheet` frames spread over the
+    clip, each titled with its index; 0: none), vertices.npy (N, V, 3), poses.npy (N, J, 3, 3), predict.json (the
+    mapping, the frames past the model's data and the guard taken against them (`guard_frames`; the flags are
+    taken before it), the seconds of each stage), and with `meshes` meshes/frame_NNNNN.<fmt> (garment with UVs
+    and normals; + _body with `body`). Before anything is written the outputs' size is estimated
+    (`clip_output_bytes`): a folder without room for it is refused (DiskFull naming it and the fix), and past
+    outputs.warn_bytes one line says how much and how to write less. person: the dataset's person k the clip is
+    played on (None: the base person). Returns predict.json's content."""
     t0 = time.time()
     model = predictor.check_model(model)
     predictor.check_person(person)
@@ -166,30 +241,36 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     t = time.time()
     bodies = posed_bodies(ds, poses, person)
     stages["pose_body"] = round(time.time() - t, 3)
+    v = settings.video
+    cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
+    every = max(1, round(motion.fps / float(v.max_fps)))
+    shown = torch.arange(0, len(poses), every)
+    sizes = clip_output_bytes(ds, verts, bodies, poses, fmt, meshes, body, video, len(shown), (cam[3], cam[4]), glb)
+    require_free_space(out, sum(sizes.values()), WHAT, OUT_FULL_FIX)
+    if sum(sizes.values()) > float(settings.outputs.warn_bytes):
+        print(size_warning(sizes, out, meshes), flush=True)
     t = time.time()
     with naming_full_disk(out, WHAT, OUT_FULL_FIX):
-        files = {"meshes": f"meshes/frame_NNNNN.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"}
+        files = {"vertices": "vertices.npy", "poses": "poses.npy"}
         head = f"predicted by pbc.predict from {motion.table.name} motion ({model} model)"
-        if fmt == "obj":
-            writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
-                                    header=[f"{frame_names[0]}: {head}"])
-            require_room_for_frames(out, out / "meshes" / f"{frame_names[0]}.obj", (len(poses) - 1) * (1 + body),
-                                    verts.numel() * 4 + poses.numel() * 4)
-            for k in range(1, len(poses)):
-                writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k], header=[f"{frame_names[k]}: {head}"])
-        else:
-            for k, name in enumerate(frame_names):
-                write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k], header=[f"{name}: {head}"])
-        if body:
-            for k, name in enumerate(frame_names):
-                write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
-        stages["meshes"] = round(time.time() - t, 3)
+        if meshes:
+            files["meshes"] = f"meshes/frame_NNNNN.{fmt}"
+            if fmt == "obj":
+                writer = FrameObjWriter(ds.garment, out / "meshes" / f"{frame_names[0]}.obj", verts[0],
+                                        header=[f"{frame_names[0]}: {head}"])
+                for k in range(1, len(poses)):
+                    writer.write(out / "meshes" / f"{frame_names[k]}.obj", verts[k],
+                                 header=[f"{frame_names[k]}: {head}"])
+            else:
+                for k, name in enumerate(frame_names):
+                    write_garment_mesh(out / "meshes" / f"{name}.{fmt}", ds.garment, verts[k],
+                                       header=[f"{name}: {head}"])
+            if body:
+                for k, name in enumerate(frame_names):
+                    write_mesh(out / "meshes" / f"{name}_body.{fmt}", bodies[k], ds.body.faces)
+            stages["meshes"] = round(time.time() - t, 3)
         if video:
             t = time.time()
-            v = settings.video
-            cam = camera(torch.cat([verts.reshape(-1, 3), bodies.reshape(-1, 3)]), int(v.height), float(v.margin))
-            every = max(1, round(motion.fps / float(v.max_fps)))
-            shown = torch.arange(0, len(poses), every)
             vw = VideoWriter(out / f"motion.{video}", motion.fps / every, int(v.crf))
             try:
                 for i in shown.split(8):
@@ -203,20 +284,30 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
                 raise
             vw.close()
             files["video"] = f"motion.{video}"
-            files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4)}
+            files["video_frames"] = {"count": len(shown), "every": every, "fps": round(motion.fps / every, 4),
+                                     "height": cam[3], "width": cam[4]}
             stages["video"] = round(time.time() - t, 3)
         if glb:
             t = time.time()
             write_glb(out / "garment.glb", ds.garment, verts.numpy(), motion.times)
             files["glb"] = "garment.glb"
             stages["glb"] = round(time.time() - t, 3)
+        on_sheet = sheet_frames(len(poses), sheet)
+        if on_sheet:
+            t = time.time()
+            contact_sheet(out / "contact_sheet.png", ds.garment.faces.numpy(), verts[on_sheet].numpy(),
+                          [f"frame {k}" for k in on_sheet], bodies[on_sheet].numpy(), ds.body.faces.numpy())
+            files["contact_sheet"] = "contact_sheet.png"
+            files["contact_sheet_frames"] = on_sheet
+            stages["contact_sheet"] = round(time.time() - t, 3)
         save_npy(out / "vertices.npy", verts.numpy().astype(np.float32))
         save_npy(out / "poses.npy", poses.numpy().astype(np.float32))
         result = dict({k: v for k, v in (info or {}).items() if k != "started"}, model=model,
                       method=predictor.method if model == "patches" else None, num_poses=len(poses),
-                      num_vertices=int(verts.shape[1]), format=fmt, files=files, names=frame_names,
-                      motion=motion.summary(), notes=list(motion.notes) + ([range_note] if range_note else []),
-                      pose_range=report, pose_range_source=range_source)
+                      num_vertices=int(verts.shape[1]), format=fmt if meshes else None, files=files,
+                      names=frame_names, motion=motion.summary(),
+                      notes=list(motion.notes) + ([range_note] if range_note else []),
+                      pose_range=report, pose_range_source=range_source, estimated_bytes=sizes)
         if person is not None:
             result["person"] = int(person)
         result["seconds_by_stage"] = stages

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pygltflib
@@ -17,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from test_predict import fake_run
 from test_robustness import stand_in_dataset
 
+import pbc.core.io as pbc_io
 from pbc.cli.predict import main
 from pbc.data.dataset import load_dataset
 from pbc.geometry.body.skeleton import skeleton_from_config, xzy_angles
@@ -280,7 +282,7 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
     clip.write_text(clip_text(poses, 1 / 0.0254))
     out = tmp_path / "out"
     assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out), "--frames", "0:12:2",
-                            "--video", "gif", "--guard", "none"]) == 0
+                            "--video", "gif", "--guard", "none", "--obj"]) == 0
     printed = capsys.readouterr().out
     res = json.loads((out / "predict.json").read_text())
     assert res["num_poses"] == 6 and res["motion"]["units"] == "inch" and res["motion"]["ignored"] == [
@@ -305,7 +307,8 @@ def test_cli_bvh_writes_meshes_video_glb_and_flags(setup_motion, tmp_path, capsy
 
     gif = Image.open(out / "motion.gif")  # the clip's 60 fps (120 / step 2) shown at 30: every other frame
     assert gif.n_frames == 3
-    assert res["files"]["video_frames"] == {"count": 3, "every": 2, "fps": pytest.approx(30, 1e-3)}
+    assert res["files"]["video_frames"] == {"count": 3, "every": 2, "fps": pytest.approx(30, 1e-3), "height": 512,
+                                            "width": gif.width}
     g = pygltflib.GLTF2().load(str(out / "garment.glb"))
     prim = g.meshes[0].primitives[0]
     assert len(prim.targets) == 6 and prim.attributes.TEXCOORD_0 is not None
@@ -384,3 +387,48 @@ def test_cli_refuses_unbounded_frames_and_limbs_at_rest_before_writing(setup_mot
     res = json.loads((out / "predict.json").read_text())
     assert res["motion"]["dialect"] == "Bandai Namco" and res["motion"]["rest_pose"] == "flat"
     assert res["motion"]["mapped"]["l_arm"] == "UpperArm_L"
+
+
+def test_a_clip_writes_its_video_glb_and_contact_sheet_and_meshes_only_when_asked(setup_motion, tmp_path, capsys,
+                                                                                  monkeypatch):
+    import imageio.v3 as iio
+    from PIL import Image
+
+    import pbc.jobs.predict as job
+
+    _, whole = setup_motion
+    clip = tmp_path / "walk.bvh"
+    clip.write_text(clip_text(random_poses(30, seed=4), 1 / 0.0254))
+    out = tmp_path / "out"
+    # the unit tier starts no process: a GIF (Pillow) for the video, not ffmpeg's MP4
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(out), "--guard", "none",
+                            "--video", "gif"]) == 0
+    printed = capsys.readouterr().out
+    assert not (out / "meshes").exists() and "a mesh per frame with --obj" in printed
+    res = json.loads((out / "predict.json").read_text())
+    assert {"video", "glb", "contact_sheet"} <= set(res["files"]) and "meshes" not in res["files"]
+    frames = res["files"]["contact_sheet_frames"]
+    assert frames[0] == 0 and frames[-1] == 29 and len(frames) == 12  # 12 of 30, spread over the clip
+    sheet = Image.open(out / "contact_sheet.png")
+    assert sheet.width > sheet.height  # 3 rows of 4 tiles: wider than tall for a standing figure's tiles
+    video = iio.imread(out / "motion.gif", index=0)
+    assert video.shape[0] >= 512 == int(motion_settings().video.height)
+    assert "this writes about" not in printed  # a small clip: no size warning
+    # --obj: a mesh per frame too; a tiny warn_bytes: the size is said first, with how to write less
+    tiny = OmegaConf.merge(motion_settings(), {"outputs": {"warn_bytes": 1}})
+    monkeypatch.setattr(job, "motion_settings", lambda: tiny)
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(tmp_path / "obj"), "--obj",
+                            "--video", "none", "--no-glb", "--sheet", "0"]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "obj" / "meshes").iterdir()) == [f"frame_{k:05d}.obj" for k in range(30)]
+    assert not (tmp_path / "obj" / "contact_sheet.png").exists()
+    warning = next(line for line in printed.splitlines() if line.startswith("this writes about"))
+    assert f"in all to {tmp_path / 'obj'} (meshes/" in warning and "drop --obj" in warning
+    assert "outputs.warn_bytes of conf/motion/sequence.yaml" in warning
+    # an out dir without room for the outputs: one line naming it, before anything is written
+    monkeypatch.setattr(pbc_io.shutil, "disk_usage", lambda p: SimpleNamespace(free=10_000))
+    assert exit_code(main, [str(whole), "--poses", str(clip), "--out", str(tmp_path / "full"), "--video", "gif"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]  # the progress bar aside
+    assert len(errors) == 1 and f"prediction output directory {tmp_path / 'full'}:" in errors[0]
+    err = errors[0]
+    assert "needed" in err and "--out DIR" in err and not list((tmp_path / "full").glob("*"))

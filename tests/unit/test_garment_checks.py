@@ -5,6 +5,7 @@ The garments are written here as an asset library would hand them over (tests/he
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,16 +13,16 @@ import pytest
 from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from helpers.a_pose import IMPORT, outfit_obj  # noqa: E402
+from helpers.a_pose import IMPORT, _tube, outfit_obj  # noqa: E402
 
 from pbc.cli import COMMANDS  # noqa: E402
 from pbc.core.config import load_config  # noqa: E402
-from pbc.data.generate import discard_summary  # noqa: E402
+from pbc.data.generate import Scene, discard_summary, discarded_faces  # noqa: E402
 from pbc.geometry.garment import garment_from_config  # noqa: E402
-from pbc.geometry.garment.checks import LimbCloth, sleeve_axes
+from pbc.geometry.garment.checks import FaceLimits, LimbCloth, face_cause, face_stretch, sleeve_axes
 from pbc.geometry.garment.outfit import split_outfit
 from pbc.geometry.inspect import inspect_garment  # noqa: E402
-from pbc.geometry.shrinkwrap import shrinkwrap  # noqa: E402
+from pbc.geometry.shrinkwrap import shrinkwrap, start_points  # noqa: E402
 from pbc.geometry.units import check_uv_unit  # noqa: E402
 
 
@@ -134,6 +135,104 @@ def test_split_cuts_an_outfit_into_pieces_named_by_where_they_sit(tmp_path, body
     bottom = load_config(IMPORT + [f"garment.obj={pieces[1][1]}"]).garment
     g, _ = garment_from_config(bottom)
     assert g.faces.shape[0] == 480
+
+
+# the tube's face squashed in the pattern (`_tube_obj`): the triangle of its ring ROWS // 2, column COLS // 2
+ROWS, COLS = 8, 24
+SLIVER_FACE = 2 * ((ROWS // 2) * COLS + COLS // 2)
+
+
+def _tube_obj(squash: float | None = None) -> str:
+    """A tube round the mannequin's chest as an OBJ in decimetres, its pattern the tube cut open at the back (one
+    chart); with ``squash``, one face's pattern triangle (SLIVER_FACE) flattened to that fraction of its area by
+    moving one corner's UV towards the opposite edge (its neighbours keep their orientation: no fold)."""
+    pts, faces, uv, fuv = _tube(0.32, 0.04, 0.17, COLS, ROWS)
+    if squash is not None:
+        v0, v2, v1 = fuv[SLIVER_FACE]
+        mid = 0.5 * (uv[v0] + uv[v2])
+        uv[v1] = mid + squash * (uv[v1] - mid)
+    lines = [f"v {10 * x:.6f} {10 * y:.6f} {10 * z:.6f}" for x, y, z in pts]
+    lines += [f"vt {u:.9f} {v:.9f}" for u, v in uv]
+    lines += [f"f {a + 1}/{ta + 1} {b + 1}/{tb + 1} {c + 1}/{tc + 1}"
+              for (a, b, c), (ta, tb, tc) in zip(faces, fuv, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
+def test_one_face_stretched_past_the_limit_is_refused_at_the_wrap_naming_it_its_place_and_cause(tmp_path, body):
+    path = _write(tmp_path, "sliver.obj", _tube_obj(0.001))
+    with pytest.raises(ValueError) as err:
+        _wrap(body, [f"garment.obj={path}"])
+    msg = str(err.value)
+    assert len(msg.splitlines()) == 1
+    assert "stretches 1 face past garment.shrinkwrap.max_face_stretch = 50x" in msg
+    ids = ", ".join(str(v + 1) for v in garment_from_config(load_config(IMPORT + [f"garment.obj={path}"]).garment)[0]
+                    .faces[SLIVER_FACE].tolist())
+    assert f"the worst face {SLIVER_FACE} (vertices {ids}) to " in msg and "chart 'default', patch default_" in msg
+    assert "nearest body part: torso" in msg and "it is a sliver in the pattern" in msg
+    assert float(msg.split(") to ")[1].split("x")[0]) > 50.0
+    # every patch is within its limit: the per-patch check alone passes it, and says so in the stats
+    _, stats = _wrap(body, [f"garment.obj={path}", "garment.shrinkwrap.max_face_stretch=null"])
+    assert stats["patch_stretch_max"] < 1.0 and stats["face_stretch_max"] > 50.0
+    assert stats["face_stretch_worst"] == SLIVER_FACE
+    # the same tube without the squashed face wraps within both limits
+    _, stats = _wrap(body, [f"garment.obj={_write(tmp_path, 'tube.obj', _tube_obj())}"])
+    assert stats["face_stretch_max"] < 2.0 and stats["faces_past_limit"] == 0
+
+
+def test_face_stretch_is_the_area_ratio_and_the_principal_stretches_of_the_deformation():
+    pattern = np.array([[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]])
+    ratio, principal = face_stretch(np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 0.5]]),
+                                    np.array([[0, 1, 2]]), pattern)
+    np.testing.assert_allclose(ratio, [1.5]) and np.testing.assert_allclose(principal, [[3.0, 0.5]])
+    ratio, _ = face_stretch(np.eye(3), np.array([[0, 1, 2]]), np.zeros((1, 3, 2)))
+    assert np.isinf(ratio[0])  # a pattern triangle of no area
+
+
+def test_the_face_cause_is_measured_first_the_body_parts_then_the_start_then_a_sliver():
+    faces = np.array([[0, 1, 2], [1, 2, 3]])
+    limits = FaceLimits(limit=50.0, sliver=0.05, far=0.1)
+    area = np.array([1.0, 1.0])
+    split = face_cause(0, faces, ["left leg", "torso", "torso", "torso"], area, np.zeros(4), limits)
+    assert "wrapped on different body parts (vertices 1, 2, 3 on the left leg, torso, torso)" in split
+    assert "between the left leg and the torso" in split
+    far = face_cause(1, faces, ["torso"] * 4, area, np.array([0.0, 0.0, 0.0, 0.25]), limits)
+    assert "started 0.25 m from the body (vertex 4" in far
+    sliver = face_cause(1, faces, ["torso"] * 4, np.array([1.0, 0.01]), np.zeros(4), limits)
+    assert "sliver in the pattern" in sliver
+    assert "place the garment closer" in face_cause(1, faces, ["torso"] * 4, area, np.zeros(4), limits)
+
+
+def _tube_scene(tmp_path, body, squash):
+    """The tube wrapped (the face check off) as a generation Scene, and its start positions (V, 3)."""
+    cfg = load_config(IMPORT + [f"garment.obj={_write(tmp_path, 'g.obj', _tube_obj(squash))}",
+                                "garment.shrinkwrap.max_face_stretch=null"])
+    garment, cage = garment_from_config(cfg.garment)
+    emb, stats = shrinkwrap(garment, cage, body, cfg.garment.shrinkwrap)
+    scene = Scene(body=body, garment=garment, cage=cage, embedding=emb, sim=cfg.sim)
+    return scene, start_points(body.vertices[None].double(), body.faces, emb)[0].numpy(), stats
+
+
+def test_the_discard_summary_names_the_faces_their_place_and_the_measured_cause(tmp_path, body):
+    # the wrap stretched the squashed face: every drape starting there has it past 2x
+    scene, start, stats = _tube_scene(tmp_path, body, 0.001)
+    drapes = [start + 1e-4 * k for k in range(4)]
+    faces = discarded_faces(scene, drapes, stats)
+    text = discard_summary({"area_stretched": 4}, scene.sim, faces)
+    assert f"face {SLIVER_FACE} (chart 'default'" in text and "stretched past the limit in 4 of 4" in text
+    assert "nearest body part: torso" in text and "already by the shrink-wrap" in text
+    assert "uv_unit" not in text and "sleeve" not in text and "rest pose" not in text
+    # a face the wrap left within the limits, stretched by the drapes: no unit, no wrap, no sleeve named
+    scene, start, stats = _tube_scene(tmp_path, body, None)
+    pulled = start.copy()
+    pulled[scene.garment.faces[SLIVER_FACE, 1]] += [0.0, 0.0, 0.2]
+    text = discard_summary({"area_stretched": 3, "nan": 1}, scene.sim, discarded_faces(scene, [pulled] * 3, stats))
+    assert "in 3 of 3 discarded drapes" in text and "within the limits, so the drapes stretched them" in text
+    assert "uv_unit" not in text and "shrink-wrap" not in text and "sleeve" not in text
+    # the whole pattern too small (a wrong unit): the unit is named
+    small = replace(scene.garment, uv_scale=0.5 * scene.garment.uv_scale)
+    text = discard_summary({"area_stretched": 2}, scene.sim,
+                           discarded_faces(replace(scene, garment=small), [start] * 2, stats))
+    assert "whole garment's wrapped area is" in text and "garment.uv_unit" in text
 
 
 def test_discard_summary_names_the_dominant_reason_what_it_measures_and_the_cause():

@@ -285,8 +285,10 @@ def test_garment_fit_drapes_trousers_with_the_trousers_preset(tmp_path):
     cfg = load_config(["body=anny"])
     body = body_from_config(cfg.body)
     path = trousers_mhclo(tmp_path / "t", body, base_mesh_vertices(cfg.body).numpy())
-    report = inspect_file(path, load_config([*garment_overrides(path, []), "body=anny"]), body, tmp_path, wrap=False)
-    derived = Fit(path, [], tmp_path / "fit").derived_settings(report, body)
+    fit_cfg = load_config([*garment_overrides(path, []), "body=anny"])
+    report = inspect_file(path, fit_cfg, body, tmp_path, wrap=False)
+    below = float(fit_cfg.garment.dress_hem_below_hips)
+    derived = Fit(path, [], tmp_path / "fit").derived_settings(report, body, below)
     assert "data=trousers_small" in derived and "++garment.shrinkwrap.arm_parts=false" in derived
-    mine = Fit(path, ["data=skirt_small"], tmp_path / "fit").derived_settings(report, body)
+    mine = Fit(path, ["data=skirt_small"], tmp_path / "fit").derived_settings(report, body, below)
     assert not any(o.startswith("data=") for o in mine)

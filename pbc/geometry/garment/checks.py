@@ -1,12 +1,12 @@
 """How a garment sits on the rest body, measured before any drape: the UV unit against the 3D
 areas, each part's distance to the body and the body region there, the sleeves' angle against the body's
-rest arms, and the shrink-wrap's stretch per chart.
+rest arms, and the shrink-wrap's stretch per chart, per cage patch and per face.
 
 One job: measure, and turn a measurement past its threshold into one ValueError naming the chart or part,
 the number, the setting and the fix. The thresholds live in conf/ (``garment.uv_unit_tolerance``,
-``garment.shrinkwrap.max_start_distance`` / ``max_sleeve_angle_deg`` / ``max_patch_stretch`` / ``limb_cloth``);
-the import
-(`obj_import`) and the shrink-wrap (`shrinkwrap`) call these checks, `inspect` reports the same numbers.
+``garment.shrinkwrap.max_start_distance`` / ``max_sleeve_angle_deg`` / ``max_patch_stretch`` /
+``max_face_stretch`` / ``limb_cloth``); the import (`obj_import`) and the shrink-wrap (`shrinkwrap`) call these
+checks, `inspect` reports the same numbers.
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ from pbc.geometry.meshops import encircled_degrees, mesh_pieces
 
 # the mannequin's part rows (pbc.geometry.body.Body.parts): 0 torso, 1 left arm, 2 right arm
 PART_NAMES = ("torso", "left arm", "right arm")
+# a sleeve this many degrees off the body's rest arm is named as a stretch's cause (it is refused past
+# garment.shrinkwrap.max_sleeve_angle_deg)
+SLEEVE_OFF_DEG = 10.0
 
 
 
@@ -138,8 +141,9 @@ class LimbCloth:
 def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body, limb: LimbCloth) -> dict[str, dict]:
     """The axis of each sleeve of a garment at its rest positions (V, 3), against the body's rest arm.
 
-    A sleeve is the garment's surface beyond its side's arm joint, above the root, outer half of that
-    reach (so a shirt's side panels next to the torso are left out); its axis is `tube_axis`'s. It is
+    A sleeve is the garment's surface above the root beyond its side's arm joint, the outer half of that
+    reach (so a shirt's side panels next to the torso, and a dress's skirt below, are left out); its axis is
+    `tube_axis`'s. It is
     compared like with like: with the axis of the body's arm skin in the same band of reach (`tube_axis` of
     the arm part's faces there), not with the arm's bones, whose line a short sleeve round a real shoulder does
     not follow (MakeHuman T-shirts fitted to Anny read 18-22 degrees off Anny's arm bones, 1-7 off its skin).
@@ -158,10 +162,11 @@ def sleeve_axes(positions: np.ndarray, faces: np.ndarray, body, limb: LimbCloth)
     for sgn, side, row in ((1.0, "left", 1), (-1.0, "right", 2)):
         x0 = arms[f"{side}_arm_x"]
         reach = sgn * centre[:, 0]
-        if reach.max() <= x0:
+        above = centre[:, 1] > 0.0  # above the root: a dress's or a coat's skirt flaring wider is no sleeve
+        if not above.any() or reach[above].max() <= x0:
             continue
-        lo, hi = x0 + 0.5 * (reach.max() - x0), reach.max()
-        sel = (reach > lo) & (centre[:, 1] > 0.0)
+        lo, hi = x0 + 0.5 * (reach[above].max() - x0), reach[above].max()
+        sel = (reach > lo) & above
         sleeve = tube_axis(p, f[sel])
         if sleeve is None or sleeve[1] > limb.tube_limit:  # not a tube (a flat flap, a cape): no axis to compare
             continue
@@ -268,7 +273,7 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
     k = int(bad[np.argmax(stretch[bad])])
     listed = ", ".join(f"{patch_names[i]} {stretch[i]:.1f}x" for i in bad[np.argsort(-stretch[bad])][:6])
     on = f", wrapped on the {patch_regions[k]}" if patch_regions is not None else ""
-    off = {s: a for s, a in (sleeves or {}).items() if a["angle_deg"] > 10.0}  # a sleeve clearly off its arm
+    off = {s: a for s, a in (sleeves or {}).items() if a["angle_deg"] > SLEEVE_OFF_DEG}
     uv_unit = ("the pattern is smaller than the garment: check garment.uv_unit (`pbc garment inspect` names the "
                "one that fits)")
     if off:
@@ -290,6 +295,118 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
         f"the shrink-wrap stretches chart '{patch_charts[k]}' (patch {patch_names[k]}{on}) to {stretch[k]:.1f}x its "
         f"pattern area (patches past garment.shrinkwrap.max_patch_stretch = {limit:g}: {listed}); its drapes "
         f"would all be discarded (area_stretched). Likely cause: {why}")
+
+
+def face_stretch(positions: np.ndarray, faces: np.ndarray, pattern: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stretch of each face from its flat pattern triangle to its triangle at ``positions`` (V, 3) m, from the
+    2x2 deformation gradient between the two: the area ratio (F,) (its area over its pattern area: the drape's
+    discard measure, pbc.sim.drape.triangle_area_ratios) and the principal stretches (F, 2), largest first, whose
+    product it is. faces (F, 3); pattern (F, 3, 2): each face's corners on the flat pattern, m. A pattern triangle
+    of no area reads inf."""
+    x = np.asarray(positions, np.float64)[np.asarray(faces)]
+    d1, d2 = x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]
+    l1 = np.linalg.norm(d1, axis=1)
+    e1 = d1 / np.maximum(l1, 1e-30)[:, None]
+    n = np.cross(d1, d2)
+    e2 = np.cross(n / np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None], e1)
+    ds = np.zeros((len(x), 2, 2))  # the wrapped edges in the triangle's own plane, as columns
+    ds[:, 0, 0], ds[:, 0, 1], ds[:, 1, 1] = l1, np.einsum("fk,fk->f", d2, e1), np.einsum("fk,fk->f", d2, e2)
+    u = np.asarray(pattern, np.float64)
+    m1, m2 = u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]
+    det = m1[:, 0] * m2[:, 1] - m1[:, 1] * m2[:, 0]
+    flat = np.abs(det) > 1e-300
+    inv = np.stack([np.stack([m2[:, 1], -m2[:, 0]], 1), np.stack([-m1[:, 1], m1[:, 0]], 1)], 1)
+    inv = inv / np.where(flat, det, 1.0)[:, None, None]
+    principal = np.linalg.svd(ds @ inv, compute_uv=False)
+    ratio = np.abs(ds[:, 0, 0] * ds[:, 1, 1]) / np.where(flat, np.abs(det), 1.0)
+    ratio[~flat], principal[~flat] = np.inf, np.inf
+    return ratio, principal
+
+
+@dataclass(frozen=True)
+class FaceLimits:
+    """How one face of the wrap is judged and its cause named (conf: garment.shrinkwrap's ``max_face_stretch``,
+    ``face_sliver_area``, ``face_far_start``).
+
+    limit: a face whose wrapped area passes this x its pattern area is refused (None: not checked);
+    sliver: a pattern triangle smaller than this x the garment's median pattern triangle is a sliver;
+    far: m, a face whose corner started this far from the body was pulled onto it from afar."""
+
+    limit: float | None
+    sliver: float
+    far: float
+
+    @classmethod
+    def from_config(cls, shrinkwrap) -> FaceLimits:
+        """From the garment's ``shrinkwrap`` node."""
+        limit = shrinkwrap.get("max_face_stretch")
+        return cls(None if limit is None else float(limit), float(shrinkwrap.get("face_sliver_area", 0.05)),
+                   float(shrinkwrap.get("face_far_start", 0.1)))
+
+
+def face_cause(k: int, faces: np.ndarray, vertex_region: list[str] | None, pattern_area: np.ndarray,
+               start_gap: np.ndarray | None, limits: FaceLimits) -> str:
+    """Why the wrap stretched face k, from what was measured, first that applies: its corners wrapped on different
+    body parts (``vertex_region`` (V,) names: the face spans the gap between them), a corner that started more than
+    limits.far from the body (``start_gap`` (V,) m), a sliver in the pattern (its pattern area under limits.sliver x
+    the median of ``pattern_area`` (F,)), else the placement there. One clause with its fix."""
+    f = np.asarray(faces)[k]
+    ids = ", ".join(str(int(v) + 1) for v in f)
+    on = [] if vertex_region is None else [vertex_region[int(v)] for v in f]
+    if len(set(on)) > 1:
+        parts = " and the ".join(dict.fromkeys(on))
+        return (f"its corners were wrapped on different body parts (vertices {ids} on the "
+                + ", ".join(on) + f"), so it spans the gap between the {parts}: the garment's seam between them "
+                f"(a crotch, an armpit) lies off the body's; place the garment so that seam sits where the body's "
+                f"{parts} meet, or cut the face off there")
+    if start_gap is not None and float(np.max(start_gap[f])) > limits.far:
+        v = int(f[int(np.argmax(start_gap[f]))])
+        return (f"it started {float(start_gap[v]):.2f} m from the body (vertex {v + 1}; more than "
+                f"garment.shrinkwrap.face_far_start = {limits.far:g} m) and the wrap pulled it onto the body: place "
+                "the garment closer to the body there")
+    median = float(np.median(pattern_area[np.isfinite(pattern_area)]))
+    if pattern_area[k] < limits.sliver * median:
+        return (f"it is a sliver in the pattern ({pattern_area[k]:.2g} m^2, {pattern_area[k] / median:.2g}x the "
+                f"median pattern triangle; garment.shrinkwrap.face_sliver_area = {limits.sliver:g}): re-unwrap the "
+                f"UVs there so the triangle of vertices {ids} is not squashed flat")
+    return ("the garment lies too far from the body there or is caught between body parts: place the garment "
+            "closer to the body there (`pbc garment inspect --out DIR` shows it on the body)")
+
+
+def faces_past(ratio: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) ids of the faces whose area ratio (F,) passes ``limit``, worst first."""
+    bad = np.flatnonzero(~(ratio <= limit))
+    return bad[np.argsort(-np.nan_to_num(ratio[bad], nan=np.inf), kind="stable")]
+
+
+def check_face_stretch(ratio: np.ndarray, principal: np.ndarray, faces: np.ndarray, limits: FaceLimits,
+                       wrapped: np.ndarray, body, chart_names: list[str], face_chart: np.ndarray,
+                       patch_names: list[str], face_patch: np.ndarray, vertex_region: list[str] | None,
+                       pattern_area: np.ndarray, start_gap: np.ndarray | None) -> None:
+    """Refuse a shrink-wrap with a face whose wrapped area passes limits.limit x its pattern area (ratio (F,),
+    principal (F, 2): `face_stretch` at the wrapped positions (V, 3)): the drape discards a sample on one face past
+    its own limit (pbc.sim.drape.check_sample), so one face the drape cannot pull back discards them all. One
+    ValueError naming how many faces pass, the worst one's stretch, its chart (chart_names[face_chart (F,)]), cage
+    patch (patch_names[face_patch (F,)], -1: none), where it is on the body (`body_region`), its vertex ids (1-based,
+    as in the OBJ) and the cause measured (`face_cause`)."""
+    if limits.limit is None:
+        return
+    bad = faces_past(ratio, limits.limit)
+    if not len(bad):
+        return
+    k = int(bad[0])
+    f = np.asarray(faces)
+    ids = ", ".join(str(int(v) + 1) for v in f[k])
+    patch = patch_names[int(face_patch[k])] if face_patch[k] >= 0 else "none"
+    others = ", ".join(f"{int(i)} {ratio[i]:.1f}x" for i in bad[1:6])
+    where = body_region(body, np.asarray(wrapped, np.float64)[f[k]].mean(0))
+    raise ValueError(
+        f"the shrink-wrap stretches {len(bad)} face{'s' if len(bad) > 1 else ''} past "
+        f"garment.shrinkwrap.max_face_stretch = {limits.limit:g}x its pattern area, the worst face {k} (vertices "
+        f"{ids}) to {ratio[k]:.1f}x (principal stretches {principal[k, 0]:.1f} and {principal[k, 1]:.2f}), chart "
+        f"'{chart_names[int(face_chart[k])]}', patch {patch}, on the body ({where})"
+        + (f" (next: face {others})" if others else "") + "; every drape would be discarded (area_stretched). "
+        f"Likely cause: {face_cause(k, f, vertex_region, pattern_area, start_gap, limits)}")
 
 
 ARM_JOINTS = {"left": "l_arm", "right": "r_arm"}

@@ -35,7 +35,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
+import trimesh
+from scipy.spatial import ConvexHull, cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
@@ -48,10 +49,18 @@ from pbc.geometry.garment.checks import (
     sleeves_inside,
     tube_axis,
 )
-from pbc.geometry.garment.obj_import import drop_loose, projected_charts
+from pbc.geometry.garment.obj_import import UV_PADDING, check_mesh, drop_loose
+from pbc.geometry.garment.unwrap import UV_SOURCES, charted_mesh, unwrap_settings_from_config
 from pbc.geometry.meshio import ObjMesh, read_obj
-from pbc.geometry.meshops import boundary_loops, mesh_pieces, push_out
-from pbc.geometry.units import UNITS, metres_per_unit
+from pbc.geometry.meshops import (
+    boundary_loops,
+    consistent_winding,
+    encircled_degrees,
+    mesh_pieces,
+    push_out,
+    split_nonmanifold,
+)
+from pbc.geometry.units import UNITS, metres_per_unit, name_unit
 
 log = logging.getLogger(__name__)
 
@@ -100,13 +109,22 @@ def _sdf(body: Body, points: np.ndarray, rotations: torch.Tensor | None = None) 
 
 
 def openings(points: np.ndarray, faces: np.ndarray) -> list[dict]:
-    """The garment's openings (boundary loops), highest first: {ids, centre (3,), perimeter}."""
+    """The garment's openings (boundary loops), highest first: {ids, centre (3,), perimeter, half_width (half its
+    extent along x)}."""
     out = []
     for loop in boundary_loops(np.asarray(faces)):
         q = points[loop]
-        out.append({"ids": loop, "centre": q.mean(0),
+        out.append({"ids": loop, "centre": q.mean(0), "half_width": 0.5 * float(np.ptp(q[:, 0])),
                     "perimeter": float(np.linalg.norm(q - np.roll(q, 1, 0), axis=1).sum())})
     return sorted(out, key=lambda o: -o["centre"][1])
+
+
+def hem(ops: list[dict]) -> dict:
+    """A top's hem among its openings (`openings`, highest first): the lowest one round the midline (its centre
+    within half its half-width of the collar's x), so cuffs hanging lower beside the torso (sleeves modelled with
+    the arms down) are not taken for it; the lowest opening when none is round the midline."""
+    mid = [o for o in ops[1:] if abs(o["centre"][0] - ops[0]["centre"][0]) < 0.5 * o["half_width"]]
+    return mid[-1] if mid else ops[-1]
 
 
 def top_or_bottom(points: np.ndarray, faces: np.ndarray, where: str) -> str:
@@ -138,7 +156,8 @@ def _landmarks(body: Body) -> dict:
     return {"neck": sk.rest_heads[sk.index("neck")].double().numpy(), "shoulder_y": float(arms[:, 1].mean()),
             "shoulders": np.array([0.0, float(arms[:, 1].mean()), float(arms[:, 2].mean())]),
             "arm_x": float(np.abs(arms[:, 0]).mean()), "waist_y": m["waist_at"], "torso": torso_mesh(body),
-            "low": float(body.vertices[:, 1].min())}
+            "low": float(body.vertices[:, 1].min()),
+            "girths": {k: (m[k], m[f"{k}_at"]) for k in ("chest", "hips") if k in m and f"{k}_at" in m}}
 
 
 def _girth_at(lm: dict, y: float) -> float:
@@ -151,7 +170,7 @@ def _anchor(points: np.ndarray, faces: np.ndarray, kind: str) -> tuple[np.ndarra
     """(3,) the landmark the garment is hung by (collar or waistband centre) and the opening sized against the
     body (hem of a top, waistband of a bottom)."""
     ops = openings(points, faces)
-    return ops[0]["centre"], (ops[-1] if kind == "top" else ops[0])
+    return ops[0]["centre"], (hem(ops) if kind == "top" else ops[0])
 
 
 def _target(lm: dict, kind: str, pcfg) -> np.ndarray:
@@ -161,7 +180,10 @@ def _target(lm: dict, kind: str, pcfg) -> np.ndarray:
 
 
 def _unit(points, faces, kind, lm, pcfg, stated, where) -> tuple[float, str]:
-    """Metres per file unit: the stated one, else from the sizing opening's girth against the body's there."""
+    """Metres per file unit: the stated one, else from the sizing opening's girth against the body's there,
+    confirmed by the girth at the body's chest (a top) or hips (a bottom) (`unit_measures`): the named unit every
+    measure lies within ``placement.unit_snap`` of, else an odd scale from the opening's; measures that disagree
+    by more than ``placement.unit_agreement`` are one ValueError naming each measure's unit."""
     height = float(lm["torso"].bounds[1][1] - lm["low"])
     if stated not in (None, "auto"):
         unit = metres_per_unit(stated, "garment.position_unit")
@@ -171,15 +193,71 @@ def _unit(points, faces, kind, lm, pcfg, stated, where) -> tuple[float, str]:
                              f"{extent / height:.1f}x the body's height: far larger than any body; give the "
                              "file's unit (garment.position_unit=cm, mm, ...) or garment.position_unit=auto")
         return unit, str(stated)
+    measures = unit_measures(points, faces, kind, lm, pcfg)
+    _check_agreement(measures, points, float(pcfg.unit_agreement), where)
+    for name, m in UNITS.items():  # a named unit every measure lies within unit_snap of
+        if all(max(u / m, m / u) <= float(pcfg.unit_snap) for u in measures.values()):
+            return m, name
+    return measures[_SIZING[kind]] * float(pcfg.odd_scale_ease) / float(pcfg.opening_ease), "odd scale"
+
+
+# the measure that sizes each kind of garment (its lowest opening for a top, its waistband for a bottom), and the
+# body girth that confirms it (measurements(): the chest, the hips)
+_SIZING = {"top": "hem girth", "bottom": "waistband girth"}
+_CONFIRM = {"top": ("chest girth", "chest", "chest_ease"), "bottom": ("hip girth", "hips", "hip_ease")}
+
+
+def garment_girth(points: np.ndarray, faces: np.ndarray, y: float, half_width: float) -> float:
+    """The convex-hull perimeter (file units) of the garment's section (points (V, 3), faces (F, 3)) by the plane
+    at height y, within ``half_width`` of its midline (a top's torso, not its sleeves); NaN where the plane
+    cuts fewer than three points there."""
+    seg = trimesh.intersections.mesh_plane(trimesh.Trimesh(points, faces, process=False), [0.0, 1.0, 0.0],
+                                           [0.0, float(y), 0.0])
+    q = np.asarray(seg).reshape(-1, 3)
+    q = q[np.abs(q[:, 0] - np.median(points[:, 0])) < half_width][:, [0, 2]]
+    if len(q) < 3 or np.linalg.matrix_rank(q - q.mean(0)) < 2:
+        return float("nan")
+    return float(ConvexHull(q).area)  # in 2D, ConvexHull.area is the perimeter
+
+
+def unit_measures(points: np.ndarray, faces: np.ndarray, kind: str, lm: dict, pcfg) -> dict[str, float]:
+    """Metres per file unit by each measure of the garment (V, 3 file units) against the body (landmarks ``lm``):
+    its sizing opening's girth (``placement.opening_ease`` x the body's girth where it lands: the hem of a top,
+    the waistband of a bottom) and its girth where the body's chest (a top) or hips (a bottom) land when the
+    garment is hung by its anchor (``chest_ease`` / ``hip_ease`` x the body's girth there). A measure that finds
+    no cloth there is left out."""
     anchor, sizing = _anchor(points, faces, kind)
     unit = 1.0
     for _ in range(4):  # the body's girth is taken where the opening lands, which depends on the unit
         y = _target(lm, kind, pcfg)[1] + (sizing["centre"][1] - anchor[1]) * unit
         unit = float(pcfg.opening_ease) * _girth_at(lm, y) / max(sizing["perimeter"], 1e-12)
-    for name, m in UNITS.items():
-        if max(unit / m, m / unit) <= float(pcfg.unit_snap):
-            return m, name
-    return unit * float(pcfg.odd_scale_ease) / float(pcfg.opening_ease), "odd scale"
+    out = {_SIZING[kind]: unit}
+    name, body_key, ease = _CONFIRM[kind]
+    body_girth, body_y = lm["girths"][body_key]
+    half = 0.5 * float(np.ptp(points[sizing["ids"]][:, 0]))  # the sizing opening's half width: the torso's cloth
+    confirm = unit
+    for _ in range(4):  # where the body's chest (hips) lands on the garment depends on the unit too
+        y = anchor[1] + (body_y - _target(lm, kind, pcfg)[1]) / confirm
+        g = garment_girth(points, faces, y, 1.05 * half)
+        if not np.isfinite(g) or g <= 0.0:
+            return out
+        confirm = float(pcfg[ease]) * body_girth / g
+    out[name] = confirm
+    return out
+
+
+def _check_agreement(measures: dict[str, float], points: np.ndarray, agreement: float, where: str) -> None:
+    """One ValueError when the measures' units (`unit_measures`) lie more than ``agreement`` x apart: each measure,
+    the garment's height it implies, and the settings that state the unit."""
+    if max(measures.values()) <= agreement * min(measures.values()):
+        return
+    height = float(np.ptp(points[:, 1]))
+    said = "; ".join(f"its {k} says {name_unit(v, agreement)} ({v:.4g} m per file unit: the garment "
+                     f"{height * v:.2f} m tall)" for k, v in measures.items())
+    raise ValueError(f"{where}: the garment's size does not tell its unit: {said}; these disagree by more than "
+                     f"garment.placement.unit_agreement = {agreement:g}x. Give the "
+                     "file's unit: " + " or ".join(f"garment.position_unit={name_unit(v, agreement)}"
+                                                 for v in measures.values()))
 
 
 def _inside_fraction(points: np.ndarray, body: Body, lm: dict, rotations=None) -> float:
@@ -487,6 +565,50 @@ def _already_placed(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, kin
     return kind != "top" or anchor[1] >= lm["shoulder_y"]
 
 
+def torso_segments(body: Body) -> np.ndarray:
+    """(S, 2, 3) the rest bones (m) from the skeleton's root up to its neck joint: the torso's axis."""
+    sk = body.skeleton
+    chain = [sk.index("neck")]
+    while int(sk.parents[chain[-1]]) >= 0:
+        chain.append(int(sk.parents[chain[-1]]))
+    heads = sk.rest_heads.double().cpu().numpy()
+    return np.asarray([(heads[a], heads[b]) for a, b in zip(chain[:0:-1], chain[-2::-1], strict=True)])
+
+
+def torso_cover_deg(points: np.ndarray, faces: np.ndarray, body: Body, lm: dict) -> float:
+    """How far round the body's torso axis (`torso_segments`) the garment's cloth there reaches, in degrees
+    (`encircled_degrees` of its faces' centres and edge midpoints between the hips and the neck; a torso's sides
+    lie outside the arm joints, and sleeves there only fill its sides): a garment
+    worn on the body surrounds it (a shirt, a skirt: about 360; an open-back gown: less), a sheet laid in front
+    of it or beside it about 180. NaN when no cloth lies there."""
+    p = np.asarray(points, np.float64)
+    f = np.asarray(faces)
+    c = p[f].mean(1)
+    names = list(body.skeleton.names)
+    heads = body.skeleton.rest_heads.double().cpu().numpy()
+    hips = [heads[names.index(j), 1] for j in ("l_hip", "r_hip") if j in names]
+    low = min(hips) if hips else lm["waist_y"]
+    sel = (c[:, 1] > low - LEG_BELOW_ROOT) & (c[:, 1] < lm["neck"][1])
+    if sel.sum() < 3:
+        return float("nan")
+    t = p[f[sel]]  # the faces' centres and edge midpoints: a coarse garment's cloth sampled densely enough
+    samples = np.concatenate([t.mean(1), 0.5 * (t + np.roll(t, -1, axis=1)).reshape(-1, 3)])
+    return encircled_degrees(samples, torso_segments(body))
+
+
+def surround_problem(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, lm: dict) -> str | None:
+    """None when the garment surrounds the body's torso (`torso_cover_deg` at least
+    ``placement.min_torso_cover_deg``), else what is wrong, in words."""
+    deg = torso_cover_deg(points, faces, body, lm)
+    limit = float(pcfg.min_torso_cover_deg)
+    if not deg < limit:
+        return None
+    return (f"its cloth reaches {deg:.0f} degrees round the body's torso (garment.placement.min_torso_cover_deg = "
+            f"{limit:g}): it lies beside the body, not round it, as a garment laid flat, given in another up axis "
+            "(pbc reads y up) or made for no body does. Give the garment as worn on a body, y up (export it "
+            "from the tool it was made in with Y up, on its avatar)")
+
+
 def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm: dict | None = None,
          wrap: tuple[float, LimbCloth] | None = None) -> str | None:
     """None when the garment (V, 3) m sits on the rest body, else what is wrong, in words; with
@@ -509,6 +631,9 @@ def sits(points: np.ndarray, faces: np.ndarray, body: Body, pcfg, kind: str, lm:
     if median > float(pcfg.max_median_distance):
         return (f"half its cloth is more than {median:.2f} m from the body (garment.placement.max_median_distance "
                 f"= {pcfg.max_median_distance} m)")
+    around = surround_problem(points, faces, body, pcfg, lm)
+    if around is not None:
+        return around
     if wrap is None:
         return None
     min_encircled_deg, limb = wrap
@@ -615,6 +740,9 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
             # (the mannequin): the rest-pose transfer, as a registered garment gets
             return _checked(*_transfer(p, f, body, pcfg, limb), f, body, gcfg, kind, lm, where,
                             (1.0, "m", np.zeros(3), before))
+        wrong = surround_problem(p, f, body, pcfg, lm)
+        if wrong is not None:
+            raise ValueError(f"{where}: as given (metres, on the body), the garment does not sit on it: {wrong}")
         return p, Placement(1.0, "m", kind, np.zeros(3), True, {}, before, before)
     if stated not in (None, "auto"):  # a stated unit overrides the size; a garment that then sits within the
         # shrink-wrap's reach in its own frame is where its maker put it (a flared skirt's hem is its widest
@@ -623,6 +751,10 @@ def place_garment(points: np.ndarray, faces: np.ndarray, body: Body, gcfg, where
         reach = (gcfg.get("shrinkwrap") or {}).get("max_start_distance")
         if float(_sdf(body, p * unit).max()) <= float(0.3 if reach is None else reach):
             placed = p * unit
+            wrong = surround_problem(placed, f, body, pcfg, lm)
+            if wrong is not None:
+                raise ValueError(f"{where}: as given (garment.position_unit={stated}), the garment does not sit on "
+                                 f"the body: {wrong}")
             return placed, Placement(unit, name, kind, np.zeros(3), True, {}, before,
                                      float(np.median(np.abs(_sdf(body, placed)))))
     # a garment already sitting on the body (a tube top: its top opening the widest) was kept above; one that
@@ -693,18 +825,60 @@ def _checked(x: np.ndarray, stats: dict, turned: dict, forearm: dict, droop: dic
     return x, placement
 
 
+def _split_nonmanifold(mesh: ObjMesh, min_fraction: float, where: str) -> ObjMesh:
+    """The mesh cut apart at its non-manifold edges and vertices (`meshops.split_nonmanifold`), without the pieces
+    the cut made that hold under ``min_fraction`` of its vertices (flaps hanging on by those edges: a label, a
+    button's panel); what was cut and dropped goes to the log."""
+    faces, source = split_nonmanifold(mesh.faces)
+    if len(source) == len(mesh.vertices):
+        return mesh
+    before = int(mesh_pieces(mesh.faces, len(mesh.vertices)).max()) + 1
+    piece = mesh_pieces(faces, len(source))
+    size = np.bincount(piece)
+    small = np.flatnonzero(size < min_fraction * len(source)) if len(size) > before else np.zeros(0, np.int64)
+    keep = ~np.isin(piece[faces[:, 0]], small)
+    used = np.zeros(len(source), bool)
+    used[faces[keep].ravel()] = True
+    new_id = np.cumsum(used) - 1
+    log.info("%s: cut apart at %d non-manifold vertices (garment.split_nonmanifold); %d pieces of under %g of its "
+             "vertices dropped (%d faces)", where, len(source) - len(mesh.vertices), len(small), min_fraction,
+             int((~keep).sum()))
+    return replace(mesh, vertices=mesh.vertices[source[used]], faces=new_id[faces[keep]],
+                   face_uv=mesh.face_uv[keep], face_group=mesh.face_group[keep], face_line=mesh.face_line[keep],
+                   vertex_line=mesh.vertex_line[source[used]])
+
+
 def placed_mesh(path, gcfg, body: Body | None) -> tuple[ObjMesh, Placement | None]:
     """A tool's garment OBJ as the importer takes it, in metres on the rest body: read (UVs optional), its
-    loose vertices dropped (counted in the log), charted by projection as modelled when it has no UVs, and placed
+    loose vertices dropped (counted in the log), charted as modelled when it has no UVs or ``garment.uvs=unwrap``
+    (`pbc.geometry.garment.unwrap.charted_mesh`: the projection or xatlas's charts, whichever is better), and placed
     (`place_garment`, when ``garment.placement.enabled``, a body is given and the mesh is one piece; else the
     stated unit and offset)."""
     where = str(path)
     mesh, loose = drop_loose(read_obj(path, "garment OBJ", require_uv=False))
     if loose:
         log.info("%s: %d loose vertices (used by no face) dropped", where, loose)
-    if not len(mesh.uv):  # projected as modelled (the garment's own pose: an A-posed sleeve would cover the side)
-        mesh = projected_charts(mesh)
-        log.info("%s: no UVs: front and back charts made by projection", where)
+    if gcfg.get("split_nonmanifold", False):
+        mesh = _split_nonmanifold(mesh, float(gcfg.min_piece_fraction), where)
+    check_mesh(mesh, where, split_setting=True)  # non-manifold edges are refused before anything is measured
+    faces, flipped = consistent_winding(mesh.faces)
+    if flipped.any():
+        face_uv = mesh.face_uv.copy()
+        if len(face_uv):
+            face_uv[flipped] = face_uv[flipped][:, [0, 2, 1]]
+        mesh = replace(mesh, faces=faces, face_uv=face_uv)
+        log.info("%s: %d faces wound against their neighbours turned to match them", where, int(flipped.sum()))
+    uvs = gcfg.get("uvs") or "file"
+    if uvs not in UV_SOURCES:
+        raise ValueError(f"{where}: garment.uvs={uvs!r}: expected one of {list(UV_SOURCES)} (file: the OBJ's own UVs, "
+                         "unwrapped only when it has none; unwrap: the mesh unwrapped anew)")
+    if uvs == "unwrap" or not len(mesh.uv):  # charted as modelled (the garment's own pose: an A-posed sleeve would
+        # cover the side in a projection): the projection where it is no worse than xatlas's charts, else those
+        why = "garment.uvs=unwrap, the file's UVs ignored" if len(mesh.uv) else "no UVs"
+        settings = unwrap_settings_from_config(gcfg.get("unwrap"))
+        padding = gcfg.get("uv_padding")
+        mesh, how = charted_mesh(mesh, settings, UV_PADDING if padding is None else float(padding))
+        log.info("%s: %s: %s", where, why, how.line(settings.percentile))
     pcfg = gcfg.get("placement")
     placement = None
     several = int(mesh_pieces(mesh.faces, len(mesh.vertices)).max()) + 1 > 1  # an outfit: split it first (checks)
