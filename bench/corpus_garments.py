@@ -13,7 +13,7 @@ wrote them), each through the commands a user types:
 
 Each garment's verdict: **right** (placed in the unit its source states, or fitted by its own binding: MakeHuman),
 **refused** (one line naming the problem and a fix), or **wrong** (placed where its source says it cannot be: a
-unit other than the stated one, a garment made for no body placed on one). Targets (issue 52): every garment
+unit other than the stated one, a garment made for no body placed on one). Targets: every garment
 placed right or refused with a fix; at least 80% of drapes kept on every garment that passes the checks; 0 placed
 wrong without a word. Work goes to --work (resumable: a garment whose row is there is not run again); prints a
 table and, as its last line, one JSON object of the figures with the device.
@@ -52,6 +52,8 @@ STATED = {
 PLACED = re.compile(r"placement \((\w+)\): (?:unit (.+?) \(|kept as given)")
 ERROR = re.compile(r"^pbc garment: error: (.*)$", re.M)
 PIECES = re.compile(r"garment\.piece=(\w+)")
+# a setting a refusal names as its fix (garment.uvs=unwrap, garment.split_nonmanifold=true, ...)
+FIX = re.compile(r"\b(garment\.(?:uvs|split_nonmanifold|position_unit|charts|made_on_rest)=[^\s,;)]+)")
 
 
 def device() -> str:
@@ -117,6 +119,7 @@ def placement_figures(fitted: Path, body) -> dict:
 
 
 def verdict(name: str, row: dict) -> str:
+    """right, refused (one line; `fix_works` says whether the fix it names passes the checks) or wrong."""
     stated = STATED.get(name, "binding")
     if not row["placed"]:
         return "refused" if row["inspect_error"] else "failed"
@@ -147,7 +150,19 @@ def run_case(name: str, path: Path, overrides: list[str], work: Path, body, fit:
     rc, text, secs = pbc("garment", "fit", str(path), *overrides, "--until", "checks", "--out", str(fit_dir))
     (folder / "checks.log").write_text(text)
     row.update(checks=rc == 0, checks_s=round(secs, 1), checks_error=error_line(text))
-    if fit and rc == 0:
+    refusal = row["inspect_error"] or row["checks_error"]
+    fix = FIX.findall(refusal or "")
+    if refusal and fix:  # the fix a refusal names, tried as the user would: does it work?
+        overrides = [*overrides, fix[0]]
+        row["fix"] = fix[0]
+        rc, text, secs = pbc("garment", "fit", str(path), *overrides, "--until", "checks", "--out",
+                             str(folder / "fixed"))
+        (folder / "fixed.log").write_text(text)
+        row.update(fix_works=rc == 0, fix_error=error_line(text), checks_s=round(row["checks_s"] + secs, 1))
+        fit_dir = folder / "fixed"
+        if rc == 0 and (fit_dir / "inspect" / "fitted.obj").is_file():
+            row["fixed"] = placement_figures(fit_dir / "inspect" / "fitted.obj", body)
+    if fit and rc == 0 and (row["checks"] or row.get("fix_works")):
         rc, text, secs = pbc("garment", "fit", str(path), *overrides, "--samples", str(samples), "--epochs",
                              str(epochs), "--out", str(fit_dir))
         (folder / "fit.log").write_text(text)
@@ -164,7 +179,7 @@ def run_case(name: str, path: Path, overrides: list[str], work: Path, body, fit:
 
 def table(rows: list[dict]) -> str:
     head = (f"{'garment':<44} {'verdict':<8} {'kind':<7} {'unit':<10} {'dist cm':>7} {'h/stat':>6} {'cover':>5} "
-            f"{'checks':<6} {'kept':>7} {'min':>5} {'model/mean cm':>14}")
+            f"{'checks':<7} {'fix':<5} {'kept':>7} {'min':>5} {'model/mean cm':>14}")
     lines = [head, "-" * len(head)]
     for r in rows:
         kept = f"{r['kept']}/{r['asked']}" if r.get("asked") else "-"
@@ -174,13 +189,13 @@ def table(rows: list[dict]) -> str:
         cover = f"{r['torso_cover_deg']:.0f}" if r.get("torso_cover_deg") == r.get("torso_cover_deg") and \
             "torso_cover_deg" in r else "-"
         lines.append(f"{r['garment']:<44} {r['verdict']:<8} {str(r.get('kind')):<7} {str(r.get('unit')):<10} "
-                     f"{dist:>7} {hs:>6} {cover:>5} {'pass' if r['checks'] else 'refused':<6} {kept:>7} "
+                     f"{dist:>7} {hs:>6} {cover:>5} {'pass' if r['checks'] else 'refused':<7} "
+                     f"{'-' if 'fix' not in r else ('works' if r['fix_works'] else 'no'):<5} {kept:>7} "
                      f"{r.get('fit_min', '-')!s:>5} {score:>14}")
     for r in rows:
-        for key in ("inspect_error", "checks_error", "fit_error"):
+        for key in ("inspect_error", "checks_error", "fix_error", "fit_error"):
             if r.get(key):
                 lines.append(f"  {r['garment']}: {key.split('_')[0]}: {r[key][:400]}")
-                break
     return "\n".join(lines)
 
 
@@ -231,6 +246,8 @@ def main(argv: list[str] | None = None) -> dict:
         "wrong": sum(r["verdict"] == "wrong" for r in rows),
         "failed": sum(r["verdict"] == "failed" for r in rows),
         "pass_checks": sum(bool(r["checks"]) for r in rows),
+        "refused_with_a_fix_that_works": sum(bool(r.get("fix_works")) for r in rows),
+        "refused_without_a_working_fix": sum(not r["checks"] and not r.get("fix_works") for r in rows),
         "fitted": len(fitted),
         "worst_kept_fraction": worst_kept,
         "kept_target_met": all(r["kept"] / r["asked"] >= TARGETS["kept"] for r in fitted),

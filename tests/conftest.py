@@ -36,6 +36,17 @@ XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
 os.environ.setdefault("PBC_WARP_CACHE", str(ROOT / ".cache" / "warp"))
 
 
+@pytest.fixture(autouse=True)
+def no_hydra_config_left():
+    """Each test starts outside any Hydra app: an entry point run in-process leaves Hydra's global HydraConfig set
+    (a command-line run is one process per command), which would make later library calls (pbc.jobs.train's
+    output_dir) read a finished app's config."""
+    from hydra.core.hydra_config import HydraConfig
+
+    yield
+    HydraConfig.instance().cfg = None
+
+
 @pytest.fixture(scope="session", autouse=True)
 def no_user_models(tmp_path_factory):
     """The user's models folder ($PBC_MODELS, pbc.pretrained.user_models_dir) is an empty folder of the session

@@ -302,14 +302,14 @@ IO_FILE = CONF_DIR / "io.yaml"  # free_space_margin_bytes
 @functools.cache
 def free_space_margin() -> int:
     """conf/io.yaml's free_space_margin_bytes: what a free-space check asks for beyond the files' own bytes (their
-    blocks and folder entries), held to conf/bounds.yaml."""
+    blocks and folder entries); a whole number of bytes, at least 0 (its row in conf/bounds.yaml; checked here, as
+    pbc.core.validate sits above this module)."""
     import yaml  # noqa: PLC0415 - only a free-space check reads the file
 
-    from pbc.core.validate import check_settings_file  # noqa: PLC0415 - validate imports io
-
-    node = yaml.safe_load(IO_FILE.read_text()) or {}
-    check_settings_file("io", node, IO_FILE)
-    return int(node["free_space_margin_bytes"])
+    margin = (yaml.safe_load(IO_FILE.read_text()) or {}).get("free_space_margin_bytes")
+    if isinstance(margin, bool) or not isinstance(margin, int) or margin < 0:
+        raise ValueError(f"{IO_FILE}: free_space_margin_bytes={margin!r}: expected a whole number of bytes, at least 0")
+    return margin
 
 
 def require_free_space(path: str | os.PathLike, needed: int, what: str = "output", fix: str = "") -> None:

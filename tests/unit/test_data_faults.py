@@ -139,8 +139,8 @@ def test_merge_refuses_a_disk_too_small_before_writing_anything(tmp_path, monkey
     out, args = _fake_run(tmp_path, monkeypatch)
     full = SimpleNamespace(total=10**9, used=10**9, free=1000)
     monkeypatch.setattr(pbc.core.io.shutil, "disk_usage", lambda path: full)
-    with pytest.raises(DiskFull, match=rf"no space left on the device holding dataset {out}: .* needed, 1000 B free; "
-                                       "free space there .*paths.data_dir.* the drapes in work/ are kept"):
+    with pytest.raises(DiskFull, match=rf"no space left on the device holding dataset {out}: .* needed .*, 1000 B "
+                                       "free; free space there .*paths.data_dir.* the drapes in work/ are kept"):
         merge(*args)
     assert sorted(p.name for p in out.iterdir()) == ["work"]  # nothing written, the drapes kept
 

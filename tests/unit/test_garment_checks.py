@@ -164,7 +164,8 @@ def test_one_face_stretched_past_the_limit_is_refused_at_the_wrap_naming_it_its_
         _wrap(body, [f"garment.obj={path}"])
     msg = str(err.value)
     assert len(msg.splitlines()) == 1
-    assert "stretches 1 face past garment.shrinkwrap.max_face_stretch = 50x" in msg
+    limit = load_config(IMPORT).garment.shrinkwrap.max_face_stretch
+    assert f"stretches 1 face past garment.shrinkwrap.max_face_stretch = {limit:g}x" in msg
     ids = ", ".join(str(v + 1) for v in garment_from_config(load_config(IMPORT + [f"garment.obj={path}"]).garment)[0]
                     .faces[SLIVER_FACE].tolist())
     assert f"the worst face {SLIVER_FACE} (vertices {ids}) to " in msg and "chart 'default', patch default_" in msg

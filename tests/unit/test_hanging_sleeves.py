@@ -1,4 +1,4 @@
-"""Sleeves in any rest pose and dresses (issue 52, items 3 and 5): a long-sleeved top modelled with its arms down
+"""Sleeves in any rest pose and dresses: a long-sleeved top modelled with its arms down
 beside the torso (tests/helpers/long_sleeves.py posed on Anny with its arms lowered) has its sleeves found and
 measured against Anny's rest arms, also under a dress's skirt flaring wider than the sleeves, and inspect names
 the rest to make it on; `pbc garment fit` drapes a top whose hem hangs to mid-thigh or lower as a dress (its legs

@@ -1,4 +1,4 @@
-"""What the placement measures before it places (pbc.geometry.garment.placement, issue 52 item 2): the unit from the
+"""What the placement measures before it places (pbc.geometry.garment.placement): the unit from the
 hem's girth confirmed by the chest's (a garment whose two girths say different sizes is refused naming both, and
 placed once its unit is given), a sheet lying beside the body refused for not surrounding the torso, and a file
 whose faces are wound against their neighbours read and placed as its consistently wound twin. The corpus's

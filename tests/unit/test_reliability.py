@@ -425,7 +425,7 @@ def test_a_run_stopped_by_a_full_disk_reports_that_not_its_failed_record(tmp_pat
     assert err[-1].endswith("ckpt_path=last")
 
 
-# ============================================================================ issue 53: the battery's unclear cases
+# ================================================================== the reliability battery's unclear cases
 def _unwritable(tmp_path: Path) -> Path:
     """A folder no user can write in: read-only, or (root writes anywhere) one below a regular file."""
     ro = tmp_path / "ro"
