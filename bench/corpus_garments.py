@@ -100,7 +100,7 @@ def outfit_places(path: Path, work: Path) -> list[str]:
     outfit whole; [] for a garment of one piece."""
     rc, text, _ = pbc("garment", "inspect", str(path), "--out", str(work / "probe"))
     line = error_line(text) or ""
-    return sorted(set(PIECES.findall(line))) if "an outfit of" in line else []
+    return sorted(set(PIECES.findall(line)) - {"all"}) if "an outfit of" in line else []
 
 
 def placement_figures(fitted: Path, body) -> dict:

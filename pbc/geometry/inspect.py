@@ -48,6 +48,7 @@ from pbc.geometry.garment.obj_import import (
     suggested_charts,
 )
 from pbc.geometry.garment.placement import Placement, has_rest_turn, placed_mesh, trouser_leg_stance
+from pbc.geometry.garment.unwrap import charted_as_asked
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import face_areas, surface_distance, uv_islands
 from pbc.geometry.shrinkwrap import REGIONS, wrap_with_regions
@@ -121,7 +122,7 @@ def inspect_garment(path, gcfg, body: Body, wrap: bool = True) -> Report:
         mesh, placement = placed_mesh(path, gcfg, body)
         p = mesh.vertices
     else:
-        mesh, placement = read_obj(path, "garment OBJ"), None
+        mesh, placement = charted_as_asked(read_obj(path, "garment OBJ", require_uv=False), gcfg, str(path)), None
         unit = gcfg.get("position_unit") or "m"
         p = (mesh.vertices * metres_per_unit("m" if unit == "auto" else unit, "garment.position_unit")
              + np.asarray(gcfg.get("position_offset") or (0.0, 0.0, 0.0)))

@@ -662,8 +662,9 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
         on = [REGIONS[int(np.bincount(region[p.vertices]).argmax())] if len(p.vertices) else "torso"
               for p in cage.patches]
         overall = float(wrapped_area.sum() / max(float(pattern_area.sum()), 1e-30))
+        given = float(face_areas(x0, faces).sum() / max(float(pattern_area.sum()), 1e-30))
         check_stretch(stretch, [p.name for p in cage.patches], patch_chart, float(limit), sleeves, on,
-                      None if nearest is None else [REGIONS[r] for r in nearest], overall)
+                      None if nearest is None else [REGIONS[r] for r in nearest], overall, given)
     # one face past the limit is refused, as one face past the drape's limit discards a drape
     check_face_stretch(ratio, principal, faces, faces_limit, x, body, chart_names, face_chart,
                        [p.name for p in cage.patches], fp, [REGIONS[r] for r in region], pattern_area,

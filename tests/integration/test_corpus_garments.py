@@ -85,3 +85,16 @@ def test_makehuman_pieces_are_fitted_round_the_body(corpus, anny_body, outfit):
         assert median < NEAR, (outfit, place, median)
         if place == "top":
             assert torso_cover_deg(mesh.vertices, mesh.faces, anny_body, lm) >= 300, (outfit, place)
+
+
+def test_a_makehuman_outfit_with_a_folded_uv_island_imports_unwrapped_as_its_refusal_says(corpus, anny_body):
+    from pbc.geometry.garment.mhclo import mhclo_garment
+
+    path = corpus / "garments" / "makehuman" / "male_worksuit01" / "male_worksuit01.mhclo"
+    node = ["garment=mhclo", f"garment.path={path}", "garment.piece=all"]
+    with pytest.raises(ValueError, match=r"is folded over .* garment.uvs=unwrap") as err:
+        mhclo_garment(_cfg(node), anny_body)
+    assert "\n" not in str(err.value)
+    garment, names, _, _ = mhclo_garment(_cfg([*node, "garment.uvs=unwrap"]), anny_body)
+    assert names and all(n.startswith(("front", "back")) for n in names)
+    assert set(garment.face_side.unique().tolist()) == {0, 1}

@@ -247,3 +247,16 @@ def test_discard_summary_names_the_dominant_reason_what_it_measures_and_the_caus
 
 def test_the_garment_command_is_on_the_entry_floor():
     assert COMMANDS["garment"][0] == "garment"
+
+
+def test_a_whole_garment_stretched_by_the_wrap_names_the_wrap_when_its_unit_is_right():
+    from pbc.geometry.garment.checks import check_stretch
+
+    stretch = np.array([1.0, 40.0])
+    args = (stretch, ["a_00", "b_00"], ["a", "b"], 2.0, {}, ["torso", "torso"], ["torso", "torso"], 30.0)
+    with pytest.raises(ValueError) as wrap:
+        check_stretch(*args, given=1.02)  # as given, its cloth is its pattern's size: the wrap blew it up
+    assert "the UV unit is right" in str(wrap.value) and "check garment.uv_unit" not in str(wrap.value)
+    with pytest.raises(ValueError) as unit:
+        check_stretch(*args, given=29.0)  # as given already 29x its pattern: the pattern's unit is wrong
+    assert "check garment.uv_unit" in str(unit.value)

@@ -260,10 +260,13 @@ def patch_stretch(wrapped_area: np.ndarray, pattern_area: np.ndarray, face_patch
 
 def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: list[str], limit: float,
                   sleeves: dict | None = None, patch_regions: list[str] | None = None,
-                  patch_nearest: list[str] | None = None, overall: float | None = None) -> None:
+                  patch_nearest: list[str] | None = None, overall: float | None = None,
+                  given: float | None = None) -> None:
     """Refuse a shrink-wrap that stretches a cage patch past ``limit`` x its pattern area, naming the chart,
     the patch, the stretch, the body part it was wrapped on (``patch_regions``), and the likely cause with its
-    fix, first that applies: a sleeve off the rest arm (the rest pose), the whole garment stretched (the UV unit),
+    fix, first that applies: a sleeve off the rest arm (the rest pose), the whole garment stretched by the wrap though
+    its cloth as given matches its pattern (``given``, its 3D over its pattern area: the wrap, not the unit), the
+    whole garment stretched (the UV unit),
     a patch wrapped on another body part than the one it lies nearest (``patch_nearest``: it does not surround
     that limb), else the placement there. The whole garment is stretched when ``overall``, its wrapped over its
     pattern area, is past 3/4 of the limit; without the regions (an older caller) the UV unit is named."""
@@ -280,6 +283,10 @@ def check_stretch(stretch: np.ndarray, patch_names: list[str], patch_charts: lis
         side, a = max(off.items(), key=lambda kv: kv[1]["angle_deg"])
         why = (f"the {side} sleeve is {a['angle_deg']:.0f} degrees off the body's rest arm: match the rest pose "
                "(rotate the sleeves onto the rest arms)")
+    elif overall is not None and overall > 0.75 * limit and given is not None and 1.0 / limit < given < limit:
+        why = (f"the wrap stretched the whole garment {overall:.1f}x though its cloth as given is {given:.2f}x its "
+               "pattern (the UV unit is right): the wrap pulled its cloth onto body parts it does not lie on (`pbc "
+               "garment inspect --out DIR`: its face column and on_body.png show where)")
     elif overall is not None and overall > 0.75 * limit:
         why = f"the whole garment is stretched {overall:.1f}x: {uv_unit}"
     elif patch_regions is not None and patch_nearest is not None and patch_regions[k] != patch_nearest[k]:

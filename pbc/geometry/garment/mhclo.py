@@ -33,6 +33,7 @@ from pbc.core.paths import resolve_path
 from pbc.geometry.body.anny import base_mesh_vertices
 from pbc.geometry.garment.obj_import import garment_from_mesh
 from pbc.geometry.garment.outfit import select_piece
+from pbc.geometry.garment.unwrap import charted_as_asked
 from pbc.geometry.meshio import ObjMesh, parse_obj
 from pbc.geometry.meshops import push_out
 
@@ -276,6 +277,7 @@ def mhclo_garment(gcfg, body, options: dict | None = None):
     check_anny_body(body)  # before reading the file: the body is the user's first mistake to name
     m = read_mhclo(resolve_path(gcfg.path))
     mesh, stats = mhclo_mesh(gcfg, body, m)
+    mesh = charted_as_asked(mesh, gcfg, str(m.obj_file))  # garment.uvs=unwrap: charts of its own
     opts = {k: v for k, v in (options or {}).items() if k not in ("position_unit", "position_offset")}
     garment, names, charts = garment_from_mesh(mesh, str(m.obj_file), position_unit="m", **opts)
     return garment, names, charts, stats

@@ -49,8 +49,8 @@ from pbc.geometry.garment.checks import (
     sleeves_inside,
     tube_axis,
 )
-from pbc.geometry.garment.obj_import import UV_PADDING, check_mesh, drop_loose
-from pbc.geometry.garment.unwrap import UV_SOURCES, charted_mesh, unwrap_settings_from_config
+from pbc.geometry.garment.obj_import import check_mesh, drop_loose
+from pbc.geometry.garment.unwrap import charted_as_asked
 from pbc.geometry.meshio import ObjMesh, read_obj
 from pbc.geometry.meshops import (
     boundary_loops,
@@ -868,17 +868,7 @@ def placed_mesh(path, gcfg, body: Body | None) -> tuple[ObjMesh, Placement | Non
             face_uv[flipped] = face_uv[flipped][:, [0, 2, 1]]
         mesh = replace(mesh, faces=faces, face_uv=face_uv)
         log.info("%s: %d faces wound against their neighbours turned to match them", where, int(flipped.sum()))
-    uvs = gcfg.get("uvs") or "file"
-    if uvs not in UV_SOURCES:
-        raise ValueError(f"{where}: garment.uvs={uvs!r}: expected one of {list(UV_SOURCES)} (file: the OBJ's own UVs, "
-                         "unwrapped only when it has none; unwrap: the mesh unwrapped anew)")
-    if uvs == "unwrap" or not len(mesh.uv):  # charted as modelled (the garment's own pose: an A-posed sleeve would
-        # cover the side in a projection): the projection where it is no worse than xatlas's charts, else those
-        why = "garment.uvs=unwrap, the file's UVs ignored" if len(mesh.uv) else "no UVs"
-        settings = unwrap_settings_from_config(gcfg.get("unwrap"))
-        padding = gcfg.get("uv_padding")
-        mesh, how = charted_mesh(mesh, settings, UV_PADDING if padding is None else float(padding))
-        log.info("%s: %s: %s", where, why, how.line(settings.percentile))
+    mesh = charted_as_asked(mesh, gcfg, where)
     pcfg = gcfg.get("placement")
     placement = None
     several = int(mesh_pieces(mesh.faces, len(mesh.vertices)).max()) + 1 > 1  # an outfit: split it first (checks)

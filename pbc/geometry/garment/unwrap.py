@@ -13,6 +13,7 @@ Every number comes from ``garment.unwrap`` (conf/garment/obj.yaml), read into `U
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
@@ -33,6 +34,8 @@ from pbc.geometry.meshops import signed_uv_area, uv_islands
 
 # garment.uvs: where a garment OBJ's UVs come from (pbc.core.validate checks the setting against the same two)
 UV_SOURCES = ("file", "unwrap")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -234,3 +237,22 @@ def charted_mesh(mesh: ObjMesh, settings: UnwrapSettings, uv_padding: float = UV
     how = Charting("projection" if kept is projected else "xatlas", pa, xa, pg, xg, said, _side_counts(kept))
     how.seconds = time.perf_counter() - start
     return kept, how
+
+
+def charted_as_asked(mesh: ObjMesh, gcfg, where: str) -> ObjMesh:
+    """The mesh with the UVs ``garment.uvs`` asks for: the file's (``file``, the default), or, when it has none or
+    ``unwrap`` is asked, `charted_mesh`'s (settings ``garment.unwrap``, ``garment.uv_padding``), said in the log. A
+    ``garment.uvs`` of another value is one ValueError naming the two."""
+    uvs = gcfg.get("uvs") or "file"
+    if uvs not in UV_SOURCES:
+        raise ValueError(f"{where}: garment.uvs={uvs!r}: expected one of {list(UV_SOURCES)} (file: the OBJ's own UVs, "
+                         "unwrapped only when it has none; unwrap: the mesh unwrapped anew)")
+    if uvs == "file" and len(mesh.uv):
+        return mesh
+    # charted as modelled (the garment's own pose: an A-posed sleeve would cover the side in a projection)
+    why = "garment.uvs=unwrap, the file's UVs ignored" if len(mesh.uv) else "no UVs"
+    settings = unwrap_settings_from_config(gcfg.get("unwrap"))
+    padding = gcfg.get("uv_padding")
+    charted, how = charted_mesh(mesh, settings, UV_PADDING if padding is None else float(padding))
+    log.info("%s: %s: %s", where, why, how.line(settings.percentile))
+    return charted
