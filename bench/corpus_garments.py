@@ -5,7 +5,7 @@
 One row per corpus garment (MakeHuman outfits piece by piece, DiffAvatar's meshes, a hospital gown, as their tools
 wrote them), each through the commands a user types:
 
-- ``pbc garment inspect FILE --out``: placed (the unit it found, the median distance to the rest body, its
+- ``pbc garment inspect FILE body=anny --out``: placed (the unit it found, the median distance to the rest body, its
   height against the body's stature, how far round the torso it reaches) or refused, with the refusal's line;
 - ``pbc garment fit FILE --until checks``: every check before a drape passed, or the refusal's line;
 - with ``--fit``, for each garment that passes the checks: ``pbc garment fit FILE --samples N --epochs E``, the
@@ -91,7 +91,7 @@ def cases(corpus: Path) -> list[tuple[str, Path, list[str]]]:
     for obj in sorted(garments.rglob("*.obj")):
         if (obj.with_suffix(".mhclo")).is_file():
             continue
-        out.append((str(obj.relative_to(garments)), obj, []))
+        out.append((str(obj.relative_to(garments)), obj, ["body=anny"]))  # on Anny, as MakeHuman's clothes
     return out
 
 
@@ -171,6 +171,8 @@ def run_case(name: str, path: Path, overrides: list[str], work: Path, body, fit:
         if manifest.is_file():
             counts = json.loads(manifest.read_text()).get("counts", {})
             row.update(kept=counts.get("kept"), asked=counts.get("requested"), discarded=counts.get("discarded"))
+        elif "was discarded" in (row["fit_error"] or ""):  # generate refuses a dataset with no drape kept
+            row.update(kept=0, asked=samples)
         score = re.search(r"([\d.]+) cm \(whole model\), ([\d.]+) cm \(the training mean shape\)", text)
         if score:
             row.update(model_cm=float(score.group(1)), mean_cm=float(score.group(2)))
@@ -224,6 +226,12 @@ def main(argv: list[str] | None = None) -> dict:
             todo.append((name, path, over))
     rows = []
     for name, path, over in todo:
+        cached = args.work / (re.sub(r"[^\w.-]+", "_", name) + ".json")
+        if cached.is_file():  # a row of an earlier run whose fit kept no drape: counted as 0 of the samples asked
+            row = json.loads(cached.read_text())
+            if "was discarded" in (row.get("fit_error") or "") and "asked" not in row:
+                row.update(kept=0, asked=args.samples)
+                cached.write_text(json.dumps(row, indent=1))
         if not fnmatch.fnmatch(name, args.only):
             continue
         done = args.work / (re.sub(r"[^\w.-]+", "_", name) + ".json")

@@ -220,9 +220,11 @@ def auto_cage(garment, resolution: int, crop_size: int, margin: int, chart_names
                 patches.append(Patch(id=len(patches), name=f"{name}_{k:02d}", side=int(side), vertices=ids_k,
                                      box_512=uv_box(px[ids_k] / resolution, resolution)))
             if max_patches is not None and len(patches) > max_patches:
-                raise ValueError(f"autocage: chart '{name}' brings the cage past {max_patches} patches; the charts "
-                                 f"are too large for a {crop_size} px crop at {resolution}: scale the UVs down "
-                                 "or raise the limit")
+                raise ValueError(f"autocage: chart '{name}' brings the cage past garment.autocage.max_patches = "
+                                 f"{max_patches} patches (a patch per chart at least, more where a chart is larger "
+                                 f"than a {crop_size} px crop at {resolution}): raise it "
+                                 f"(garment.autocage.max_patches={2 * max_patches}), or give the garment fewer, "
+                                 "smaller charts (its own UVs, or garment.unwrap.max_cost higher: xatlas merges more)")
     curves: dict[str, np.ndarray] = {}
     for k, loop in enumerate(boundary_loops(garment.faces.cpu().numpy())):
         curves[f"opening_{k}"] = loop
