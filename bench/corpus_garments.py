@@ -24,8 +24,6 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
-import os
-import platform
 import re
 import subprocess
 import sys
@@ -33,39 +31,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 CORPUS = ROOT.parent / "shared" / "corpus"
 TARGETS = {"kept": 0.80, "wrong": 0}
 
-# what the corpus README states of each non-MakeHuman garment: its unit (None: the README does not know it, so
-# any unit pbc finds is not judged) or "not on a body" (a garment made for no body: refused is right)
-STATED = {
-    "diffavatar/tshirt.obj": "cm",
-    "diffavatar/polo.obj": "cm",
-    "diffavatar/tanktop.obj": "cm",
-    "diffavatar/longsleeve.obj": None,
-    "diffavatar/dress_shortsleeve.obj": None,
-    "assistive_gym/hospitalgown_reduced.obj": "not on a body",
-}
+# what the corpus README states of each non-MakeHuman garment: its unit (None: unknown there, not judged) or "not on
+# a body" (a garment made for no body: refused is right); the tests read the same file
+STATED = yaml.safe_load((ROOT / "tests" / "data" / "corpus_garments.yaml").read_text())
 PLACED = re.compile(r"placement \((\w+)\): (?:unit (.+?) \(|kept as given)")
 ERROR = re.compile(r"^pbc garment: error: (.*)$", re.M)
 PIECES = re.compile(r"garment\.piece=(\w+)")
 # a setting a refusal names as its fix (garment.uvs=unwrap, garment.split_nonmanifold=true, ...)
 FIX = re.compile(r"\b(garment\.(?:uvs|split_nonmanifold|position_unit|charts|made_on_rest)=[^\s,;)]+)")
-
-
-def device() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"CPU: {cpu}, {os.cpu_count()} cores, no GPU used"
 
 
 def pbc(*args: str, timeout: float = 3600) -> tuple[int, str, float]:
@@ -212,6 +192,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     if not (CORPUS / "README.md").is_file():
         raise SystemExit(f"the corpus is missing at {CORPUS}: put ../shared/corpus beside the repository")
+    from bench.drape import device_name  # noqa: PLC0415 - the sibling benchmark's device line, after sys.path
     from pbc.core.config import load_config
     from pbc.geometry.body import body_from_config
 
@@ -247,7 +228,7 @@ def main(argv: list[str] | None = None) -> dict:
     fitted = [r for r in rows if r.get("asked")]
     worst_kept = min((r["kept"] / r["asked"] for r in fitted), default=float("nan"))
     figures = {
-        "device": device(),
+        "device": device_name(None),
         "garments": len(rows),
         "right": sum(r["verdict"] == "right" for r in rows),
         "refused": sum(r["verdict"] == "refused" for r in rows),

@@ -280,6 +280,17 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
+def manifold_edge_pairs(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The half-edges of faces (F, 3): (half (3F, 2) each face's directed edges, face k's at k, F + k and 2F + k:
+    face h % F, slot h // F; pairs (E, 2) the two half-edges of each edge exactly two faces share)."""
+    f = np.asarray(faces, np.int64)
+    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    _, edge, count = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True, return_counts=True)
+    edge = edge.ravel()
+    shared = np.flatnonzero(count[edge] == 2)
+    return half, shared[np.argsort(edge[shared], kind="stable")].reshape(-1, 2)
+
+
 def split_nonmanifold(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The surface cut apart at its non-manifold edges (three faces or more on one edge) and vertices (fans that
     touch at a point only), as Blender's Edge Split cuts them: (faces (F, 3) into new vertex ids, source (V',)
@@ -287,11 +298,7 @@ def split_nonmanifold(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keep one vertex; each other such fan gets its own copy. A manifold mesh comes back as it is."""
     f = np.asarray(faces, np.int64)
     n = len(f)
-    key = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    _, edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    edge = edge.ravel()
-    shared = np.flatnonzero(count[edge] == 2)
-    pairs = shared[np.argsort(edge[shared], kind="stable")].reshape(-1, 2)  # half-edge h: face h % n, slot h // n
+    _, pairs = manifold_edge_pairs(f)
     rows, cols = [], []
     for end in (0, 1):  # join the corners of both faces at each end vertex of each manifold edge
         fa, sa = pairs[:, 0] % n, pairs[:, 0] // n
@@ -316,15 +323,8 @@ def consistent_winding(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (three faces or more) are not related through it."""
     f = np.asarray(faces, np.int64)
     n = len(f)
-    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])  # (3F, 2) directed, face k at k, F+k, 2F+k
-    owner = np.tile(np.arange(n), 3)
-    key = np.sort(half, axis=1)
-    _, edge, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    edge = edge.ravel()
-    shared = count[edge] == 2
-    order = np.argsort(edge[shared], kind="stable")
-    pairs = np.flatnonzero(shared)[order].reshape(-1, 2)  # the two half-edges of each manifold edge
-    a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
+    half, pairs = manifold_edge_pairs(f)
+    a, b = pairs[:, 0] % n, pairs[:, 1] % n
     clash = (half[pairs[:, 0], 0] == half[pairs[:, 1], 0]).astype(np.int64)  # walked the same way: one is flipped
     graph = sp.coo_matrix((clash + 1, (a, b)), shape=(n, n))
     graph = (graph + graph.T).tocsr()  # weight 1: agree, 2: clash

@@ -80,3 +80,27 @@ def test_faces_wound_against_their_neighbours_are_turned_to_match(anny_body, tmp
     mesh_b, _ = placed_mesh(b, _gcfg(b), anny_body)
     assert np.array_equal(mesh_b.faces, mesh_a.faces)
     assert np.allclose(mesh_b.vertices, mesh_a.vertices, atol=1e-9)
+
+
+def test_non_manifold_edges_are_refused_naming_the_setting_that_cuts_them_apart(tmp_path, anny_body):
+    from pbc.geometry.meshops import mesh_pieces, split_nonmanifold
+
+    p, f, _, _ = shirt()
+    flap = len(p)  # one triangle hung on an edge two of the shirt's faces share: that edge has three faces
+    a, b = (int(v) for v in f[0, :2])
+    faces = np.concatenate([f, [[a, b, flap]]])
+    cut, source = split_nonmanifold(faces)
+    edges, count = np.unique(np.sort(np.concatenate([cut[:, [0, 1]], cut[:, [1, 2]], cut[:, [2, 0]]]), 1), axis=0,
+                             return_counts=True)
+    assert count.max() == 2 and np.array_equal(source[cut], faces)  # every edge manifold, the same corners
+    assert mesh_pieces(cut, len(source)).max() == 1  # the flap is a piece of its own
+    assert np.array_equal(split_nonmanifold(f)[0], f)  # a manifold mesh comes back as it is
+    vertices = np.concatenate([10.0 * p, [10.0 * (p[a] + p[b]) / 2 + [0.0, 0.0, 0.3]]])
+    path = _write(tmp_path / "flap.obj", vertices, faces)
+    with pytest.raises(ValueError, match=r"flap.obj: .*non-manifold edges.*garment.split_nonmanifold=true") as err:
+        placed_mesh(path, _gcfg(path), anny_body)
+    assert "\n" not in str(err.value)
+    mesh, _ = placed_mesh(path, _gcfg(path, "garment.split_nonmanifold=true"), anny_body)
+    # the flap cut off and dropped; the shirt's two faces on that edge are cut apart along it too, as Edge Split
+    # cuts every face of a non-manifold edge, which copies each end of it at most once
+    assert len(mesh.faces) == len(f) and len(p) <= len(mesh.vertices) <= len(p) + 2

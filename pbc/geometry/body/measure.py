@@ -22,12 +22,17 @@ def measure_config():
     return OmegaConf.load(CONF_DIR / "measure.yaml")
 
 
-def girth(mesh: trimesh.Trimesh, y: float) -> float:
-    """Convex-hull perimeter (m) of the section of `mesh` at height y; 0 where the plane misses it."""
+def girth(mesh: trimesh.Trimesh, y: float, half_width: float | None = None, centre_x: float = 0.0) -> float:
+    """Convex-hull perimeter (mesh units) of the section of `mesh` at height y, with ``half_width`` only of its
+    points within that distance of x = ``centre_x`` (a top's torso, not its sleeves); 0 where the plane cuts no
+    area there (it misses the mesh, or the points left lie on a line)."""
     seg = trimesh.intersections.mesh_plane(mesh, [0.0, 1.0, 0.0], [0.0, float(y), 0.0])
-    if len(seg) < 3:
+    pts = np.asarray(seg).reshape(-1, 3)
+    if half_width is not None:
+        pts = pts[np.abs(pts[:, 0] - centre_x) < half_width]
+    pts = pts[:, [0, 2]]
+    if len(pts) < 3 or np.linalg.matrix_rank(pts - pts.mean(0)) < 2:
         return 0.0
-    pts = np.asarray(seg).reshape(-1, 3)[:, [0, 2]]
     return float(ConvexHull(pts).area)  # in 2D, ConvexHull.area is the perimeter
 
 

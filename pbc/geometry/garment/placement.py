@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 import trimesh
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import cKDTree
 
 from pbc.geometry.body.base import Body, body_sdf
 from pbc.geometry.body.measure import girth, measurements, torso_mesh
@@ -207,19 +207,6 @@ _SIZING = {"top": "hem girth", "bottom": "waistband girth"}
 _CONFIRM = {"top": ("chest girth", "chest", "chest_ease"), "bottom": ("hip girth", "hips", "hip_ease")}
 
 
-def garment_girth(points: np.ndarray, faces: np.ndarray, y: float, half_width: float) -> float:
-    """The convex-hull perimeter (file units) of the garment's section (points (V, 3), faces (F, 3)) by the plane
-    at height y, within ``half_width`` of its midline (a top's torso, not its sleeves); NaN where the plane
-    cuts fewer than three points there."""
-    seg = trimesh.intersections.mesh_plane(trimesh.Trimesh(points, faces, process=False), [0.0, 1.0, 0.0],
-                                           [0.0, float(y), 0.0])
-    q = np.asarray(seg).reshape(-1, 3)
-    q = q[np.abs(q[:, 0] - np.median(points[:, 0])) < half_width][:, [0, 2]]
-    if len(q) < 3 or np.linalg.matrix_rank(q - q.mean(0)) < 2:
-        return float("nan")
-    return float(ConvexHull(q).area)  # in 2D, ConvexHull.area is the perimeter
-
-
 def unit_measures(points: np.ndarray, faces: np.ndarray, kind: str, lm: dict, pcfg) -> dict[str, float]:
     """Metres per file unit by each measure of the garment (V, 3 file units) against the body (landmarks ``lm``):
     its sizing opening's girth (``placement.opening_ease`` x the body's girth where it lands: the hem of a top,
@@ -234,12 +221,14 @@ def unit_measures(points: np.ndarray, faces: np.ndarray, kind: str, lm: dict, pc
     out = {_SIZING[kind]: unit}
     name, body_key, ease = _CONFIRM[kind]
     body_girth, body_y = lm["girths"][body_key]
-    half = 0.5 * float(np.ptp(points[sizing["ids"]][:, 0]))  # the sizing opening's half width: the torso's cloth
+    mesh = trimesh.Trimesh(points, faces, process=False)
+    centre_x = float(np.median(points[:, 0]))
     confirm = unit
     for _ in range(4):  # where the body's chest (hips) lands on the garment depends on the unit too
         y = anchor[1] + (body_y - _target(lm, kind, pcfg)[1]) / confirm
-        g = garment_girth(points, faces, y, 1.05 * half)
-        if not np.isfinite(g) or g <= 0.0:
+        # the garment's torso there: its cloth within the sizing opening's half width (and 5%) of its midline
+        g = girth(mesh, y, 1.05 * sizing["half_width"], centre_x)
+        if g <= 0.0:
             return out
         confirm = float(pcfg[ease]) * body_girth / g
     out[name] = confirm
@@ -837,21 +826,18 @@ def _split_nonmanifold(mesh: ObjMesh, min_fraction: float, where: str) -> ObjMes
     size = np.bincount(piece)
     small = np.flatnonzero(size < min_fraction * len(source)) if len(size) > before else np.zeros(0, np.int64)
     keep = ~np.isin(piece[faces[:, 0]], small)
-    used = np.zeros(len(source), bool)
-    used[faces[keep].ravel()] = True
-    new_id = np.cumsum(used) - 1
     log.info("%s: cut apart at %d non-manifold vertices (garment.split_nonmanifold); %d pieces of under %g of its "
              "vertices dropped (%d faces)", where, len(source) - len(mesh.vertices), len(small), min_fraction,
              int((~keep).sum()))
-    return replace(mesh, vertices=mesh.vertices[source[used]], faces=new_id[faces[keep]],
-                   face_uv=mesh.face_uv[keep], face_group=mesh.face_group[keep], face_line=mesh.face_line[keep],
-                   vertex_line=mesh.vertex_line[source[used]])
+    cut = replace(mesh, vertices=mesh.vertices[source], vertex_line=mesh.vertex_line[source], faces=faces[keep],
+                  face_uv=mesh.face_uv[keep], face_group=mesh.face_group[keep], face_line=mesh.face_line[keep])
+    return drop_loose(cut)[0]  # the dropped pieces' vertices
 
 
 def placed_mesh(path, gcfg, body: Body | None) -> tuple[ObjMesh, Placement | None]:
     """A tool's garment OBJ as the importer takes it, in metres on the rest body: read (UVs optional), its
     loose vertices dropped (counted in the log), charted as modelled when it has no UVs or ``garment.uvs=unwrap``
-    (`pbc.geometry.garment.unwrap.charted_mesh`: the projection or xatlas's charts, whichever is better), and placed
+    (`pbc.geometry.garment.unwrap.charted_as_asked`: the projection or xatlas's charts, whichever is better), and placed
     (`place_garment`, when ``garment.placement.enabled``, a body is given and the mesh is one piece; else the
     stated unit and offset)."""
     where = str(path)
