@@ -42,11 +42,12 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.starter import mean_shape, open_model  # noqa: E402
+from bench.starter import open_model  # noqa: E402
 from pbc.core.runs import RunRecord  # noqa: E402
 from pbc.data.generate import Scene, drape_pose  # noqa: E402
 from pbc.geometry.meshops import edge_stretch, median_edge_lengths, mesh_edges  # noqa: E402
 from pbc.inference.poses import read_motion, run_known  # noqa: E402
+from pbc.inference.scores import mean_shape  # noqa: E402
 from pbc.jobs.predict import guard_frames  # noqa: E402
 from pbc.motion.bvh import read_bvh  # noqa: E402
 from pbc.motion.retarget import motion_settings  # noqa: E402

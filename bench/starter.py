@@ -36,14 +36,13 @@ sys.path.insert(0, str(ROOT))
 
 from pbc.core.runs import RunRecord  # noqa: E402
 from pbc.data.generate import Scene, drape_pose  # noqa: E402
-from pbc.data.trimmed import recorded_mean_offsets  # noqa: E402
 from pbc.geometry.body.base import pose_body  # noqa: E402
 from pbc.inference.poses import read_motion, run_pose_range  # noqa: E402
 from pbc.inference.predictor import ClothPredictor  # noqa: E402
+from pbc.inference.scores import frame_errors  # noqa: E402
 from pbc.jobs.writers import contact_sheet  # noqa: E402
 from pbc.motion.ranges import range_report  # noqa: E402
 from pbc.motion.retarget import motion_settings  # noqa: E402
-from pbc.pixels.frames import from_offsets  # noqa: E402
 from pbc.pretrained import PREFIX, pretrained_dir, shipped_models  # noqa: E402
 
 CLIPS = [ROOT / "tests/data/bvh/cmu_mb_02_01_walk.bvh", ROOT / "tests/data/bvh/cmu_mb_01_01_lfingers.bvh"]
@@ -71,24 +70,13 @@ def clip_frames(pred: ClothPredictor, path: Path, every: int) -> tuple[np.ndarra
     return motion.poses.astype(np.float32), [f"{path.stem} {first + k * step}" for k in range(len(motion.poses))]
 
 
-def mean_shape(pred: ClothPredictor, poses: np.ndarray) -> torch.Tensor:
-    """(N, V, 3) the training mean shape (its recorded mean offsets) skinned onto poses (N, J, 3, 3)."""
-    p = torch.from_numpy(np.asarray(poses, np.float32))
-    with torch.inference_mode():
-        mean, space = recorded_mean_offsets(pred.dataset)
-        anchors, frames = pred.frames(p)
-        return from_offsets(mean.expand(len(p), -1, -1), anchors, frames, space)
-
-
 def score(pred: ClothPredictor, poses: np.ndarray, drapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per frame (cm): the model's mean vertex error and the training mean shape's, against drapes (N, V, 3);
     and the model's positions (N, V, 3)."""
-    p = torch.from_numpy(poses)
     with torch.inference_mode():
-        x = pred(p, model="whole")
-    m = mean_shape(pred, poses)
-    v = torch.from_numpy(drapes)
-    return ((x - v).norm(dim=-1).mean(1) * CM).numpy(), ((m - v).norm(dim=-1).mean(1) * CM).numpy(), x.numpy()
+        x = pred(torch.from_numpy(poses), model="whole")
+    model, mean = frame_errors(pred, poses, drapes)
+    return model, mean, x.numpy()
 
 
 def main(argv: list[str] | None = None) -> dict:

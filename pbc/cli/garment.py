@@ -7,10 +7,12 @@ cut into its pieces, and a garment file to a trained model in one command.
         --out writes uv_layout.png, on_body.png and fitted.obj (the garment as placed on the rest body)
     pbc garment split outfit.obj --out DIR [--position-unit dm]
         one OBJ per connected piece (top.obj, bottom.obj, ...), named by where it sits on the body
-    pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--samples N] [--epochs E] [--until STEP]
-        inspect, the checks before any drape, the cage, data, a whole-garment model and a preview of the
-        test poses, each step skipped when done (a second call resumes; --until data stops after the drapes);
-        default DIR runs/fit/<name> (an outfit's piece: runs/fit/<name>_<piece>)
+    pbc garment fit my.obj|my.mhclo [overrides] [--out DIR] [--budget 60m] [--samples N] [--epochs E]
+                    [--motion-frames M] [--until STEP]
+        inspect, the checks before any drape, the cage, a plan of the budget (drapes and epochs timed first),
+        data, the models (the PCA net, the CNN under L2; the better kept) and a preview of the test poses, each
+        step skipped when done (a second call resumes; --until data stops after the drapes); default DIR
+        runs/fit/<name> (an outfit's piece: runs/fit/<name>_<piece>)
 """
 
 from __future__ import annotations
@@ -44,13 +46,18 @@ def run(argv: list[str]) -> int:
     spl.add_argument("obj", help="the outfit OBJ")
     spl.add_argument("--out", required=True, help="folder for the pieces' OBJs")
     spl.add_argument("--position-unit", default="m", help="unit of the v lines (m, dm, cm, mm, in)")
-    fit = sub.add_parser("fit", help="a garment file to a trained whole-garment model and a preview (resumable)")
+    fit = sub.add_parser("fit", help="a garment file to the best model a budget buys, and a preview (resumable)")
     fit.add_argument("obj", help="the garment: an .obj, or a MakeHuman .mhclo (its .obj beside it)")
     fit.add_argument("overrides", nargs="*", help="Hydra overrides for every step: garment.position_unit=dm, "
                      "body=anny, ...")
     fit.add_argument("--out", help="folder of the fit (default $PBC_ROOT/runs/fit/<garment name>)")
-    fit.add_argument("--samples", type=int, help="poses to drape (data.num_samples; default the data set's: 200)")
-    fit.add_argument("--epochs", type=int, help="training epochs (trainer.max_epochs; default the trainer's: 20)")
+    fit.add_argument("--budget", help="wall-clock time the fit may take, planned into drapes and epochs before any "
+                     "drape: 60m (default, conf/fit.yaml), 15m, 1h30m")
+    fit.add_argument("--samples", type=int, help="poses to drape (data.num_samples; default: the plan's)")
+    fit.add_argument("--epochs", type=int, help="training epochs of each model (trainer.max_epochs; default: the "
+                     "plan's); with --samples nothing is planned")
+    fit.add_argument("--motion-frames", type=int, help="drapes of held-out motion-capture frames to score on "
+                     "(default: the plan's; 0: none)")
     fit.add_argument("--until", choices=STEPS[1:], default=STEPS[-1],
                      help="stop after this step (checks: every check before a drape; data: the drapes); the same "
                           "command without it goes on")
@@ -65,7 +72,8 @@ def run(argv: list[str]) -> int:
         raise FileNotFoundError(problem)
     if args.command == "fit":
         out = args.out or default_out(path, Path(os.environ.get("PBC_ROOT", ".")), [*args.overrides, *rest])
-        print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs, until=args.until).run())
+        print(Fit(path, [*args.overrides, *rest], out, args.samples, args.epochs, until=args.until,
+                  budget=args.budget, motion_frames=args.motion_frames).run())
         return 0
     if args.command == "split":
         if path.suffix.lower() == ".mhclo":

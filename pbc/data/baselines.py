@@ -19,6 +19,32 @@ from pbc.pixels.target import make_target
 CM = 100.0
 
 
+def _chunks(ds: ClothDataset, skin, name: str, batch: int):
+    """(verts, anchors, frames) of split `name` in batches, skinned by `skin`."""
+    idx = ds.split(name)
+    for s in range(0, len(idx), batch):
+        j = idx[s:s + batch]
+        pose = torch.from_numpy(np.asarray(ds.poses[j], np.float32))
+        verts = torch.from_numpy(np.asarray(ds.verts[j], np.float32))
+        anchors, frames = skin(pose, **person_kw(ds, j))
+        yield verts, anchors, frames
+
+
+def mean_offsets(ds: ClothDataset, batch: int = 64) -> torch.Tensor:
+    """(V, 3) float32: the training split's mean offsets in the local frames (the space the whole model predicts).
+    ValueError for a dataset without training samples."""
+    skin = make_target(ds, None, "fc").skinner  # per-vertex offsets: the skinner, no image operators
+    total, count = None, 0
+    with torch.inference_mode():
+        for v, a, f in _chunks(ds, skin, "train", batch):
+            off = to_offsets(v, a, f).sum(0, dtype=torch.float64)
+            total = off if total is None else total + off
+            count += len(v)
+    if not count:
+        raise ValueError(f"dataset {ds.dir} has no training samples: no mean shape to compare with")
+    return (total / count).float()
+
+
 def mean_shape_errors(ds: ClothDataset, splits: Sequence[str] = ("train", "test"),
                       vertices: np.ndarray | None = None, batch: int = 64) -> dict[str, float]:
     """Mean vertex error (cm) of the training mean shape on each split: {split: cm}.
@@ -27,31 +53,14 @@ def mean_shape_errors(ds: ClothDataset, splits: Sequence[str] = ("train", "test"
     The mean is taken of the offsets in the local frames (the space the whole model predicts), then skinned
     with each pose, so it follows the body like a model's output does.
     """
-    skin = make_target(ds, None, "fc").skinner  # per-vertex offsets: the skinner, no image operators
+    skin = make_target(ds, None, "fc").skinner
     keep = slice(None) if vertices is None else torch.as_tensor(np.asarray(vertices), dtype=torch.long)
-
-    def chunks(name: str):
-        idx = ds.split(name)
-        for s in range(0, len(idx), batch):
-            j = idx[s:s + batch]
-            pose = torch.from_numpy(np.asarray(ds.poses[j], np.float32))
-            verts = torch.from_numpy(np.asarray(ds.verts[j], np.float32))
-            anchors, frames = skin(pose, **person_kw(ds, j))
-            yield verts, anchors, frames
-
+    mean = mean_offsets(ds, batch)[None]
+    out = {}
     with torch.inference_mode():
-        total, count = None, 0
-        for v, a, f in chunks("train"):
-            off = to_offsets(v, a, f).sum(0, dtype=torch.float64)
-            total = off if total is None else total + off
-            count += len(v)
-        if not count:
-            raise ValueError(f"dataset {ds.dir} has no training samples: no mean shape to compare with")
-        mean = (total / count).float()[None]
-        out = {}
         for name in splits:
             err, n = 0.0, 0
-            for v, a, f in chunks(name):
+            for v, a, f in _chunks(ds, skin, name, batch):
                 pred = from_offsets(mean.expand(len(v), -1, -1), a, f)
                 err += float((pred - v)[:, keep].norm(dim=-1).mean(1).sum())
                 n += len(v)

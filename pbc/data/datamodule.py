@@ -93,6 +93,8 @@ class ClothDataModule(L.LightningDataModule):
         cache_max_gb: largest cache built on a device, in GiB.
         cache_chunk: samples rendered at a time while building the cache.
         garment_hash: if set, the dataset must have been made for this garment (manifest garment_hash).
+        train_repeats: the training split served this many times an epoch (1: once; more: an epoch's time at
+            more rows than a few drapes give, as `pbc garment fit`'s plan times it).
     """
 
     def __init__(
@@ -111,6 +113,7 @@ class ClothDataModule(L.LightningDataModule):
         cache_dtype: str = "float32",
         cache_max_gb: float = 8.0,
         cache_chunk: int = 64,
+        train_repeats: int = 1,
     ):
         super().__init__()
         if target not in TARGETS:
@@ -128,6 +131,9 @@ class ClothDataModule(L.LightningDataModule):
         self.cache_targets, self.cache_dtype = bool(cache_targets), CACHE_DTYPES[cache_dtype]
         self.cache_max_gb, self.cache_chunk = float(cache_max_gb), int(cache_chunk)
         self._cache_refused: set[str] = set()
+        if int(train_repeats) < 1:
+            raise ValueError(f"datamodule.train_repeats must be >= 1, got {train_repeats}")
+        self.train_repeats = int(train_repeats)
         self.data: ClothDataset | None = None
         self.target: VertexTarget | None = None
         self.splits: dict[str, np.ndarray] = {}
@@ -175,12 +181,12 @@ class ClothDataModule(L.LightningDataModule):
                 raise ValueError(f"{where}: split {name} indexes samples outside 0..{n - 1}; regenerate it")
         # non-finite or implausible rows anywhere were refused when the dataset opened (check_dataset)
 
-    def loader(self, split: str, shuffle: bool = False) -> DataLoader:
-        """A DataLoader over any split ('train', 'val', 'test')."""
+    def loader(self, split: str, shuffle: bool = False, repeats: int = 1) -> DataLoader:
+        """A DataLoader over any split ('train', 'val', 'test'), each of its samples `repeats` times."""
         if self.data is None:
             self.setup()
         return DataLoader(
-            PoseVerts(self.data, self.splits[split]),
+            PoseVerts(self.data, np.tile(self.splits[split], repeats)),
             batch_size=self.batch_size,
             shuffle=shuffle,
             num_workers=self.num_workers,
@@ -190,7 +196,7 @@ class ClothDataModule(L.LightningDataModule):
         )
 
     def train_dataloader(self) -> DataLoader:
-        return self.loader("train", shuffle=True)
+        return self.loader("train", shuffle=True, repeats=self.train_repeats)
 
     def val_dataloader(self) -> DataLoader:
         return self.loader("val", shuffle=False)

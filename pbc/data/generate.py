@@ -123,7 +123,8 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
     # each key below only when its setting is away from its default: existing datasets keep their fingerprint
     data = cfg.data
     if data.get("poses") is not None:  # the clips' content (not where they lie) and how they are mixed
-        fp["pose_source"] = {"files": source_files_hash(data.poses, list(data.get("poses_holdout") or ())),
+        role = str(data.get("poses_role") or "train")
+        fp["pose_source"] = {"files": source_files_hash(data.poses, list(data.get("poses_holdout") or ()), role),
                              "sampled_fraction": float(data.get("poses_sampled_fraction") or 0.0),
                              "joint_map": str(data.get("poses_joint_map") or "auto"),
                              "allow_rest": bool(data.get("poses_allow_rest")),
@@ -542,7 +543,9 @@ def _check_or_write_fingerprint(out: Path, fp: dict, cfg: DictConfig) -> None:
     for existing in (out / "manifest.json", path):
         if existing.is_file():
             record = read_json(existing, "dataset metadata")
-            old = {k: record.get(k) for k in fp}
+            # a manifest's pose_source holds each row's clip and frame beside the fingerprint's keys
+            old = {k: ({kk: record[k].get(kk) for kk in fp[k]} if isinstance(fp[k], dict)
+                       and isinstance(record.get(k), dict) else record.get(k)) for k in fp}
             if old != fp:
                 raise ValueError(other_settings_message(cfg, out, record, sorted(k for k in fp if old[k] != fp[k])))
             return
@@ -661,7 +664,8 @@ def dataset_poses(cfg: DictConfig, scene: Scene) -> tuple[np.ndarray, np.ndarray
     if data.get("poses") is not None:
         return motion_capture_poses(data.poses, n, float(data.get("poses_sampled_fraction") or 0.0), seed, skel,
                                     scene.body, settings, str(data.get("poses_joint_map") or "auto"),
-                                    bool(data.get("poses_allow_rest")), list(data.get("poses_holdout") or ()))
+                                    bool(data.get("poses_allow_rest")), list(data.get("poses_holdout") or ()),
+                                    str(data.get("poses_role") or "train"))
     poses, pose_stats = sample_poses(skel, n, seed, scene.body, settings)
     angles = np.asarray(pose_stats.pop("angles_deg"), dtype=np.float32)
     return poses.numpy().astype(np.float32), angles, pose_stats, None
@@ -804,13 +808,14 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
             + (f"run the unfinished shard(s) again (data.shard={shards} with the same overrides; they resume "
                "where they stopped), then merge" if num_shards > 1 else "run the same command again to finish them")
         )
-    kept, reasons, residuals, stage = [], {}, [], {"skin": 0.0, "drape": 0.0}
+    kept, reasons, residuals, stage, per_sample = [], {}, [], {"skin": 0.0, "drape": 0.0}, []
     positions, discarded = [], []
     first_discarded = None
     for i in range(len(poses)):
         pos, meta = _read_sample(_sample_path(work, i))
         stage["skin"] += meta["t_skin"]
         stage["drape"] += meta["t_drape"]
+        per_sample.append(meta["t_skin"] + meta["t_drape"])
         if meta["ok"]:
             residuals.append(meta["residual"])
             kept.append(i)
@@ -857,7 +862,9 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         # of the kept samples: max vertex speed at the end of the drape, m/s
         drape_residual={"mean": float(np.mean(residuals)), "max": float(np.max(residuals))},
     )
-    timings = dict(timings, **timed, **{f"{k}_cpu_total": v for k, v in stage.items()})
+    # the median drape of one worker: its model's build on its first drape left out (pbc garment fit's plan)
+    timings = dict(timings, **timed, **{f"{k}_cpu_total": v for k, v in stage.items()},
+                   sample_median=float(np.median(per_sample)))
     arrays = {"poses.npy": poses[kept], "verts.npy": verts, "angles.npy": angles[kept].astype(np.float32)}
     if _shapes(scene) is not None:  # each kept sample's person (data.body_shape)
         arrays["person.npy"] = np.array([person_of(i, scene.shapes) for i in kept], np.int64)

@@ -42,11 +42,17 @@ class PoseSource:
     clips: list[str]  # clip names, relative to data.poses (a file: its name)
 
 
-def clip_files(path: str | Path, holdout: Sequence[str] = ()) -> list[Path]:
+ROLES = ("train", "held_out")
+
+
+def clip_files(path: str | Path, holdout: Sequence[str] = (), role: str = "train") -> list[Path]:
     """The clips `data.poses` names: the file itself, or every .bvh / .npy under a folder (sorted, so the
     order, and with it the selection, never depends on the file system), less those whose name relative to
     the folder matches a glob pattern of `holdout` (`data.poses_holdout`: clips kept out of training, to be
-    scored on apart). One ValueError naming the fix."""
+    scored on apart); with ``role="held_out"`` (`data.poses_role`) only those. One ValueError naming the fix."""
+    if role not in ROLES:
+        raise ValueError(f"data.poses_role={role}: one of {', '.join(ROLES)} (train: every clip but data.poses_holdout;"
+                         " held_out: only those)")
     p = Path(path)
     if p.is_file():
         if p.suffix.lower() not in CLIP_SUFFIXES:
@@ -55,6 +61,12 @@ def clip_files(path: str | Path, holdout: Sequence[str] = ()) -> list[Path]:
         return [p]
     if p.is_dir():
         found = sorted(f for f in p.rglob("*") if f.is_file() and f.suffix.lower() in CLIP_SUFFIXES)
+        if found and role == "held_out":
+            kept = [f for f in found if held_out(str(f.relative_to(p)), holdout)]
+            if not kept:
+                raise ValueError(f"data.poses={p}: data.poses_role=held_out but data.poses_holdout={list(holdout)} "
+                                 "holds out no clip of the folder; name the held-out clips in data.poses_holdout")
+            return kept
         if found and holdout:
             found = [f for f in found if not held_out(str(f.relative_to(p)), holdout)]
             if not found:
@@ -104,11 +116,11 @@ def held_out(name: str, holdout: Sequence[str]) -> bool:
 
 
 def read_pose_source(path: str | Path, skeleton: Skeleton, posed_joints=(), joint_map: str = "auto",
-                     allow_rest: bool = False, holdout: Sequence[str] = ()) -> PoseSource:
+                     allow_rest: bool = False, holdout: Sequence[str] = (), role: str = "train") -> PoseSource:
     """Every frame of every clip under `path` as the body's poses; joints outside `posed_joints` (the
     garment's own joint set, `sampling.posed_joints`; () = all) are put back at rest, as the sampler keeps
-    them. A clip that moves none of the posed joints is refused, naming it."""
-    files = clip_files(path, holdout)
+    them. A clip that moves none of the posed joints is refused, naming it. `holdout`, `role`: `clip_files`."""
+    files = clip_files(path, holdout, role)
     root = Path(path)
     keep = np.ones(skeleton.num_joints, bool)
     if posed_joints:
@@ -130,12 +142,12 @@ def read_pose_source(path: str | Path, skeleton: Skeleton, posed_joints=(), join
     return PoseSource(np.concatenate(poses), np.concatenate(clip), np.concatenate(frame), names)
 
 
-def source_files_hash(path: str | Path, holdout: Sequence[str] = ()) -> dict[str, str]:
+def source_files_hash(path: str | Path, holdout: Sequence[str] = (), role: str = "train") -> dict[str, str]:
     """{clip name: sha256 of its bytes, 16 hex}: what the dataset's fingerprint keeps of `data.poses` (its
     content, not where it lies: a moved copy of the clips makes the same data)."""
     root = Path(path)
     out = {}
-    for f in clip_files(root, holdout):
+    for f in clip_files(root, holdout, role):
         out[f.name if f == root else str(f.relative_to(root))] = hashlib.sha256(f.read_bytes()).hexdigest()[:16]
     return out
 
@@ -159,7 +171,7 @@ def farthest_pose_selection(poses: np.ndarray, n: int, seed: int) -> np.ndarray:
 
 def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed: int, skeleton: Skeleton,
                          body, settings: SamplingSettings, joint_map: str = "auto", allow_rest: bool = False,
-                         holdout: Sequence[str] = ()) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+                         holdout: Sequence[str] = (), role: str = "train") -> tuple[np.ndarray, np.ndarray, dict, dict]:
     """n dataset poses: round(n * (1 - sampled_fraction)) clip frames by farthest-point selection (arms inside
     the torso raised out of it: `pbc.motion.fit`), then the rest from the D.3 sampler (`sample_poses`, the same
     seed).
@@ -173,7 +185,7 @@ def motion_capture_poses(path: str | Path, n: int, sampled_fraction: float, seed
                          "to draw from the D.3 sampler (0: every pose from the clips)")
     n_sampled = int(round(n * float(sampled_fraction)))
     n_clip = n - n_sampled
-    src = read_pose_source(path, skeleton, settings.posed_joints, joint_map, allow_rest, holdout)
+    src = read_pose_source(path, skeleton, settings.posed_joints, joint_map, allow_rest, holdout, role)
     if n_clip > len(src.poses):
         raise ValueError(f"data.poses={path}: {len(src.poses)} frames in {len(src.clips)} clip(s), fewer than the "
                          f"{n_clip} poses asked of them (data.num_samples={n} x (1 - data.poses_sampled_fraction="

@@ -547,15 +547,36 @@ def place_layers(x: np.ndarray, faces: np.ndarray, under: np.ndarray, bary: np.n
 # the shrink-wrap
 
 
+def vertex_stretch(edges: np.ndarray, length: np.ndarray, rest: np.ndarray, n: int) -> np.ndarray:
+    """(n,) the stretch of each vertex's incident edges: their total length over their total rest length, the
+    mean of their stretches l_e / rest_e weighted by rest_e. edges (E, 2), length and rest (E,) m (rest > 0).
+
+    An edge moves the stretch at its ends by at most 1 / (its ends' total rest length) per metre it grows, so the
+    relaxation's target for another edge there grows by at most half as much as it: a pattern with a short edge
+    among long ones (a sliver of UV compressed at a seam or a crotch) cannot feed its own stretch back through its
+    neighbours' targets. A vertex with no edge reads 1."""
+    a, b = edges[:, 0], edges[:, 1]
+    total = np.bincount(a, length, n) + np.bincount(b, length, n)
+    total_rest = np.bincount(a, rest, n) + np.bincount(b, rest, n)
+    return np.where(total_rest > 0, total / np.where(total_rest > 0, total_rest, 1.0), 1.0)
+
+
+RELAX_STRETCH = ("rest_weighted", "mean")
+
+
 def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, iterations: int, step: float,
-                     tol: float, region: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+                     tol: float, region: np.ndarray | None = None, stretch: str = "rest_weighted"
+                     ) -> tuple[np.ndarray, int]:
     """Edge-length-equalising relaxation constrained to the body surface (appendix D.5).
 
-    Per step: alpha_v = mean over incident edges of l_e / rest_e; edge (a, b) targets
+    Per step: alpha_v = the stretch of v's incident edges (`vertex_stretch`; ``stretch="mean"``: the plain mean of
+    their l_e / rest_e, which a sliver of compressed pattern feeds back into); edge (a, b) targets
     0.5 (alpha_a + alpha_b) rest_e; each vertex moves by ``step`` x the mean of its springs' position
     corrections, then is projected back onto the surface (its region's, with ``region`` (V,)). x (V, 3) ->
     (V, 3), steps taken.
     """
+    if stretch not in RELAX_STRETCH:
+        raise ValueError(f"garment.shrinkwrap.relax_stretch={stretch}: one of {', '.join(RELAX_STRETCH)}")
     region = np.zeros(len(x), np.int64) if region is None else region
     edges, rest = garment_edges(garment)
     a, b = edges[:, 0], edges[:, 1]
@@ -567,8 +588,8 @@ def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, ite
         steps += 1
         e = x[b] - x[a]
         length = np.linalg.norm(e, axis=1)
-        ratio = length / rest
-        alpha = (np.bincount(a, ratio, n) + np.bincount(b, ratio, n)) / deg
+        alpha = vertex_stretch(edges, length, rest, n) if stretch == "rest_weighted" else \
+            (np.bincount(a, length / rest, n) + np.bincount(b, length / rest, n)) / deg
         target = 0.5 * (alpha[a] + alpha[b]) * rest
         # each endpoint takes half of the length error along the edge
         c = (0.5 * (length - target) / np.maximum(length, 1e-12))[:, None] * e
@@ -632,8 +653,9 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     x = surface.closest_in_regions(x, region)[0]
     before = area_ratio(garment, x)
     # (c) relaxation on the surface
+    # a config recorded without the key (the shipped models' data) was wrapped with the plain mean
     x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
-                                float(sw.relax_tol), region)
+                                float(sw.relax_tol), region, str(sw.get("relax_stretch", "mean")))
     if layered.any():
         x = place_layers(x, faces, under, under_bary, np.maximum(gap, float(sw.layer_min_gap)), surface)
     after = area_ratio(garment, x)

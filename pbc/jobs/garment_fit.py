@@ -1,5 +1,5 @@
-"""`pbc garment fit`: from a garment file (an OBJ, or MakeHuman's `.mhclo`) to a trained whole-garment model and
-a preview in one command. The steps, each skipped when its output is complete, so a second call
+"""`pbc garment fit`: from a garment file (an OBJ, or MakeHuman's `.mhclo`) to the best model a wall-clock budget
+buys, with a preview, in one command. The steps, each skipped when its output is complete, so a second call
 resumes where the first stopped:
 
   1. inspect  the chart table and the settings it suggests (pbc.geometry.inspect) -> inspect/; the suggested
@@ -7,20 +7,26 @@ resumes where the first stopped:
               the waist on a body with legs gets the legs' data set and the lower body's wrap
   2. checks   the import and the shrink-wrap on the rest body, where every check before a drape runs
               (pbc.geometry.garment.checks: the UV unit, the sleeves against the rest arms, far from the body, the
-              wrap's
-              stretch; one error naming the part, the number and the fix), and the automatic cage -> cage.json
-  3. data     python -m pbc.generate with the garment overrides and data.num_samples -> data/
-  4. whole    python -m pbc.train +experiment=whole with the SAME overrides -> whole/
-  5. preview  python -m pbc.predict whole/ --poses test -> preview/ (meshes, contact sheet)
+              wrap's stretch; one error naming the part, the number and the fix), and the automatic cage ->
+              cage.json; a garment and body symmetric left/right get each drape's mirror (data.mirror), and with
+              the corpus's clips on this machine half the poses come from motion capture (+poses=corpus)
+  3. plan     a few drapes and a few epochs of each model timed (plan/), then the plan (pbc.jobs.fit_plan): the
+              drapes, the held-out motion frames, each model's epochs and minutes, the finish time -> fit.json
+  4. data     python -m pbc.generate with the garment overrides and the plan's data.num_samples -> data/, and the
+              drapes of motion-capture clips held out of training (data.poses_role=held_out) -> motion/
+  5. whole    python -m pbc.train for each planned model (conf/fit.yaml `models`: the PCA net -> pca/, the CNN
+              under L2 -> whole/), each to early stopping within its minutes; the lower validation error is kept
+  6. preview  python -m pbc.predict <kept model> --poses test -> preview/ (meshes, contact sheet)
 
-then a summary: where everything is, and the test error beside the training mean shape's. ``--until STEP`` stops
-after that step (`checks`: every check before a drape; `data`: the drapes, to train by hand or in a sweep); the same
-command without it goes on from there. Steps 3-5 are the
-commands a user would type, each its own process with its own Hydra run dir (as the main job's steps), run by
-the sweep runner's `run_logged`: the whole output goes to logs/<step>.log, and only the progress lines (the
-drapes done with their ETA, one line per epoch with its ETA) are echoed. fit.json records what the fit was
-asked and the overrides it settled on; an out dir holding another garment's fit (its drapes) is refused, one
-whose fit was refused before any drape is taken by a corrected retry.
+then a summary: where everything is, each model's error on the test poses and on the held-out motion frames beside
+the training mean shape's (scores.json). ``--until STEP`` stops after that step (`checks`: every check before a
+drape; `plan`; `data`: the drapes, to train by hand or in a sweep); the same command without it goes on from there.
+``--budget`` (conf/fit.yaml's 60m by default) plans drapes and epochs; ``--samples`` and ``--epochs`` fix them.
+Steps 3-6 run the commands a user would type, each its own process with its own Hydra run dir (as the main job's
+steps), by the sweep runner's `run_logged`: the whole output goes to logs/<step>.log, and only the progress lines
+(the drapes done with their ETA, one line per epoch with its ETA, each with the fit's finish time) are echoed.
+fit.json records what the fit was asked and the overrides it settled on; an out dir holding another garment's fit
+(its drapes) is refused, one whose fit was refused before any drape is taken by a corrected retry.
 """
 
 from __future__ import annotations
@@ -30,9 +36,12 @@ import json
 import math
 import re
 import shlex
+import shutil
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from pbc.core import stops
 from pbc.core.config import load_config
@@ -42,6 +51,7 @@ from pbc.core.validate import check_config
 from pbc.data.baselines import mean_shape_errors
 from pbc.data.dataset import load_dataset
 from pbc.data.generate import scene_garment
+from pbc.data.mirror import mirror_map
 from pbc.geometry.body import body_from_config
 from pbc.geometry.cage.base import save_cage
 from pbc.geometry.garment.mhclo import mhclo_mesh
@@ -51,13 +61,18 @@ from pbc.geometry.garment.placement import hem, openings
 from pbc.geometry.inspect import format_report, inspect_garment, made_on_override, save_body_picture, save_uv_picture
 from pbc.geometry.meshio import obj_mesh_text
 from pbc.geometry.shrinkwrap import shrinkwrap
+from pbc.jobs.fit_plan import Costs, Plan, as_asked, budget_text, fit_settings, parse_budget, plan_fit
 from pbc.jobs.sweeps import run_logged
 from pbc.models.progress import duration
 
-STEPS = ("inspect", "checks", "data", "whole", "preview")
+STEPS = ("inspect", "checks", "plan", "data", "whole", "preview")
 RECORD = "fit.json"
 # what a second call must be asked the same as the first to resume it
-ASKED = ("garment", "sha256", "overrides", "samples", "epochs")
+ASKED = ("garment", "sha256", "overrides", "samples", "epochs", "budget", "motion_frames")
+# the rows of the probe's small training (two: a BatchNorm layer needs more than one in a training batch)
+PROBE_ROWS = 2
+# the outputs of a fit made before its drapes: removed when the plan refuses the budget (nothing left written)
+BEFORE_DRAPES = ("inspect", "plan", "logs", "cage.json", RECORD)
 # a garment centred below the waist (pbc.geometry.inspect.TOP_Y) on a body with these joints: the legs' data
 # set (hips and knees posed: conf/data/skirt_small.yaml) and the lower body's wrap (no arm colliders: the hips
 # reach past the arm joints' x), as the procedural skirt's
@@ -71,6 +86,13 @@ DRESS_DATA = "data=dress_small"
 # the progress lines of the steps' own output: generate's drape count (with its ETA) and training's epoch line
 # (with its ETA), after the log prefix
 PROGRESS = re.compile(r"(drape \(\d+ workers?\): \d+/\d+.*|epoch \d+/\d+ .*)$")
+# the time left a progress line states: tqdm's [elapsed<left, ...] or the epoch line's ETA 3m27s / 1h02m / 7s
+TQDM_LEFT = re.compile(r"<(?:(\d+):)?(\d+):(\d+)")
+EPOCH_LEFT = re.compile(r"ETA (?:(\d+)h)?(?:(\d+)m)?(?:(\d+)s)?")
+EPOCH_SECONDS = re.compile(r"epoch (\d+)/\d+ .* ([\d.]+) s/epoch")
+# an epoch line as pbc's log format stamps it: [2026-12-02 04:06:14,409][pbc.models.progress][INFO] - epoch 2/3 ...
+STAMPED_EPOCH = re.compile(r"^\[(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d),(\d{3})\]\[pbc\.models\.progress\].* - epoch \d+/",
+                           re.M)
 # a Hydra override value that needs no quotes
 PLAIN = re.compile(r"[\w./+-]+")
 CHART_NAME = re.compile(r"[A-Za-z_][\w-]*")
@@ -155,10 +177,11 @@ def default_out(path: Path, root: Path, overrides: list[str] = ()) -> Path:
 
 
 class Fit:
-    """One `pbc garment fit`: its out dir, the overrides every step shares, and the steps (`run`)."""
+    """One `pbc garment fit`: its out dir, the overrides every step shares, its plan, and the steps (`run`)."""
 
     def __init__(self, garment, overrides: list[str], out, samples: int | None = None, epochs: int | None = None,
-                 python: str = sys.executable, until: str = STEPS[-1]):
+                 python: str = sys.executable, until: str = STEPS[-1], budget: str | None = None,
+                 motion_frames: int | None = None):
         self.garment = Path(garment).resolve()
         if not self.garment.is_file():
             raise FileNotFoundError(f"{garment}: no such garment file")
@@ -166,16 +189,29 @@ class Fit:
             raise ValueError(f"--samples {samples}: give at least 3 (80/10/10 train/validation/test splits)")
         if epochs is not None and epochs < 1:
             raise ValueError(f"--epochs {epochs}: give at least 1")
+        if motion_frames is not None and motion_frames < 0:
+            raise ValueError(f"--motion-frames {motion_frames}: give 0 (none) or more")
         if until not in STEPS[1:]:
             raise ValueError(f"--until {until}: one of {', '.join(STEPS[1:])}")
+        self.settings = fit_settings()
+        if budget is not None and samples is not None and epochs is not None:
+            raise ValueError(f"--budget {budget} with --samples and --epochs: those two leave nothing to plan; drop "
+                             "--budget, or one of them for the budget to plan it")
+        budget_s = None if samples is not None and epochs is not None else \
+            parse_budget(budget) if budget is not None else self.settings.budget_s
+        if budget_s is not None and budget_s < self.settings.min_budget_s:
+            raise ValueError(f"--budget {budget or budget_text(budget_s)}: below "
+                             f"{budget_text(self.settings.min_budget_s)} (conf/fit.yaml min_budget) no plan fits the "
+                             "checks, the probe, drapes and training; give --budget 15m or more")
         self.until = until  # not asked of the fit's outputs: a later call without it goes on
         self.user = list(overrides)
         self.out = Path(out).resolve()
         self.asked = {"garment": str(self.garment), "sha256": sha256(self.garment), "overrides": self.user,
-                      "samples": samples, "epochs": epochs}
+                      "samples": samples, "epochs": epochs, "budget": budget_s, "motion_frames": motion_frames}
         self.python = python
         self.t0 = time.time()
         self.overrides: list[str] = []  # every step's: the garment's, the settings inspect chose, the user's, data
+        self.plan: Plan | None = None
         self.here: stops.Step | None = None  # the step a stop is reported in, while `run` runs
         self.notes: dict[str, str] = {}
 
@@ -183,6 +219,10 @@ class Fit:
     @property
     def data_dir(self) -> Path:
         return self.out / "data"
+
+    @property
+    def motion_dir(self) -> Path:
+        return self.out / "motion"
 
     def say(self, step: str, text: str) -> None:
         """A line of `step`, which a stop (SIGINT, SIGTERM) from here on is reported in (`run`)."""
@@ -213,12 +253,28 @@ class Fit:
                              f"fit another --out, or delete {self.out} to start it again")
         return rec
 
+    def _record(self) -> None:
+        write_json(self.out / RECORD, {"asked": self.asked, "overrides": self.overrides,
+                                       **({"plan": self.plan.to_dict()} if self.plan is not None else {})})
+
+    def discard_before_drapes(self) -> None:
+        """Remove what this fit wrote before its drapes (`BEFORE_DRAPES`), and the out dir when that leaves it
+        empty: a refused plan leaves nothing written."""
+        if self.has_drapes():
+            return
+        for name in BEFORE_DRAPES:
+            p = self.out / name
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+        if self.out.is_dir() and not any(self.out.iterdir()):
+            self.out.rmdir()
+
     # ------------------------------------------------------------------------------------------ steps 1-2
     def inspect_and_check(self) -> None:
         """Steps 1 and 2 (seconds): the table and the settings, the checks and the cage; fit.json after both."""
         rec = self._recorded()
         if rec is not None:
             self.overrides = list(rec["overrides"])
+            self.plan = Plan.from_dict(rec["plan"]) if rec.get("plan") else None
             for step in ("inspect", "checks"):
                 self.say(step, f"skipped (done: {self.out / RECORD})")
             return
@@ -248,7 +304,38 @@ class Fit:
                            f"(cage.json); wrapped/pattern area per face mean {stats['area_after_mean']:.2f}, "
                            f"most stretched patch {stats.get('patch_stretch_worst')} "
                            f"{stats.get('patch_stretch_max', float('nan')):.2f}x")
-        write_json(self.out / RECORD, {"asked": self.asked, "overrides": self.overrides})
+        learnt = self.learning_settings(cfg, body, garment)
+        self.overrides = [*self.overrides[:-self._n_data], *learnt, *self.overrides[-self._n_data:]]
+        self._record()
+
+    def learning_settings(self, cfg, body, garment) -> list[str]:
+        """The overrides that make the data worth more, for what the user's leave unset: each drape's mirror
+        (data.mirror=true) when the garment and the body are left/right symmetric (pbc.data.mirror's check at the
+        rest pose), and poses from motion capture (conf/fit.yaml motion.poses, e.g. +poses=corpus) when the data
+        set has none and its clips are on this machine. Each is said in a line."""
+        given = {_key(o) for o in self.user}
+        out = []
+        if "data.mirror" not in given and not cfg.data.get("mirror"):
+            try:
+                mirror_map([body], garment.vertices.cpu().numpy(), garment.faces.cpu().numpy(),
+                           float(cfg.data.mirror_tolerance), np.zeros((0, body.skeleton.num_joints, 3, 3)))
+                out.append("data.mirror=true")
+                self.say("checks", "left/right symmetric: each training drape's mirror image is trained on too "
+                                   "(data.mirror=true)")
+            except ValueError as err:
+                self.say("checks", f"not mirrored: {str(err).split(':', 1)[1].split(';')[0].strip()}")
+        option = self.settings.motion_poses
+        if option and cfg.data.get("poses") is None and not given & {"data.poses", "poses"}:
+            clips = load_config([*self.overrides, f"+poses={option}"]).data.poses
+            if Path(str(clips)).is_dir():
+                out.append(f"+poses={option}")
+                self.say("checks", f"poses half from motion capture: the clips of {clips} (conf/poses/{option}.yaml;"
+                                   " some held out of training to score on)")
+            else:
+                self.notes["motion"] = (f"no motion-capture clips at {clips}: poses from the sampler alone and no "
+                                        "real-motion score (set PBC_CORPUS to the corpus, or give data.poses=DIR)")
+                self.say("checks", self.notes["motion"])
+        return out
 
     def derived_settings(self, report, body, dress_below: float) -> list[str]:
         """The overrides inspect chose, for what the user's overrides leave unset: the suggested charts and UV
@@ -278,17 +365,131 @@ class Fit:
 
     def step_overrides(self, garment: list[str], cfg) -> list[str]:
         """What every later step gets: the garment's and the derived overrides, the user's, then the data set's
-        name and place (inside the out dir) and its size."""
+        name and place (inside the out dir) and its size (`--samples`; else the plan's, added by `plan`)."""
         samples = self.asked["samples"]
         data = [f"data.name={Path(self.garment).stem}", f"data.dir={_value(self.data_dir)}"]
         if samples is not None:
             data.append(f"data.num_samples={samples}")
+        self._n_data = len(data)
         return [*garment, *self.user, *data]
 
-    # ------------------------------------------------------------------------------------------ steps 3-5
-    def command(self, step: str, argv: list[str], log_name: str) -> None:
-        """Run one step's command; its output in logs/<step>.log, its progress lines echoed. A failed command
-        is one error naming the step, its own error line and the log."""
+    # ------------------------------------------------------------------------------------------ step 3
+    def motion_frames(self) -> int:
+        """Drapes of held-out motion frames a fit without a budget asks (--motion-frames, else motion.min); 0
+        without clips in its data."""
+        if not any(o.startswith("+poses=") for o in self.overrides):
+            return 0
+        given = self.asked["motion_frames"]
+        return self.settings.motion_min if given is None else int(given)
+
+    def plan_step(self) -> None:
+        """Step 3: the plan, made once (in fit.json) and followed by every later call."""
+        if self.plan is not None:
+            self.say("plan", f"skipped (made: {self.out / RECORD})")
+            for line in self.plan.lines():
+                self.say("plan", line)
+            return
+        s = self.settings
+        if self.asked["budget"] is None:
+            self.plan = as_asked(self.asked["samples"], self.asked["epochs"], s, self.motion_frames())
+        else:
+            names = ", ".join(m.name for m in s.models)
+            self.say("plan", f"timing {s.probe_drapes} drapes and {s.probe_epochs} epochs of each model ({names}) "
+                             f"before planning {budget_text(self.asked['budget'])}")
+            costs = self.probe()
+            motion = self.motion_frames() > 0
+            try:
+                self.plan = plan_fit(self.asked["budget"], costs, s, self.asked["samples"], motion)
+            except ValueError:
+                self.discard_before_drapes()
+                raise
+            if self.asked["motion_frames"] is not None:
+                self.plan.motion_frames = self.motion_frames()
+            if self.asked["epochs"] is not None:  # the epochs given, the budget planned the drapes
+                for m in self.plan.models:
+                    m.epochs, m.seconds = int(self.asked["epochs"]), None
+        if self.asked["samples"] is None:
+            self.overrides = [o for o in self.overrides if _key(o) != "data.num_samples"]
+            self.overrides.append(f"data.num_samples={self.plan.samples}")
+        for note in self.notes.values():
+            self.plan.notes.append(note)
+        self._record()
+        for line in self.plan.lines():
+            self.say("plan", line)
+
+    def probe(self) -> Costs:
+        """Time `probe.drapes` drapes (plan/probe/) and `probe.epochs` epochs of each model on them, every training
+        row served until an epoch holds `probe.rows` (plan/<model>/) and one batch of `PROBE_ROWS`
+        (plan/<model>_few/), each as the fit's own commands run them."""
+        s, probe = self.settings, self.out / "plan" / "probe"
+        data = [f"data.name={Path(self.garment).stem}_probe", f"data.dir={_value(probe)}",
+                f"data.num_samples={s.probe_drapes}"]
+        keys = {_key(o) for o in data}
+        base = [o for o in self.overrides if _key(o) not in keys]
+        t0 = time.time()
+        if not (probe / "manifest.json").is_file():
+            self.command("plan", [self.python, "-m", "pbc.generate", *base, *data,
+                                  f"hydra.run.dir={_value(self.out / 'logs' / 'probe_generate')}"], "probe_generate")
+        wall = time.time() - t0
+        manifest = read_json(probe / "manifest.json", "the probe's dataset manifest")
+        timings = read_json(probe / "timings.json", "the probe's timings")
+        counts = manifest.get("counts", {})
+        asked, kept = int(counts.get("requested", s.probe_drapes)), int(counts.get("kept", 0))
+        if (msg := empty_splits(manifest, self.out / "logs" / "probe_generate.log")) is not None:
+            self.discard_before_drapes()
+            raise ValueError(f"the plan's probe of {s.probe_drapes} drapes (conf/fit.yaml probe.drapes): {msg}")
+        # a worker's median drape over the workers sharing them: its first (which builds its model) is a step's start
+        workers = max(1, min(int(load_config(self.overrides).data.workers), asked))
+        drape_s = float(timings.get("sample_median", timings["drape_wall"] / max(asked, 1))) / workers
+        start_s = max(wall - asked * drape_s, 1.0) if wall > 0 else 30.0  # the process, the scene, the models
+        rows = len(manifest["splits"]["train"]) + len(manifest.get("mirrored") or ())
+        row_s, fixed_s, max_epochs = {}, {}, {}
+        for m in s.models:
+            cfg = load_config([*self.overrides, f"+experiment={m.experiment}"])
+            max_epochs[m.name] = int(cfg.trainer.max_epochs)
+            seconds = {}
+            # `probe.rows` training rows (the split served again and again), and one batch of PROBE_ROWS: an epoch's
+            # seconds per row and whatever its rows
+            repeats = max(1, math.ceil(s.probe_rows / max(rows, 1)))
+            for size, extra in (("all", [f"datamodule.train_repeats={repeats}"]),
+                                ("few", [f"datamodule.batch_size={PROBE_ROWS}",
+                                                      "++trainer.limit_train_batches=1"])):
+                name = m.name if size == "all" else f"{m.name}_{size}"
+                run, log = self.out / "plan" / name, self.out / "logs" / f"probe_{name}.log"
+                if not (run / "metrics.json").is_file():
+                    self.command("plan", [self.python, "-m", "pbc.train", *base, *data,
+                                          f"+experiment={m.experiment}", f"trainer.max_epochs={s.probe_epochs}",
+                                          *extra, "test=false", f"hydra.run.dir={_value(run)}"], f"probe_{name}")
+                seconds[size] = last_epoch_seconds(log.read_text())
+            row_s[m.name] = max(seconds["all"] - seconds["few"], 0.0) / max(rows * repeats - PROBE_ROWS, 1)
+            fixed_s[m.name] = max(seconds["few"] - PROBE_ROWS * row_s[m.name], 0.0)
+        self.say("plan", f"measured: {drape_s:.2f} s a drape ({kept} of {asked} kept), {start_s:.0f} s to start a "
+                         "step; an epoch: " + ", ".join(f"{k} {fixed_s[k]:.2f} s + {v * 1000:.1f} ms a training row"
+                                                        for k, v in row_s.items()))
+        mirrored = bool(load_config(self.overrides).data.get("mirror"))
+        return Costs(spent_s=time.time() - self.t0, start_s=start_s, drape_s=drape_s, kept=kept / max(asked, 1),
+                     epoch_row_s=row_s, epoch_fixed_s=fixed_s, mirror=mirrored, max_epochs=max_epochs)
+
+    # ------------------------------------------------------------------------------------------ steps 4-6
+    def finish_clock(self, line: str, later_s: float) -> str:
+        """The fit's finish time after a progress line: now, what the line says is left of its step, and the
+        planned seconds of the steps after it (`later_s`)."""
+        left = None
+        if (m := TQDM_LEFT.search(line)) is not None:
+            h, mi, se = (int(g or 0) for g in m.groups())
+            left = 3600 * h + 60 * mi + se
+        elif (m := EPOCH_LEFT.search(line)) is not None and any(m.groups()):
+            h, mi, se = (int(g or 0) for g in m.groups())
+            left = 3600 * h + 60 * mi + se
+        if left is None or self.plan is None or not self.plan.step_s:
+            return line
+        return f"{line}  (fit done about {time.strftime('%H:%M', time.localtime(time.time() + left + later_s))})"
+
+    def command(self, step: str, argv: list[str], log_name: str, later_s: float = 0.0,
+                cap_s: float | None = None) -> None:
+        """Run one step's command; its output in logs/<step>.log, its progress lines echoed with the fit's finish
+        time (`finish_clock`; what a line says is left is at most `cap_s`). A failed command is one error naming
+        the step, its own error line and the log."""
         log = self.out / "logs" / f"{log_name}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
         self.say(step, f"python {shlex.join(argv[1:])}  (log: {log})")
@@ -296,8 +497,15 @@ class Fit:
             self.here.where += f" (python -m {argv[2]}, its log: {log})"
         t0 = time.time()
         prefix = f"[fit {STEPS.index(step) + 1}/{len(STEPS)}] {step}: "
-        code, error = run_logged(argv, log, show=lambda line: (m := PROGRESS.search(line.rstrip())) and
-                                 f"{prefix}{m.group(1)}\n")
+
+        def show(line: str) -> str | None:
+            m = PROGRESS.search(line.rstrip())
+            if m is None:
+                return None
+            text = m.group(1) if cap_s is None else _capped(m.group(1), max(cap_s - (time.time() - t0), 0.0))
+            return f"{prefix}{self.finish_clock(text, later_s)}\n"
+
+        code, error = run_logged(argv, log, show=show)
         if code:
             where = f"(exit {code}); its log: {log}"
             msg = f"step {step} stopped: {error} {where}" if error else f"step {step} failed {where}"
@@ -305,11 +513,36 @@ class Fit:
         self.say(step, f"done in {duration(time.time() - t0)}")
 
     def data(self) -> None:
+        plan = self.plan
+        motion_s = plan.step_s.get("motion", 0.0) if plan else 0.0
         if (self.data_dir / "manifest.json").is_file():
             self.say("data", f"skipped (complete: {self.data_dir / 'manifest.json'})")
+        else:
+            self.command("data", [self.python, "-m", "pbc.generate", *self.overrides,
+                                  f"hydra.run.dir={_value(self.out / 'logs' / 'generate')}"], "data",
+                         later_s=motion_s + (plan.after("motion" if motion_s else "data") if plan else 0.0))
+        if not plan or not plan.motion_frames:
             return
-        self.command("data", [self.python, "-m", "pbc.generate", *self.overrides,
-                              f"hydra.run.dir={_value(self.out / 'logs' / 'generate')}"], "data")
+        if (self.motion_dir / "manifest.json").is_file():
+            self.say("data", f"skipped the held-out motion frames (complete: {self.motion_dir / 'manifest.json'})")
+            return
+        try:
+            motion = self.motion_overrides()
+            keys = {_key(o) for o in motion}
+            base = [o for o in self.overrides if _key(o) not in keys]
+            self.command("data", [self.python, "-m", "pbc.generate", *base, *motion,
+                                  f"hydra.run.dir={_value(self.out / 'logs' / 'motion')}"], "motion",
+                         later_s=plan.after("motion"))
+        except (ValueError, RuntimeError) as err:  # the score on real motion is lost, not the fit
+            self.notes["motion"] = f"no real-motion score: the held-out motion frames were not draped ({err})"
+            self.say("data", self.notes["motion"])
+
+    def motion_overrides(self) -> list[str]:
+        """The held-out motion frames' data set: only the clips held out of training (data.poses_role=held_out),
+        every pose from them, no mirrors, in motion/."""
+        return ["data.poses_role=held_out", "data.poses_sampled_fraction=0", "data.mirror=false",
+                f"data.num_samples={self.plan.motion_frames}", f"data.name={Path(self.garment).stem}_motion",
+                f"data.dir={_value(self.motion_dir)}"]
 
     def check_splits(self) -> None:
         """One line when the drapes kept leave a split empty (`empty_splits`)."""
@@ -318,23 +551,46 @@ class Fit:
             raise ValueError(msg)
 
     def whole(self) -> None:
+        """Step 5: each planned model in turn (its run dir: the model's name), resumed from its last checkpoint."""
         self.check_splits()
-        run = self.out / "whole"
-        if (run / "metrics.json").is_file() and RunRecord.read(run / "metrics.json").status == OK:
-            self.say("whole", f"skipped (trained: {run / 'metrics.json'})")
-            return
-        extra = [f"trainer.max_epochs={self.asked['epochs']}"] if self.asked["epochs"] else []
-        if (run / "checkpoints" / "last.ckpt").is_file():
-            extra.append("ckpt_path=last")  # a killed or failed training continues (pbc.train checks it is the same)
-        self.command("whole", [self.python, "-m", "pbc.train", *self.overrides, "+experiment=whole", *extra,
-                               f"hydra.run.dir={_value(run)}"], "whole")
+        models = self.plan.models
+        for k, m in enumerate(models):
+            run = self.out / m.name
+            if (run / "metrics.json").is_file() and RunRecord.read(run / "metrics.json").status == OK:
+                self.say("whole", f"skipped {m.name} (trained: {run / 'metrics.json'})")
+                continue
+            extra = [f"trainer.max_epochs={m.epochs}"]
+            if m.seconds:
+                extra.append(f"++trainer.max_time={max_time(m.seconds)}")
+            if (run / "checkpoints" / "last.ckpt").is_file():
+                extra.append("ckpt_path=last")  # a killed or failed training goes on (pbc.train checks it is the same)
+            later = sum(x.seconds or 0.0 for x in models[k + 1:])
+            self.command("whole", [self.python, "-m", "pbc.train", *self.overrides, f"+experiment={m.experiment}",
+                                   *extra, f"hydra.run.dir={_value(run)}"], m.name,
+                         later_s=later + self.plan.after("whole"), cap_s=m.seconds)
+
+    def trained(self) -> dict[str, RunRecord]:
+        """{model: its run record} of the planned models trained to the end."""
+        out = {}
+        for m in self.plan.models:
+            path = self.out / m.name / "metrics.json"
+            if path.is_file() and (rec := RunRecord.read(path)).status == OK:
+                out[m.name] = rec
+        return out
+
+    def kept(self) -> str:
+        """The trained model with the lowest validation error (its name)."""
+        trained = self.trained()
+        if not trained:
+            raise RuntimeError(f"no model of {self.out} trained to the end: see {self.out / 'logs'}")
+        return min(trained, key=lambda k: next(iter(trained[k].val_best.values()), float("inf")))
 
     def preview(self) -> None:
         out = self.out / "preview"
         if (out / "predict.json").is_file():
             self.say("preview", f"skipped (done: {out / 'predict.json'})")
             return
-        self.command("preview", [self.python, "-m", "pbc.predict", str(self.out / "whole"), "--poses", "test",
+        self.command("preview", [self.python, "-m", "pbc.predict", str(self.out / self.kept()), "--poses", "test",
                                  "--out", str(out)], "preview")
 
     # ------------------------------------------------------------------------------------------ the end
@@ -343,28 +599,75 @@ class Fit:
         o, done = self.out, STEPS[:STEPS.index(last) + 1]
         lines = [f"  {o / 'inspect'}/  report.txt (the chart table, the settings used), uv_layout.png, on_body.png",
                  f"  {o / 'cage.json'}  the automatic cage (to edit: then add garment.cage={o / 'cage.json'})"]
+        models = [m.name for m in self.plan.models] if self.plan else []
         lines += [line for step, line in (
+            ("plan", f"  {o / 'plan'}/  the probe's drapes and runs (the plan: in {RECORD})"),
             ("data", f"  {o / 'data'}/  the dataset: {kept} drapes kept of {asked}"),
-            ("whole", f"  {o / 'whole'}/  the whole-garment model (metrics.json, checkpoints/, tensorboard/)"),
-            ("preview", f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png")) if step in done]
+            ("data", f"  {o / 'motion'}/  drapes of held-out motion-capture frames (the real-motion score)"
+             if (o / "motion" / "manifest.json").is_file() else ""),
+            ("whole", "".join(f"  {o / n}/  the {n} model (metrics.json, checkpoints/, tensorboard/)\n"
+                              for n in models).rstrip("\n")),
+            ("preview", f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png")) if step in done and line]
         return [*lines, *([f"  {o / 'logs'}/  each step's full output"] if "data" in done else [])]
 
+    def scores(self) -> dict:
+        """Each trained model's vertex error (cm) on the test split and on the held-out motion frames, beside the
+        training mean shape's on the same poses; written to scores.json."""
+        from pbc.inference.predictor import ClothPredictor  # noqa: PLC0415 - torch models: only once trained
+        from pbc.inference.scores import frame_errors  # noqa: PLC0415 - the same: the scores load the models
+
+        trained, kept = self.trained(), self.kept()
+        ds = load_dataset(self.data_dir, check=False)
+        out = {"kept": kept, "test_poses": len(ds.split("test")),
+               "mean_shape": {"test_cm": mean_shape_errors(ds, ("test",))["test"]}, "models": {}}
+        motion = load_dataset(self.motion_dir, check=False) if (self.motion_dir / "manifest.json").is_file() else None
+        if motion is not None:
+            out["motion_frames"] = len(motion.poses)
+            out["motion_clips"] = sorted({c for c in (motion.manifest.get("pose_source") or {}).get("clips", [])})
+        for name, rec in trained.items():
+            row = {"epochs": rec.epochs, "seconds": rec.seconds, "val_cm": next(iter(rec.val_best.values())),
+                   "test_cm": rec.test.get("vertex_error_cm", float("nan"))}
+            if motion is not None and len(motion.poses):
+                pred = ClothPredictor.from_runs(self.out / name)
+                model_cm, mean_cm = frame_errors(pred, np.asarray(motion.poses, np.float32),
+                                                 np.asarray(motion.verts, np.float32))
+                row["motion_cm"] = float(model_cm.mean())
+                out["mean_shape"]["motion_cm"] = float(mean_cm.mean())
+            out["models"][name] = row
+        write_json(self.out / "scores.json", out)
+        return out
+
     def summary(self) -> str:
-        """Where everything is, and the test error beside the training mean shape's on the same poses."""
-        record = RunRecord.read(self.out / "whole" / "metrics.json")
-        ds = load_dataset(record.data["dir"], check=False)
-        model_cm = record.test.get("vertex_error_cm", float("nan"))
-        mean_cm = mean_shape_errors(ds, ("test",))["test"]
+        """Where everything is, and each model's error on the test poses and on the held-out motion frames beside
+        the training mean shape's on the same poses."""
+        sc = self.scores()
+        ds = load_dataset(self.data_dir, check=False)
         counts = ds.manifest.get("counts", {})
         kept, asked = counts.get("kept", len(ds.poses)), counts.get("requested", len(ds.poses))
         g = " ".join(self.overrides)  # as `$G` in a shell: word-split, never re-quoted
-        return "\n".join([
-            f"pbc garment fit: done in {duration(time.time() - self.t0)}; everything is under {self.out}",
-            *self._where(STEPS[-1], kept, asked),
-            f"test vertex error over {len(ds.split('test'))} test poses: {model_cm:.3f} cm (whole model), "
-            f"{mean_cm:.3f} cm (the training mean shape)",
-            f"the overrides of every step (patch models: python -m pbc.train $G +experiment=patches): G=\"{g}\"",
-        ])
+        best, mean = sc["models"][sc["kept"]], sc["mean_shape"]
+        table = ["models (the lower validation error is kept):",
+                 f"  {'model':<8} {'epochs':>6} {'minutes':>7} {'val cm':>7} {'test cm':>8}"
+                 + (f" {'motion cm':>9}" if "motion_cm" in mean else "")]
+        for name, r in sc["models"].items():
+            shown = name + (" *" if name == sc["kept"] else "")
+            table.append(f"  {shown:<8} {r['epochs']:>6} {r['seconds'] / 60:>7.1f} {r['val_cm']:>7.3f} "
+                         f"{r['test_cm']:>8.3f}"
+                         + (f" {r['motion_cm']:>9.3f}" if "motion_cm" in r else ""))
+        table.append(f"  {'mean shape':<8} {'':>6} {'':>7} {'':>7} {mean['test_cm']:>8.3f}"
+                     + (f" {mean['motion_cm']:>9.3f}" if "motion_cm" in mean else ""))
+        lines = [f"pbc garment fit: done in {duration(time.time() - self.t0)}; everything is under {self.out}",
+                 *self._where(STEPS[-1], kept, asked), *table,
+                 f"test vertex error over {sc['test_poses']} test poses: {best['test_cm']:.3f} cm (the {sc['kept']} "
+                 f"model, kept), {mean['test_cm']:.3f} cm (the training mean shape)"]
+        if "motion_cm" in best:
+            lines.append(f"real motion: vertex error over {sc['motion_frames']} held-out motion-capture frames: "
+                         f"{best['motion_cm']:.3f} cm ({sc['kept']}), {mean['motion_cm']:.3f} cm (the training mean "
+                         "shape)")
+        lines += [f"note: {n}" for n in self.notes.values()]
+        lines.append(f"the overrides of every step (patch models: python -m pbc.train $G +experiment=patches): "
+                     f"G=\"{g}\"")
+        return "\n".join(lines)
 
     def stopped(self) -> str:
         """The summary of a fit stopped by --until: what is there, and how to go on."""
@@ -383,8 +686,44 @@ class Fit:
         with stops.step(f"step 1/{len(STEPS)} inspect", "the same command goes on from the last finished step; "
                         "a stopped step's finished drapes or last checkpoint are kept") as self.here:
             self.inspect_and_check()
-            for step, go in (("data", self.data), ("whole", self.whole), ("preview", self.preview)):
+            for step, go in (("plan", self.plan_step), ("data", self.data), ("whole", self.whole),
+                             ("preview", self.preview)):
                 if STEPS.index(step) > STEPS.index(self.until):
                     return self.stopped()
                 go()
             return self.summary()
+
+
+def max_time(seconds: float) -> str:
+    """trainer.max_time as Lightning reads it, quoted for Hydra: ``'00:00:12:30'`` (DD:HH:MM:SS)."""
+    s = int(seconds)
+    return f"'{s // 86400:02d}:{s % 86400 // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}'"
+
+
+def _capped(line: str, cap_s: float) -> str:
+    """A training epoch line whose ETA (from its max_epochs) passes the time its run may take (trainer.max_time)
+    says that time instead."""
+    m = EPOCH_LEFT.search(line)
+    if m is None or not any(m.groups()):
+        return line
+    h, mi, se = (int(g or 0) for g in m.groups())
+    if 3600 * h + 60 * mi + se <= cap_s:
+        return line
+    return line[:m.start()] + f"ETA {duration(cap_s)} (its time cap)" + line[m.end():]
+
+
+def last_epoch_seconds(log: str) -> float:
+    """Seconds of a training log's last epoch: between the logged times of its last two epoch lines (the epoch, its
+    validation and checkpoints), else from the lines' own means (each states the mean so far: the last epoch is
+    n * mean_n - (n-1) * mean_{n-1}). ValueError when the log has no epoch line."""
+    stamped = [(time.mktime(time.strptime(m.group(1), "%Y-%m-%d %H:%M:%S")) + int(m.group(2)) / 1000)
+               for m in STAMPED_EPOCH.finditer(log)]
+    if len(stamped) >= 2:
+        return max(stamped[-1] - stamped[-2], 1e-3)
+    means = [(int(m.group(1)), float(m.group(2))) for m in EPOCH_SECONDS.finditer(log)]
+    if not means:
+        raise ValueError("the probe's training printed no epoch line: see its log under logs/")
+    if len(means) == 1:
+        return means[0][1]
+    (n0, m0), (n1, m1) = means[-2], means[-1]
+    return max(n1 * m1 - n0 * m0, 1e-3)

@@ -123,7 +123,7 @@ def tiny(line: str) -> str:
     cmd = line.split("  #", 1)[0].rstrip()
     extra = " ".join(TINY + MANNEQUIN)
     if cmd.startswith("pbc garment fit"):
-        return f"{cmd} {extra} --samples {README_SAMPLES}"
+        return f"{cmd} {extra} --samples {README_SAMPLES} --epochs 2"
     if "$G" in cmd:  # right after the overrides: `pbc cage` takes its options after them
         return cmd.replace("$G", f"$G {extra} data.num_samples={README_SAMPLES}", 1)
     return cmd
@@ -143,18 +143,27 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
     out = res.stdout
     fit = tmp_path / "runs" / "fit" / "top"
     # one line per step with its command, the progress lines with their ETA, then the summary
-    for n, step in enumerate(("inspect", "checks", "data", "whole", "preview")):
-        assert f"[fit {n + 1}/5] {step}: " in out
-    assert re.search(r"\[fit 3/5\] data: drape \(\d workers?\): 4/4 \(100%\) \[.*<", out)
-    assert re.search(r"\[fit 4/5\] whole: epoch 2/2 .* ETA 0s", out)
-    m = re.search(r"test vertex error over (\d+) test poses: ([\d.]+) cm \(whole model\), ([\d.]+) cm \(the training "
-                  r"mean shape\)", out)
-    assert m and int(m.group(1)) >= 1 and float(m.group(3)) > 0
+    for n, step in enumerate(("inspect", "checks", "plan", "data", "whole", "preview")):
+        assert f"[fit {n + 1}/6] {step}: " in out
+    assert re.search(r"\[fit 4/6\] data: drape \(\d workers?\): 4/4 \(100%\) \[.*<", out)
+    assert re.search(r"\[fit 5/6\] whole: epoch 2/2 .* ETA 0s", out)
+    m = re.search(r"test vertex error over (\d+) test poses: ([\d.]+) cm \(the (pca|whole) model, kept\), ([\d.]+) cm "
+                  r"\(the training mean shape\)", out)
+    assert m and int(m.group(1)) >= 1 and float(m.group(4)) > 0
+    # both models trained and scored, on the test poses and on the drapes of motion-capture clips held out of its data
+    scores = json.loads((fit / "scores.json").read_text())
+    assert sorted(scores["models"]) == ["pca", "whole"] and scores["kept"] == m.group(3)
+    assert scores["kept"] == min(scores["models"], key=lambda k: scores["models"][k]["val_cm"])
+    assert scores["motion_frames"] >= 1 and all(r["motion_cm"] > 0 for r in scores["models"].values())
+    assert scores["motion_clips"] and all(c.startswith(("cmu_07_", "cmu_09_03", "cmu_13_32", "cmu_16_"))
+                                          for c in scores["motion_clips"])
+    assert re.search(r"real motion: vertex error over \d+ held-out motion-capture frames: ", out)
     # the README's G is what the fit settled on (else its generate would refuse the data as made otherwise)
     rec = json.loads((fit / "fit.json").read_text())
     assert "garment.charts={default:0,default_2:1}" in rec["overrides"]
     for path in ("inspect/report.txt", "inspect/uv_layout.png", "inspect/on_body.png", "cage.json",
-                 "data/manifest.json", "whole/metrics.json", "preview/contact_sheet.png", "preview/predict.json",
+                 "data/manifest.json", "motion/manifest.json", "pca/metrics.json", "whole/metrics.json",
+                 "scores.json", "preview/contact_sheet.png", "preview/predict.json",
                  "patches/metrics.json", "stitched/predict.json"):
         assert (fit / path).is_file(), path
     assert (tmp_path / "figures" / "uv_layout.png").is_file() and (tmp_path / "patches" / "top.json").is_file()
@@ -164,8 +173,8 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
     again = subprocess.run(["bash", "-c", "set -euo pipefail\n" + tiny(fit_line)], cwd=tmp_path,
                            env=_env(tmp_path), capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-3000:]
-    for n, step in enumerate(("inspect", "checks", "data", "whole", "preview")):
-        assert re.search(rf"\[fit {n + 1}/5\] {step}: skipped \((done|complete|trained): ", again.stdout), step
+    for n, step in enumerate(("inspect", "checks", "plan", "data", "whole", "preview")):
+        assert re.search(rf"\[fit {n + 1}/6\] {step}: skipped (\w+ )?\((done|complete|trained|made): ", again.stdout), step
     assert "drape (" not in again.stdout and "epoch " not in again.stdout
     assert m.group(0) in again.stdout
     # asked otherwise, the same out dir is refused, naming what differs
@@ -218,7 +227,7 @@ def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
     # the OBJ is fitted to the end; the clothes, placed by their binding, as far as their drapes (`--until data`)
     until = [] if fmt == "obj" else ["--until", "data"]
     res = subprocess.run(["pbc", "garment", "fit", *garment, "body=anny", *TINY,
-                          "--samples", SKIRT_SAMPLES, *until], cwd=tmp_path, env=_env(tmp_path), capture_output=True,
+                          "--samples", SKIRT_SAMPLES, "--epochs", "2", *until], cwd=tmp_path, env=_env(tmp_path), capture_output=True,
                          text=True, timeout=600)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     # placed below the waist on a body with legs: the legs' data set and no arm colliders, chosen by the fit

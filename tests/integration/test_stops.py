@@ -60,7 +60,7 @@ def stopped_fit(tmp_path_factory):
     (root / "shirt.obj").write_text(outfit_obj(0.0, trousers=False, garment="tshirt_coarse"))
     out = root / "fit"
     argv = ["pbc", "garment", "fit", "shirt.obj", "garment.position_unit=dm", *TINY, "--samples", "4",
-            "--out", str(out)]
+            "--epochs", "2", "--out", str(out)]
     proc = subprocess.Popen(argv, cwd=root, env=_env(root), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     seen = _stop_when(proc, lambda cmds: _drape_workers(cmds) >= 2, signal.SIGTERM)
@@ -75,7 +75,7 @@ def test_sigterm_stops_a_garment_fit_with_its_generate_and_drape_workers(stopped
     assert any("pbc.generate" in c for c in seen.values()) and _drape_workers(list(seen.values())) >= 2, seen
     assert not [p for p in seen if alive(p)], "processes outlived their stopped fit"
     line = res.stderr.strip().splitlines()[-1]
-    assert line.startswith("pbc garment: stopped by SIGTERM in step 3/5 data (python -m pbc.generate, its log: "), line
+    assert line.startswith("pbc garment: stopped by SIGTERM in step 4/6 data (python -m pbc.generate, its log: "), line
     assert f"to continue: pbc garment fit shirt.obj garment.position_unit=dm {' '.join(TINY)} --samples 4 --out {out}" \
         in line
     # the generate child stopped the same way, its workers with it, and said so in its log
@@ -98,9 +98,9 @@ def test_sigint_to_the_command_that_continues_it_stops_it_again_in_its_step(stop
     seen = _stop_when(proc, lambda cmds: any("pbc.generate" in c for c in cmds), signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr[-3000:]
-    assert "[fit 1/5] inspect: skipped (done: " in stdout and "[fit 2/5] checks: skipped (done: " in stdout
+    assert "[fit 1/6] inspect: skipped (done: " in stdout and "[fit 2/6] checks: skipped (done: " in stdout
     line = stderr.strip().splitlines()[-1]
-    assert line.startswith("pbc garment: stopped by SIGINT in step 3/5 data (python -m pbc.generate"), line
+    assert line.startswith("pbc garment: stopped by SIGINT in step 4/6 data (python -m pbc.generate"), line
     assert f"to continue: {shlex.join(again)} (" in line
     assert not [p for p in seen if alive(p)], "processes outlived their interrupted fit"
     assert not (out / "data" / "manifest.json").exists()

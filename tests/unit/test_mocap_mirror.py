@@ -119,6 +119,26 @@ def test_poses_from_a_folder_of_clips_mixed_with_the_sampler_record_their_clip_a
     assert any("clip1.bvh" in line for line in held)
 
 
+def test_the_held_out_role_reads_only_the_clips_held_out_of_training(tmp_path, no_drape):
+    clips = write_clips(tmp_path / "mocap", 7, 9)
+    held = make(tmp_path, f"data.poses={clips}", "data.num_samples=4", "data.poses_holdout=[clip1*]",
+                "data.poses_role=held_out")
+    assert held.manifest["pose_source"]["clips"] == ["clip1.bvh"]
+    assert set(held.manifest["pose_source"]["clip"]) == {0} and list(held.manifest["pose_source"]["files"]) == [
+        "clip1.bvh"]
+    # the same command again finds its finished data the same (the manifest's rows beside the fingerprint's keys)
+    again = make(tmp_path, f"data.poses={clips}", "data.num_samples=4", "data.poses_holdout=[clip1*]",
+                 "data.poses_role=held_out")
+    assert np.array_equal(again.poses, held.poses)
+    # the training role of the same settings reads the other clip only
+    train = gen.fingerprint(tiny_cfg(tmp_path, f"data.poses={clips}", "data.poses_holdout=[clip1*]"), no_drape)
+    assert list(train["pose_source"]["files"]) == ["clip0.bvh"]
+    for role, holdout, msg in (("held_out", "[nothing*]", "holds out no clip"), ("test", "[clip1*]", "one of train")):
+        with pytest.raises(ValueError, match=msg):
+            gen.fingerprint(tiny_cfg(tmp_path, f"data.poses={clips}", f"data.poses_holdout={holdout}",
+                                     f"data.poses_role={role}"), no_drape)
+
+
 def test_default_keys_keep_the_fingerprint_and_clips_enter_it(tmp_path, no_drape):
     """data.poses null and data.mirror false: the fingerprint has no key of theirs (existing datasets keep
     theirs); a clip, the mirror or a sampler mode each adds one."""

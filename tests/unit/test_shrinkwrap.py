@@ -12,8 +12,18 @@ from omegaconf import OmegaConf
 from pbc.core.config import load_garment_config
 from pbc.geometry.body.base import body_sdf
 from pbc.geometry.body.mannequin import build_mannequin
+from pbc.geometry.garment.base import Garment
 from pbc.geometry.garment.tshirt import make_tshirt
-from pbc.geometry.shrinkwrap import embed_points, embedded_points, garment_regions, vertex_parts, wrap_positions
+from pbc.geometry.meshops import face_areas
+from pbc.geometry.shrinkwrap import (
+    embed_points,
+    embedded_points,
+    garment_regions,
+    relax_on_surface,
+    vertex_parts,
+    vertex_stretch,
+    wrap_positions,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 COARSE_VOXEL = 0.025  # a coarse body mesh keeps the test in seconds
@@ -80,3 +90,54 @@ def test_parts_follow_the_sleeves(wrapped):
     x = garment.vertices[:, 0].numpy()
     assert (x[part == 1] > 0).all() and (x[part == 2] < 0).all()
     assert np.isin(part, [0, 1, 2]).all()
+
+
+class _Plane:
+    """A flat body surface, z = 0: `relax_on_surface` projects onto it."""
+
+    def closest_in_regions(self, points, region):
+        p = np.array(points, np.float64)
+        p[:, 2] = 0.0
+        return p, np.zeros(len(p), np.int64)
+
+
+def _squeezed_grid(squeeze: float, n: int = 8, h: float = 0.01):
+    """A flat n x n grid of h-m squares in z = 0 whose pattern is the same grid with its middle row of squares
+    ``squeeze`` x shorter (a sliver of UV, as a MakeHuman crotch or seam strip): (garment, vertices, faces)."""
+    ys = np.arange(n) * h
+    uy = np.where(np.arange(n) >= n // 2, ys - (h - h / squeeze), ys)
+    x, y = np.meshgrid(np.arange(n) * h, ys)
+    _, v = np.meshgrid(np.arange(n) * h, uy)
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], 1)
+    uv = torch.tensor(np.stack([x.ravel(), v.ravel()], 1), dtype=torch.float32)
+    k = np.arange(n * n).reshape(n, n)
+    a, b, c, d = k[:-1, :-1].ravel(), k[:-1, 1:].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    f = torch.tensor(faces)
+    garment = Garment(torch.tensor(vertices, dtype=torch.float32), f, uv, f, torch.zeros(len(faces), dtype=torch.long),
+                      uv, torch.zeros(n * n, dtype=torch.long), 1.0)
+    return garment, vertices, faces
+
+
+def test_vertex_stretch_weighs_each_edge_by_its_rest_length():
+    edges = np.array([[0, 1], [0, 2], [0, 3]])
+    rest = np.array([0.001, 0.01, 0.01])
+    length = np.array([0.02, 0.01, 0.01])  # the short edge 20x its rest, the others at theirs
+    alpha = vertex_stretch(edges, length, rest, 5)
+    assert alpha[0] == pytest.approx(0.04 / 0.021)  # total length over total rest, not the ratios' mean (7.7)
+    assert alpha[1] == pytest.approx(20.0) and alpha[2] == alpha[3] == pytest.approx(1.0)
+    assert alpha[4] == 1.0  # no edge
+
+
+def test_relaxation_is_stable_on_a_pattern_with_a_squeezed_strip():
+    # a strip of pattern 20x shorter than its cloth among squares at their size: the relaxation spreads its
+    # stretch and the garment keeps about its size (the plain mean of the edges' ratios feeds the short edges'
+    # stretch back through their neighbours' targets: the grid grows to a million times its area)
+    garment, x0, faces = _squeezed_grid(20.0)
+    pattern = garment.pattern().double().numpy().reshape(-1, 2)
+    pattern_area = face_areas(pattern, np.arange(len(pattern)).reshape(-1, 3)).sum()
+    given = face_areas(x0, faces).sum() / pattern_area
+    x, _ = relax_on_surface(garment, x0, _Plane(), 60, 0.5, 1e-9)
+    assert np.isfinite(x).all()
+    assert face_areas(x, faces).sum() / pattern_area < 1.2 * given
+    assert (np.ptp(x[:, :2], 0) < 1.2 * np.ptp(x0[:, :2], 0)).all()
