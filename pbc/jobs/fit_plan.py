@@ -185,7 +185,7 @@ class Plan:
         for step, what in (("data", f"{self.samples} drapes of training poses"),
                            ("motion", f"{self.motion_frames} drapes of held-out motion-capture frames (the real-motion "
                                       "score)"),
-                           ("whole", "; ".join(f"{m.name} ({m.experiment}): {m.epochs} epochs" +
+                           ("models", "; ".join(f"{m.name} ({m.experiment}): {m.epochs} epochs" +
                                                (f" within {duration(m.seconds)}" if m.seconds else "")
                                                for m in self.models)),
                            ("preview", "meshes of the test poses and the scores")):
@@ -291,7 +291,7 @@ def plan_fit(budget_s: float, costs: Costs, settings: FitSettings, samples: int 
     step_s = {"data": costs.start_s + n * costs.drape_s}
     if frames:
         step_s["motion"] = costs.start_s + frames * costs.drape_s
-    step_s["whole"] = _used(costs, n, 0, models) - n * costs.drape_s + costs.start_s * len(models)
+    step_s["models"] = _used(costs, n, 0, models) - n * costs.drape_s + costs.start_s * len(models)
     step_s["preview"] = costs.start_s + settings.preview_s
     return Plan(budget_s, n, frames, models, step_s, out, costs=asdict(costs))
 
@@ -313,6 +313,26 @@ def smallest_budget(costs: Costs, settings: FitSettings, samples: int | None = N
     need = costs.spent_s + settings.preview_s + starts + (n + frames) * costs.drape_s + cheapest
     # the drape share of the time left decides n above samples.min: the smallest budget keeps n at the minimum
     return need / (1 - settings.margin) + 1.0
+
+
+def replan_training(plan: Plan, settings: FitSettings, kept: int, seconds_left: float) -> bool:
+    """After the drapes: the models' epochs and minutes again, for the `kept` drapes made and the `seconds_left` of
+    the budget (less the margin), when that trains more than the plan did (the drapes took less time than timed,
+    or fewer were kept). Updates `plan` in place; whether it changed."""
+    if plan.costs is None or plan.budget_s is None:
+        return False
+    costs = Costs(**plan.costs)
+    starts = costs.start_s * (len(settings.models) + 1)
+    left = seconds_left - settings.preview_s - starts
+    asked = max(settings.samples_min, int(round(kept / max(costs.kept, 1e-6))))  # the rows of the kept drapes
+    models, out = _train(costs, settings, asked, left)
+    planned = {m.name: m.seconds or 0.0 for m in plan.models}
+    if not models or ({m.name for m in models} <= set(planned) and sum(m.seconds for m in models) <= sum(
+            planned.values()) + 1.0):
+        return False
+    plan.models, plan.left_out = models, out
+    plan.step_s["models"] = _used(costs, asked, 0, models) - asked * costs.drape_s + costs.start_s * len(models)
+    return True
 
 
 def as_asked(samples: int, epochs: int, settings: FitSettings, motion_frames: int) -> Plan:

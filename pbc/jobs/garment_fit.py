@@ -14,7 +14,7 @@ resumes where the first stopped:
               drapes, the held-out motion frames, each model's epochs and minutes, the finish time -> fit.json
   4. data     python -m pbc.generate with the garment overrides and the plan's data.num_samples -> data/, and the
               drapes of motion-capture clips held out of training (data.poses_role=held_out) -> motion/
-  5. whole    python -m pbc.train for each planned model (conf/fit.yaml `models`: the PCA net -> pca/, the CNN
+  5. models   python -m pbc.train for each planned model (conf/fit.yaml `models`: the PCA net -> pca/, the CNN
               under L2 -> whole/), each to early stopping within its minutes; the lower validation error is kept
   6. preview  python -m pbc.predict <kept model> --poses test -> preview/ (meshes, contact sheet)
 
@@ -61,11 +61,11 @@ from pbc.geometry.garment.placement import hem, openings
 from pbc.geometry.inspect import format_report, inspect_garment, made_on_override, save_body_picture, save_uv_picture
 from pbc.geometry.meshio import obj_mesh_text
 from pbc.geometry.shrinkwrap import shrinkwrap
-from pbc.jobs.fit_plan import Costs, Plan, as_asked, budget_text, fit_settings, parse_budget, plan_fit
+from pbc.jobs.fit_plan import Costs, Plan, as_asked, budget_text, fit_settings, parse_budget, plan_fit, replan_training
 from pbc.jobs.sweeps import run_logged
 from pbc.models.progress import duration
 
-STEPS = ("inspect", "checks", "plan", "data", "whole", "preview")
+STEPS = ("inspect", "checks", "plan", "data", "models", "preview")
 RECORD = "fit.json"
 # what a second call must be asked the same as the first to resume it
 ASKED = ("garment", "sha256", "overrides", "samples", "epochs", "budget", "motion_frames")
@@ -550,14 +550,27 @@ class Fit:
         if (msg := empty_splits(manifest, self.out / "logs" / "data.log")) is not None:
             raise ValueError(msg)
 
-    def whole(self) -> None:
-        """Step 5: each planned model in turn (its run dir: the model's name), resumed from its last checkpoint."""
+    def models(self) -> None:
+        """Step 5: each planned model in turn (its run dir: the model's name), resumed from its last checkpoint; the
+        plan's training first made again for the time left when no model has started (`replan_training`)."""
         self.check_splits()
+        started = any((self.out / m.name).exists() for m in self.plan.models)
+        if self.asked["budget"] is not None and self.asked["epochs"] is None and not started:
+            kept = int(read_json(self.data_dir / "manifest.json", "dataset manifest")["counts"]["kept"])
+            spent = float(self.plan.costs["spent_s"]) + time.time() - self.plan.made_at
+            left = self.asked["budget"] * (1 - self.settings.margin) - spent
+            if replan_training(self.plan, self.settings, kept, left):
+                self._record()
+                self.say("models", f"the drapes took {duration(time.time() - self.plan.made_at)}: "
+                                   f"{duration(max(left, 0))} of the budget left, the training planned again:")
+                for line in self.plan.lines()[1:]:
+                    if line.lstrip().startswith(("models:", "left out:", "done about")):
+                        self.say("models", line)
         models = self.plan.models
         for k, m in enumerate(models):
             run = self.out / m.name
             if (run / "metrics.json").is_file() and RunRecord.read(run / "metrics.json").status == OK:
-                self.say("whole", f"skipped {m.name} (trained: {run / 'metrics.json'})")
+                self.say("models", f"skipped {m.name} (trained: {run / 'metrics.json'})")
                 continue
             extra = [f"trainer.max_epochs={m.epochs}"]
             if m.seconds:
@@ -565,9 +578,9 @@ class Fit:
             if (run / "checkpoints" / "last.ckpt").is_file():
                 extra.append("ckpt_path=last")  # a killed or failed training goes on (pbc.train checks it is the same)
             later = sum(x.seconds or 0.0 for x in models[k + 1:])
-            self.command("whole", [self.python, "-m", "pbc.train", *self.overrides, f"+experiment={m.experiment}",
+            self.command("models", [self.python, "-m", "pbc.train", *self.overrides, f"+experiment={m.experiment}",
                                    *extra, f"hydra.run.dir={_value(run)}"], m.name,
-                         later_s=later + self.plan.after("whole"), cap_s=m.seconds)
+                         later_s=later + self.plan.after("models"), cap_s=m.seconds)
 
     def trained(self) -> dict[str, RunRecord]:
         """{model: its run record} of the planned models trained to the end."""
@@ -605,7 +618,7 @@ class Fit:
             ("data", f"  {o / 'data'}/  the dataset: {kept} drapes kept of {asked}"),
             ("data", f"  {o / 'motion'}/  drapes of held-out motion-capture frames (the real-motion score)"
              if (o / "motion" / "manifest.json").is_file() else ""),
-            ("whole", "".join(f"  {o / n}/  the {n} model (metrics.json, checkpoints/, tensorboard/)\n"
+            ("models", "".join(f"  {o / n}/  the {n} model (metrics.json, checkpoints/, tensorboard/)\n"
                               for n in models).rstrip("\n")),
             ("preview", f"  {o / 'preview'}/  meshes of the test poses, contact_sheet.png")) if step in done and line]
         return [*lines, *([f"  {o / 'logs'}/  each step's full output"] if "data" in done else [])]
@@ -686,7 +699,7 @@ class Fit:
         with stops.step(f"step 1/{len(STEPS)} inspect", "the same command goes on from the last finished step; "
                         "a stopped step's finished drapes or last checkpoint are kept") as self.here:
             self.inspect_and_check()
-            for step, go in (("plan", self.plan_step), ("data", self.data), ("whole", self.whole),
+            for step, go in (("plan", self.plan_step), ("data", self.data), ("models", self.models),
                              ("preview", self.preview)):
                 if STEPS.index(step) > STEPS.index(self.until):
                     return self.stopped()

@@ -143,10 +143,10 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
     out = res.stdout
     fit = tmp_path / "runs" / "fit" / "top"
     # one line per step with its command, the progress lines with their ETA, then the summary
-    for n, step in enumerate(("inspect", "checks", "plan", "data", "whole", "preview")):
+    for n, step in enumerate(("inspect", "checks", "plan", "data", "models", "preview")):
         assert f"[fit {n + 1}/6] {step}: " in out
     assert re.search(r"\[fit 4/6\] data: drape \(\d workers?\): 4/4 \(100%\) \[.*<", out)
-    assert re.search(r"\[fit 5/6\] whole: epoch 2/2 .* ETA 0s", out)
+    assert re.search(r"\[fit 5/6\] models: epoch 2/2 .* ETA 0s", out)
     m = re.search(r"test vertex error over (\d+) test poses: ([\d.]+) cm \(the (pca|whole) model, kept\), ([\d.]+) cm "
                   r"\(the training mean shape\)", out)
     assert m and int(m.group(1)) >= 1 and float(m.group(4)) > 0
@@ -173,7 +173,7 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
     again = subprocess.run(["bash", "-c", "set -euo pipefail\n" + tiny(fit_line)], cwd=tmp_path,
                            env=_env(tmp_path), capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-3000:]
-    for n, step in enumerate(("inspect", "checks", "plan", "data", "whole", "preview")):
+    for n, step in enumerate(("inspect", "checks", "plan", "data", "models", "preview")):
         assert re.search(rf"\[fit {n + 1}/6\] {step}: skipped (\w+ )?\((done|complete|trained|made): ", again.stdout), step
     assert "drape (" not in again.stdout and "epoch " not in again.stdout
     assert m.group(0) in again.stdout

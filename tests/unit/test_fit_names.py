@@ -52,5 +52,5 @@ def test_a_fit_stopped_by_until_lists_only_what_its_steps_made(tmp_path):
     (out / "data" / "manifest.json").write_text('{"counts": {"kept": 5, "requested": 6}}')
     said = Fit(shirt, [], out, until="data").stopped()
     assert "the dataset: 5 drapes kept of 6" in said and str(out / "logs") in said and "whole-garment" not in said
-    with pytest.raises(ValueError, match=r"--until inspect: one of checks, plan, data, whole, preview"):
+    with pytest.raises(ValueError, match=r"--until inspect: one of checks, plan, data, models, preview"):
         Fit(shirt, [], out, until="inspect")

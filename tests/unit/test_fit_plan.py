@@ -64,7 +64,7 @@ def test_fixed_drapes_keep_their_count_and_the_text_names_each_step():
     plan = plan_fit(3600, costs(), fit_settings(), samples=200)
     assert plan.samples == 200
     text = "\n".join(plan.lines())
-    for step in ("data: 200 drapes", "motion: ", "whole: pca (fit_pca)", "preview: ", "done about"):
+    for step in ("data: 200 drapes", "motion: ", "models: pca (fit_pca)", "preview: ", "done about"):
         assert step in text
     assert "motion" not in "\n".join(plan_fit(3600, costs(), fit_settings(), motion=False).lines())
 
@@ -114,3 +114,41 @@ def test_the_settings_are_held_to_their_bounds(tmp_path):
     with pytest.raises(ValueError, match="probe.drapes"):
         fit_settings.__wrapped__(bad)
     assert dataclasses.is_dataclass(fit_settings())
+
+
+def test_a_refused_plan_removes_what_the_fit_wrote_before_its_drapes_and_never_a_drape(tmp_path):
+    garment = tmp_path / "g.obj"
+    garment.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    out = tmp_path / "fit"
+    for d in ("inspect", "plan/probe", "logs"):
+        (out / d).mkdir(parents=True)
+        (out / d / "x.txt").write_text("x")
+    (out / "cage.json").write_text("{}")
+    (out / "fit.json").write_text("{}")
+    fit = Fit(garment, [], out)
+    fit.discard_before_drapes()
+    assert not out.exists()
+    # a fit holding drapes keeps everything
+    (out / "data" / "work" / "samples").mkdir(parents=True)
+    (out / "data" / "work" / "samples" / "000000.npz").write_bytes(b"a drape")
+    (out / "fit.json").write_text("{}")
+    fit.discard_before_drapes()
+    assert (out / "fit.json").is_file() and (out / "data" / "work" / "samples" / "000000.npz").is_file()
+
+
+def test_time_the_drapes_did_not_take_goes_to_the_training():
+    from pbc.jobs.fit_plan import replan_training
+
+    s = fit_settings()
+    plan = plan_fit(900, costs(), s)
+    assert [m.name for m in plan.models] == ["pca"] and "whole" in plan.left_out
+    before = [(m.name, m.seconds) for m in plan.models]
+    # as planned: nothing changes
+    planned_left = 900 * (1 - s.margin) - costs().spent_s - plan.step_s["data"] - plan.step_s["motion"]
+    assert not replan_training(plan, s, int(plan.samples * costs().kept), planned_left)
+    assert [(m.name, m.seconds) for m in plan.models] == before
+    # the drapes took a minute: the CNN's 10 epochs fit now, beside the PCA net, within what is left
+    left = 900 * (1 - s.margin) - costs().spent_s - 60
+    assert replan_training(plan, s, int(plan.samples * costs().kept), left)
+    assert sorted(m.name for m in plan.models) == ["pca", "whole"] and not plan.left_out
+    assert sum(m.seconds for m in plan.models) <= left
