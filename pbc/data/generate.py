@@ -650,7 +650,7 @@ def _generate(cfg: DictConfig) -> Path:
     if data.shard is not None:
         return out
     merge(out, poses, angles, fp, wrap_stats, pose_stats, scene, timings, batch=k, num_shards=n_shards,
-          sources=sources, mirror=mirror)
+          sources=sources, mirror=mirror, workers=max(1, int(data.workers or 1)))
     return out
 
 
@@ -784,7 +784,8 @@ def missing_shards(work: Path, num_poses: int, batch: int = 1, num_shards: int =
 
 
 def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict, scene: Scene, timings,
-          batch: int = 1, num_shards: int = 1, sources: dict | None = None, mirror: MirrorMap | None = None) -> None:
+          batch: int = 1, num_shards: int = 1, sources: dict | None = None, mirror: MirrorMap | None = None,
+          workers: int = 1) -> None:
     """Collect all sample files into the final arrays and write the manifest last.
 
     `sources` (data.poses): each generation pose's clip and frame, recorded per kept sample (`pose_source`).
@@ -862,9 +863,11 @@ def merge(out: Path, poses, angles, fp: dict, wrap_stats: dict, pose_stats: dict
         # of the kept samples: max vertex speed at the end of the drape, m/s
         drape_residual={"mean": float(np.mean(residuals)), "max": float(np.max(residuals))},
     )
-    # the median drape of one worker: its model's build on its first drape left out (pbc garment fit's plan)
+    # a worker's mean drape, the slowest `workers` left out (each worker's first builds its model): pbc garment
+    # fit's plan
+    warm = np.sort(per_sample)[:max(1, len(per_sample) - workers)]
     timings = dict(timings, **timed, **{f"{k}_cpu_total": v for k, v in stage.items()},
-                   sample_median=float(np.median(per_sample)))
+                   sample_warm_mean=float(warm.mean()))
     arrays = {"poses.npy": poses[kept], "verts.npy": verts, "angles.npy": angles[kept].astype(np.float32)}
     if _shapes(scene) is not None:  # each kept sample's person (data.body_shape)
         arrays["person.npy"] = np.array([person_of(i, scene.shapes) for i in kept], np.int64)

@@ -438,9 +438,9 @@ class Fit:
         if (msg := empty_splits(manifest, self.out / "logs" / "probe_generate.log")) is not None:
             self.discard_before_drapes()
             raise ValueError(f"the plan's probe of {s.probe_drapes} drapes (conf/fit.yaml probe.drapes): {msg}")
-        # a worker's median drape over the workers sharing them: its first (which builds its model) is a step's start
+        # a worker's mean drape over the workers sharing them: its first (which builds its model) is a step's start
         workers = max(1, min(int(load_config(self.overrides).data.workers), asked))
-        drape_s = float(timings.get("sample_median", timings["drape_wall"] / max(asked, 1))) / workers
+        drape_s = float(timings.get("sample_warm_mean", timings["drape_wall"] / max(asked, 1))) / workers
         start_s = max(wall - asked * drape_s, 1.0) if wall > 0 else 30.0  # the process, the scene, the models
         rows = len(manifest["splits"]["train"]) + len(manifest.get("mirrored") or ())
         row_s, fixed_s, max_epochs = {}, {}, {}
