@@ -653,7 +653,7 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     x = surface.closest_in_regions(x, region)[0]
     before = area_ratio(garment, x)
     # (c) relaxation on the surface
-    # a config recorded without the key (the shipped models' data) was wrapped with the plain mean
+    # a config recorded without the key (the shipped models' data) is wrapped with the plain mean, as its data is
     x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
                                 float(sw.relax_tol), region, str(sw.get("relax_stretch", "mean")))
     if layered.any():

@@ -159,7 +159,7 @@ class ModelPlan:
 @dataclass
 class Plan:
     """What the fit will do: drapes asked, held-out motion frames asked, the models, the seconds of each step,
-    and what was left out (a model: why, and the budget that would train it)."""
+    and what is left out (a model: why, and the budget that would train it)."""
     budget_s: float | None
     samples: int
     motion_frames: int
@@ -178,7 +178,7 @@ class Plan:
         return cls(**{**d, "models": [ModelPlan(**m) for m in d["models"]]})
 
     def lines(self) -> list[str]:
-        """The plan as a user reads it: one line per step with its minutes, the finish time, what was left out."""
+        """The plan as a user reads it: one line per step with its minutes, the finish time, what is left out."""
         out = [f"budget {budget_text(self.budget_s)}" if self.budget_s else
                "as asked (--samples and --epochs): no budget"]
         t = self.made_at
