@@ -544,8 +544,9 @@ def _check_or_write_fingerprint(out: Path, fp: dict, cfg: DictConfig) -> None:
         if existing.is_file():
             record = read_json(existing, "dataset metadata")
             # a manifest's pose_source holds each row's clip and frame beside the fingerprint's keys
-            old = {k: ({kk: record[k].get(kk) for kk in fp[k]} if isinstance(fp[k], dict)
-                       and isinstance(record.get(k), dict) else record.get(k)) for k in fp}
+            old = {k: record.get(k) for k in fp}
+            if isinstance(old.get("pose_source"), dict):
+                old["pose_source"] = {k: old["pose_source"].get(k) for k in fp["pose_source"]}
             if old != fp:
                 raise ValueError(other_settings_message(cfg, out, record, sorted(k for k in fp if old[k] != fp[k])))
             return

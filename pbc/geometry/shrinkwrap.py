@@ -14,6 +14,7 @@ surface is nearer (the inner sleeve of an A-posed body hangs a few centimetres f
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 
@@ -52,6 +53,8 @@ from pbc.geometry.meshops import (
     segment_hits,
     solve_dirichlet,
 )
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -561,7 +564,28 @@ def vertex_stretch(edges: np.ndarray, length: np.ndarray, rest: np.ndarray, n: i
     return np.where(total_rest > 0, total / np.where(total_rest > 0, total_rest, 1.0), 1.0)
 
 
-RELAX_STRETCH = ("rest_weighted", "mean")
+RELAX_STRETCH = ("rest_weighted", "mean")  # and "auto" (`shrinkwrap`): the mean, rest_weighted where it runs away
+
+
+def relax_as_configured(garment: Garment, x: np.ndarray, surface, sw, region: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, int, str]:
+    """`relax_on_surface` under ``sw`` (garment.shrinkwrap): its relax_stretch rule, or for ``auto`` the mean, run
+    again rest-weighted where the mean grows the garment past ``relax_runaway`` x its area at x. A config recorded
+    without the key (the shipped models' data) is relaxed with the mean, as its data is. -> (x, steps, the rule)."""
+    rule = str(sw.get("relax_stretch", "mean"))
+    args = (int(sw.relax_iterations), float(sw.relax_step), float(sw.relax_tol), region)
+    first = "mean" if rule == "auto" else rule
+    relaxed, steps = relax_on_surface(garment, x, surface, *args, first)
+    if rule != "auto":
+        return relaxed, steps, rule
+    grew = float(area_ratio(garment, relaxed).sum() / max(area_ratio(garment, x).sum(), 1e-12))
+    if grew <= float(sw.relax_runaway):
+        return relaxed, steps, first
+    log.info("the shrink-wrap's relaxation grew the garment %.1fx its area on the body (garment.shrinkwrap."
+             "relax_runaway %.1f): relaxed again with each vertex's stretch weighted by rest length", grew,
+             float(sw.relax_runaway))
+    relaxed, steps = relax_on_surface(garment, x, surface, *args, "rest_weighted")
+    return relaxed, steps, "rest_weighted"
 
 
 def relax_on_surface(garment: Garment, x: np.ndarray, surface: _RestSurface, iterations: int, step: float,
@@ -653,9 +677,7 @@ def wrap_with_regions(garment: Garment, cage, body: Body, cfg) -> tuple[np.ndarr
     x = surface.closest_in_regions(x, region)[0]
     before = area_ratio(garment, x)
     # (c) relaxation on the surface
-    # a config recorded without the key (the shipped models' data) is wrapped with the plain mean, as its data is
-    x, iters = relax_on_surface(garment, x, surface, int(sw.relax_iterations), float(sw.relax_step),
-                                float(sw.relax_tol), region, str(sw.get("relax_stretch", "mean")))
+    x, iters, _ = relax_as_configured(garment, x, surface, sw, region)
     if layered.any():
         x = place_layers(x, faces, under, under_bary, np.maximum(gap, float(sw.layer_min_gap)), surface)
     after = area_ratio(garment, x)

@@ -174,7 +174,8 @@ def test_the_readme_commands_run_as_printed_and_a_second_fit_skips_every_step(tm
                            env=_env(tmp_path), capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-3000:]
     for n, step in enumerate(("inspect", "checks", "plan", "data", "models", "preview")):
-        assert re.search(rf"\[fit {n + 1}/6\] {step}: skipped (\w+ )?\((done|complete|trained|made): ", again.stdout), step
+        skipped = rf"\[fit {n + 1}/6\] {step}: skipped (\w+ )?\((done|complete|trained|made): "
+        assert re.search(skipped, again.stdout), step
     assert "drape (" not in again.stdout and "epoch " not in again.stdout
     assert m.group(0) in again.stdout
     # asked otherwise, the same out dir is refused, naming what differs
@@ -227,8 +228,8 @@ def test_a_skirt_on_anny_is_fitted_with_the_legs_posed(tmp_path, fmt):
     # the OBJ is fitted to the end; the clothes, placed by their binding, as far as their drapes (`--until data`)
     until = [] if fmt == "obj" else ["--until", "data"]
     res = subprocess.run(["pbc", "garment", "fit", *garment, "body=anny", *TINY,
-                          "--samples", SKIRT_SAMPLES, "--epochs", "2", *until], cwd=tmp_path, env=_env(tmp_path), capture_output=True,
-                         text=True, timeout=600)
+                          "--samples", SKIRT_SAMPLES, "--epochs", "2", *until], cwd=tmp_path, env=_env(tmp_path),
+                         capture_output=True, text=True, timeout=600)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     # placed below the waist on a body with legs: the legs' data set and no arm colliders, chosen by the fit
     assert "used by pbc garment fit: garment.charts={default:0} data=skirt_small ++garment.shrinkwrap.arm_parts=false" \

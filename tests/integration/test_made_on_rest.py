@@ -154,7 +154,8 @@ def test_a_tee_made_on_t_posed_anny_fits_a_posed_anny_through_the_commands(tmp_p
     out = tmp_path / "fit"
     env = dict(os.environ, PBC_ROOT=str(tmp_path), PBC_WARP_CACHE=str(ROOT / ".cache" / "warp"),
                PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
-    res = subprocess.run(["pbc", "garment", "fit", str(tee), "body=anny", *TINY, "--samples", "3", "--epochs", "1", "--until", "data",
+    res = subprocess.run(["pbc", "garment", "fit", str(tee), "body=anny", *TINY, "--samples", "3", "--epochs", "1",
+                          "--until", "data",
                           "--out", str(out)], env=env, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, (res.stdout[-3000:], res.stderr[-3000:])
     assert "garment.made_on_rest={arm_angle_deg:" in (out / "inspect" / "report.txt").read_text()

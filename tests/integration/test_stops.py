@@ -76,8 +76,8 @@ def test_sigterm_stops_a_garment_fit_with_its_generate_and_drape_workers(stopped
     assert not [p for p in seen if alive(p)], "processes outlived their stopped fit"
     line = res.stderr.strip().splitlines()[-1]
     assert line.startswith("pbc garment: stopped by SIGTERM in step 4/6 data (python -m pbc.generate, its log: "), line
-    assert f"to continue: pbc garment fit shirt.obj garment.position_unit=dm {' '.join(TINY)} --samples 4 --out {out}" \
-        in line
+    asked = f"--samples 4 --epochs 2 --out {out}"
+    assert f"to continue: pbc garment fit shirt.obj garment.position_unit=dm {' '.join(TINY)} {asked}" in line
     # the generate child stopped the same way, its workers with it, and said so in its log
     log = (out / "logs" / "data.log").read_text().strip().splitlines()
     assert log[-1].startswith("pbc generate: stopped by SIGTERM in the drapes ("), log[-1]

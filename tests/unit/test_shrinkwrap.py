@@ -141,3 +141,21 @@ def test_relaxation_is_stable_on_a_pattern_with_a_squeezed_strip():
     assert np.isfinite(x).all()
     assert face_areas(x, faces).sum() / pattern_area < 1.2 * given
     assert (np.ptp(x[:, :2], 0) < 1.2 * np.ptp(x0[:, :2], 0)).all()
+
+
+def test_auto_relaxes_with_the_mean_and_again_rest_weighted_where_the_mean_runs_away():
+    from omegaconf import OmegaConf
+
+    from pbc.geometry.shrinkwrap import relax_as_configured
+
+    sw = OmegaConf.create({"relax_stretch": "auto", "relax_runaway": 3.0, "relax_iterations": 60, "relax_step": 0.5,
+                           "relax_tol": 1e-9})
+    squeezed, x0, faces = _squeezed_grid(20.0)
+    x, _, rule = relax_as_configured(squeezed, x0, _Plane(), sw)
+    assert rule == "rest_weighted" and face_areas(x, faces).sum() < 1.5 * face_areas(x0, faces).sum()
+    even, y0, _ = _squeezed_grid(1.0)  # a pattern at its cloth's size: the mean, as a recorded config has it
+    y, _, rule = relax_as_configured(even, y0, _Plane(), sw)
+    mean, _ = relax_on_surface(even, y0, _Plane(), 60, 0.5, 1e-9, None, "mean")
+    assert rule == "mean" and np.array_equal(y, mean)
+    recorded = OmegaConf.create({k: v for k, v in sw.items() if k != "relax_stretch"})
+    assert relax_as_configured(squeezed, x0, _Plane(), recorded)[2] == "mean"
