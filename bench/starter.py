@@ -47,7 +47,6 @@ from pbc.pretrained import PREFIX, pretrained_dir, shipped_models  # noqa: E402
 
 CLIPS = [ROOT / "tests/data/bvh/cmu_mb_02_01_walk.bvh", ROOT / "tests/data/bvh/cmu_mb_01_01_lfingers.bvh"]
 TARGETS = {"model_over_mean_shape": 0.6, "walk_flagged": 0.10, "kept": 0.90}
-CM = 100.0
 
 
 def open_model(name: str) -> tuple[ClothPredictor, Path]:
@@ -68,15 +67,6 @@ def clip_frames(pred: ClothPredictor, path: Path, every: int) -> tuple[np.ndarra
     for note in motion.notes:
         print(f"# {path.name}: {note}")
     return motion.poses.astype(np.float32), [f"{path.stem} {first + k * step}" for k in range(len(motion.poses))]
-
-
-def score(pred: ClothPredictor, poses: np.ndarray, drapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame (cm): the model's mean vertex error and the training mean shape's, against drapes (N, V, 3);
-    and the model's positions (N, V, 3)."""
-    with torch.inference_mode():
-        x = pred(torch.from_numpy(poses), model="whole")
-    model, mean = frame_errors(pred, poses, drapes)
-    return model, mean, x.numpy()
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -112,7 +102,7 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"{label:28s} {'kept' if r['ok'] else r['reason']:16s} {r['iterations']:4d} frames "
                   f"{secs[-1]:5.1f} CPU s{'  flagged' if flagged[len(kept) - 1] else ''}", flush=True)
         drapes = np.stack(drapes).astype(np.float32)
-        model, mean, positions = score(pred, poses, drapes)
+        model, mean, positions = frame_errors(pred, poses, drapes)
         kept = np.array(kept)
         for k, label in enumerate(labels):
             rows.append({"clip": path.name, "frame": label, "kept": bool(kept[k]), "flagged": bool(flagged[k]),

@@ -30,10 +30,11 @@ def _chunks(ds: ClothDataset, skin, name: str, batch: int):
         yield verts, anchors, frames
 
 
-def mean_offsets(ds: ClothDataset, batch: int = 64) -> torch.Tensor:
-    """(V, 3) float32: the training split's mean offsets in the local frames (the space the whole model predicts).
-    ValueError for a dataset without training samples."""
-    skin = make_target(ds, None, "fc").skinner  # per-vertex offsets: the skinner, no image operators
+def mean_offsets(ds: ClothDataset, batch: int = 64, skin=None) -> torch.Tensor:
+    """(V, 3) float32: the training split's mean offsets in the local frames (the space the whole model predicts),
+    skinned by `skin` (None: the dataset's own skinner). ValueError for a dataset without training samples."""
+    if skin is None:
+        skin = make_target(ds, None, "fc").skinner  # per-vertex offsets: the skinner, no image operators
     total, count = None, 0
     with torch.inference_mode():
         for v, a, f in _chunks(ds, skin, "train", batch):
@@ -53,9 +54,9 @@ def mean_shape_errors(ds: ClothDataset, splits: Sequence[str] = ("train", "test"
     The mean is taken of the offsets in the local frames (the space the whole model predicts), then skinned
     with each pose, so it follows the body like a model's output does.
     """
-    skin = make_target(ds, None, "fc").skinner
+    skin = make_target(ds, None, "fc").skinner  # per-vertex offsets: the skinner, no image operators
     keep = slice(None) if vertices is None else torch.as_tensor(np.asarray(vertices), dtype=torch.long)
-    mean = mean_offsets(ds, batch)[None]
+    mean = mean_offsets(ds, batch, skin)[None]
     out = {}
     with torch.inference_mode():
         for name in splits:

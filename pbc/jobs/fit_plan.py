@@ -219,12 +219,13 @@ def _slots(costs: Costs, models: list[ModelSettings], drapes: int, seconds: floa
     slots, todo, left = {}, list(models), seconds
     while todo:
         total = sum(m.share for m in todo)
-        capped = [m for m in todo if costs.max_epochs[m.name] * costs.epoch_s(m.name, drapes) <= left * m.share / total]
+        full = {m.name: costs.max_epochs[m.name] * costs.epoch_s(m.name, drapes) for m in todo}
+        capped = [m for m in todo if full[m.name] <= left * m.share / total]
         if not capped:
             slots.update({m.name: left * m.share / total for m in todo})
             return slots
         for m in capped:
-            slots[m.name] = costs.max_epochs[m.name] * costs.epoch_s(m.name, drapes)
+            slots[m.name] = full[m.name]
             left -= slots[m.name]
         todo = [m for m in todo if m not in capped]
     return slots
@@ -256,8 +257,7 @@ def plan_fit(budget_s: float, costs: Costs, settings: FitSettings, samples: int 
              motion: bool = True) -> Plan:
     """The plan for `budget_s` (see the module's docstring); `samples` fixes the drapes (--samples); `motion`:
     whether held-out motion frames are draped. ValueError naming `smallest_budget` when none plans."""
-    starts = costs.start_s * (2 + (1 if motion else 0) + len(settings.models))  # data, motion, models, preview
-    left = budget_s * (1 - settings.margin) - costs.spent_s - settings.preview_s - starts
+    left = budget_s * (1 - settings.margin) - costs.spent_s - settings.preview_s - _starts(costs, settings, motion)
     frames = _clamp(settings.motion_share * left / costs.drape_s, settings.motion_min, settings.motion_max) \
         if motion else 0
     n = samples if samples is not None else _clamp(settings.samples_share * left / costs.drape_s,
@@ -286,20 +286,34 @@ def plan_fit(budget_s: float, costs: Costs, settings: FitSettings, samples: int 
     # a model left out with the rest trained: say what would train it
     for name in out:
         m = next(x for x in settings.models if x.name == name)
-        extra = m.min_epochs * costs.epoch_s(name, n) * sum(x.share for x in settings.models) / m.share
+        extra = _share_for_min_epochs(costs, settings, m, n)
         out[name] += f"; --budget {budget_text(budget_s + extra / (1 - settings.margin))} would train it"
     step_s = {"data": costs.start_s + n * costs.drape_s}
     if frames:
         step_s["motion"] = costs.start_s + frames * costs.drape_s
-    step_s["models"] = _used(costs, n, 0, models) - n * costs.drape_s + costs.start_s * len(models)
+    step_s["models"] = _training_s(costs, n, models) + costs.start_s * len(models)
     step_s["preview"] = costs.start_s + settings.preview_s
     return Plan(budget_s, n, frames, models, step_s, out, costs=asdict(costs))
 
 
+def _starts(costs: Costs, settings: FitSettings, motion: bool) -> float:
+    """Seconds the commands still to run take to start: data, motion (with `motion`), each model, preview."""
+    return costs.start_s * (2 + (1 if motion else 0) + len(settings.models))
+
+
+def _share_for_min_epochs(costs: Costs, settings: FitSettings, model: ModelSettings, drapes: int) -> float:
+    """Seconds of training whose share for `model` buys its min_epochs at `drapes` asked."""
+    return model.min_epochs * costs.epoch_s(model.name, drapes) * sum(x.share for x in settings.models) / model.share
+
+
+def _training_s(costs: Costs, drapes: int, models: list[ModelPlan]) -> float:
+    """Seconds the models' planned epochs take at `drapes` asked, each at most its time cap (no command starts)."""
+    return sum(min(m.seconds, m.epochs * costs.epoch_s(m.name, drapes)) for m in models)
+
+
 def _used(costs: Costs, drapes: int, frames: int, models: list[ModelPlan]) -> float:
     """Seconds the drapes, the motion frames and the models' planned epochs take (no command starts)."""
-    train = sum(min(m.seconds, m.epochs * costs.epoch_s(m.name, drapes)) for m in models)
-    return (drapes + frames) * costs.drape_s + train
+    return (drapes + frames) * costs.drape_s + _training_s(costs, drapes, models)
 
 
 def smallest_budget(costs: Costs, settings: FitSettings, samples: int | None = None, motion: bool = True) -> float:
@@ -307,10 +321,9 @@ def smallest_budget(costs: Costs, settings: FitSettings, samples: int | None = N
     min_epochs, with every fixed step and the margin."""
     n = samples if samples is not None else settings.samples_min
     frames = settings.motion_min if motion else 0
-    cheapest = min(m.min_epochs * costs.epoch_s(m.name, n) * sum(x.share for x in settings.models) / m.share
-                   for m in settings.models)
-    starts = costs.start_s * (2 + (1 if motion else 0) + len(settings.models))
-    need = costs.spent_s + settings.preview_s + starts + (n + frames) * costs.drape_s + cheapest
+    cheapest = min(_share_for_min_epochs(costs, settings, m, n) for m in settings.models)
+    need = (costs.spent_s + settings.preview_s + _starts(costs, settings, motion) + (n + frames) * costs.drape_s
+            + cheapest)
     # the drape share of the time left decides n above samples.min: the smallest budget keeps n at the minimum
     return need / (1 - settings.margin) + 1.0
 
@@ -331,7 +344,7 @@ def replan_training(plan: Plan, settings: FitSettings, kept: int, seconds_left: 
             planned.values()) + 1.0):
         return False
     plan.models, plan.left_out = models, out
-    plan.step_s["models"] = _used(costs, asked, 0, models) - asked * costs.drape_s + costs.start_s * len(models)
+    plan.step_s["models"] = _training_s(costs, asked, models) + costs.start_s * len(models)
     return True
 
 

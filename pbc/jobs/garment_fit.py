@@ -293,7 +293,7 @@ class Fit:
         save_uv_picture(report, self.out / "inspect" / "uv_layout.png")
         save_body_picture(report, self.out / "inspect" / "on_body.png")
         print(text, flush=True)
-        self.overrides = self.step_overrides(base + derived, cfg)
+        self.overrides = self.step_overrides(base + derived)
 
         self.say("checks", "import, cage and shrink-wrap on the rest body (every check before a drape)")
         cfg = load_config(self.overrides)
@@ -304,8 +304,7 @@ class Fit:
                            f"(cage.json); wrapped/pattern area per face mean {stats['area_after_mean']:.2f}, "
                            f"most stretched patch {stats.get('patch_stretch_worst')} "
                            f"{stats.get('patch_stretch_max', float('nan')):.2f}x")
-        learnt = self.learning_settings(cfg, body, garment)
-        self.overrides = [*self.overrides[:-self._n_data], *learnt, *self.overrides[-self._n_data:]]
+        self.overrides = self.step_overrides(base + derived, self.learning_settings(cfg, body, garment))
         self._record()
 
     def learning_settings(self, cfg, body, garment) -> list[str]:
@@ -363,15 +362,15 @@ class Fit:
             out.append(DRESS_DATA)
         return out
 
-    def step_overrides(self, garment: list[str], cfg) -> list[str]:
-        """What every later step gets: the garment's and the derived overrides, the user's, then the data set's
-        name and place (inside the out dir) and its size (`--samples`; else the plan's, added by `plan`)."""
+    def step_overrides(self, garment: list[str], learnt: list[str] = ()) -> list[str]:
+        """What every later step gets: the garment's and the derived overrides, the user's, those the checks chose
+        to make the data worth more (`learnt`: `learning_settings`), then the data set's name and place (inside the
+        out dir) and its size (`--samples`; else the plan's, added by `plan`)."""
         samples = self.asked["samples"]
         data = [f"data.name={Path(self.garment).stem}", f"data.dir={_value(self.data_dir)}"]
         if samples is not None:
             data.append(f"data.num_samples={samples}")
-        self._n_data = len(data)
-        return [*garment, *self.user, *data]
+        return [*garment, *self.user, *learnt, *data]
 
     # ------------------------------------------------------------------------------------------ step 3
     def motion_frames(self) -> int:
@@ -424,11 +423,10 @@ class Fit:
         s, probe = self.settings, self.out / "plan" / "probe"
         data = [f"data.name={Path(self.garment).stem}_probe", f"data.dir={_value(probe)}",
                 f"data.num_samples={s.probe_drapes}"]
-        keys = {_key(o) for o in data}
-        base = [o for o in self.overrides if _key(o) not in keys]
+        probed = _replaced(self.overrides, data)
         t0 = time.time()
         if not (probe / "manifest.json").is_file():
-            self.command("plan", [self.python, "-m", "pbc.generate", *base, *data,
+            self.command("plan", [self.python, "-m", "pbc.generate", *probed,
                                   f"hydra.run.dir={_value(self.out / 'logs' / 'probe_generate')}"], "probe_generate")
         wall = time.time() - t0
         manifest = read_json(probe / "manifest.json", "the probe's dataset manifest")
@@ -439,14 +437,14 @@ class Fit:
             self.discard_before_drapes()
             raise ValueError(f"the plan's probe of {s.probe_drapes} drapes (conf/fit.yaml probe.drapes): {msg}")
         # a worker's mean drape over the workers sharing them: its first (which builds its model) is a step's start
-        workers = max(1, min(int(load_config(self.overrides).data.workers), asked))
+        cfg = load_config(self.overrides)
+        workers = max(1, min(int(cfg.data.workers), asked))
         drape_s = float(timings.get("sample_warm_mean", timings["drape_wall"] / max(asked, 1))) / workers
         start_s = max(wall - asked * drape_s, 1.0) if wall > 0 else 30.0  # the process, the scene, the models
         rows = len(manifest["splits"]["train"]) + len(manifest.get("mirrored") or ())
         row_s, fixed_s, max_epochs = {}, {}, {}
         for m in s.models:
-            cfg = load_config([*self.overrides, f"+experiment={m.experiment}"])
-            max_epochs[m.name] = int(cfg.trainer.max_epochs)
+            max_epochs[m.name] = int(load_config([*self.overrides, f"+experiment={m.experiment}"]).trainer.max_epochs)
             seconds = {}
             # `probe.rows` training rows (the split served again and again), and one batch of PROBE_ROWS: an epoch's
             # seconds per row and whatever its rows
@@ -457,7 +455,7 @@ class Fit:
                 name = m.name if size == "all" else f"{m.name}_{size}"
                 run, log = self.out / "plan" / name, self.out / "logs" / f"probe_{name}.log"
                 if not (run / "metrics.json").is_file():
-                    self.command("plan", [self.python, "-m", "pbc.train", *base, *data,
+                    self.command("plan", [self.python, "-m", "pbc.train", *probed,
                                           f"+experiment={m.experiment}", f"trainer.max_epochs={s.probe_epochs}",
                                           *extra, "test=false", f"hydra.run.dir={_value(run)}"], f"probe_{name}")
                 seconds[size] = last_epoch_seconds(log.read_text())
@@ -466,21 +464,15 @@ class Fit:
         self.say("plan", f"measured: {drape_s:.2f} s a drape ({kept} of {asked} kept), {start_s:.0f} s to start a "
                          "step; an epoch: " + ", ".join(f"{k} {fixed_s[k]:.2f} s + {v * 1000:.1f} ms a training row"
                                                         for k, v in row_s.items()))
-        mirrored = bool(load_config(self.overrides).data.get("mirror"))
         return Costs(spent_s=time.time() - self.t0, start_s=start_s, drape_s=drape_s, kept=kept / max(asked, 1),
-                     epoch_row_s=row_s, epoch_fixed_s=fixed_s, mirror=mirrored, max_epochs=max_epochs)
+                     epoch_row_s=row_s, epoch_fixed_s=fixed_s, mirror=bool(cfg.data.get("mirror")),
+                     max_epochs=max_epochs)
 
     # ------------------------------------------------------------------------------------------ steps 4-6
     def finish_clock(self, line: str, later_s: float) -> str:
         """The fit's finish time after a progress line: now, what the line says is left of its step, and the
         planned seconds of the steps after it (`later_s`)."""
-        left = None
-        if (m := TQDM_LEFT.search(line)) is not None:
-            h, mi, se = (int(g or 0) for g in m.groups())
-            left = 3600 * h + 60 * mi + se
-        elif (m := EPOCH_LEFT.search(line)) is not None and any(m.groups()):
-            h, mi, se = (int(g or 0) for g in m.groups())
-            left = 3600 * h + 60 * mi + se
+        left = _seconds_left(line)
         if left is None or self.plan is None or not self.plan.step_s:
             return line
         return f"{line}  (fit done about {time.strftime('%H:%M', time.localtime(time.time() + left + later_s))})"
@@ -514,23 +506,20 @@ class Fit:
 
     def data(self) -> None:
         plan = self.plan
-        motion_s = plan.step_s.get("motion", 0.0) if plan else 0.0
         if (self.data_dir / "manifest.json").is_file():
             self.say("data", f"skipped (complete: {self.data_dir / 'manifest.json'})")
         else:
             self.command("data", [self.python, "-m", "pbc.generate", *self.overrides,
                                   f"hydra.run.dir={_value(self.out / 'logs' / 'generate')}"], "data",
-                         later_s=motion_s + (plan.after("motion" if motion_s else "data") if plan else 0.0))
+                         later_s=plan.after("data") if plan else 0.0)
         if not plan or not plan.motion_frames:
             return
         if (self.motion_dir / "manifest.json").is_file():
             self.say("data", f"skipped the held-out motion frames (complete: {self.motion_dir / 'manifest.json'})")
             return
         try:
-            motion = self.motion_overrides()
-            keys = {_key(o) for o in motion}
-            base = [o for o in self.overrides if _key(o) not in keys]
-            self.command("data", [self.python, "-m", "pbc.generate", *base, *motion,
+            motion = _replaced(self.overrides, self.motion_overrides())
+            self.command("data", [self.python, "-m", "pbc.generate", *motion,
                                   f"hydra.run.dir={_value(self.out / 'logs' / 'motion')}"], "motion",
                          later_s=plan.after("motion"))
         except (ValueError, RuntimeError) as err:  # the score on real motion is lost, not the fit
@@ -591,9 +580,9 @@ class Fit:
                 out[m.name] = rec
         return out
 
-    def kept(self) -> str:
-        """The trained model with the lowest validation error (its name)."""
-        trained = self.trained()
+    def kept(self, trained: dict[str, RunRecord] | None = None) -> str:
+        """The trained model (of `trained`, else `trained()`) with the lowest validation error: its name."""
+        trained = self.trained() if trained is None else trained
         if not trained:
             raise RuntimeError(f"no model of {self.out} trained to the end: see {self.out / 'logs'}")
         return min(trained, key=lambda k: next(iter(trained[k].val_best.values()), float("inf")))
@@ -629,21 +618,24 @@ class Fit:
         from pbc.inference.predictor import ClothPredictor  # noqa: PLC0415 - torch models: only once trained
         from pbc.inference.scores import frame_errors  # noqa: PLC0415 - the same: the scores load the models
 
-        trained, kept = self.trained(), self.kept()
+        trained = self.trained()
+        kept = self.kept(trained)
         ds = load_dataset(self.data_dir, check=False)
+        counts = ds.manifest.get("counts", {})
         out = {"kept": kept, "test_poses": len(ds.split("test")),
+               "drapes": {"kept": counts.get("kept", len(ds.poses)), "asked": counts.get("requested", len(ds.poses))},
                "mean_shape": {"test_cm": mean_shape_errors(ds, ("test",))["test"]}, "models": {}}
         motion = load_dataset(self.motion_dir, check=False) if (self.motion_dir / "manifest.json").is_file() else None
         if motion is not None:
             out["motion_frames"] = len(motion.poses)
-            out["motion_clips"] = sorted({c for c in (motion.manifest.get("pose_source") or {}).get("clips", [])})
+            out["motion_clips"] = sorted(set((motion.manifest.get("pose_source") or {}).get("clips", [])))
         for name, rec in trained.items():
             row = {"epochs": rec.epochs, "seconds": rec.seconds, "val_cm": next(iter(rec.val_best.values())),
                    "test_cm": rec.test.get("vertex_error_cm", float("nan"))}
             if motion is not None and len(motion.poses):
                 pred = ClothPredictor.from_runs(self.out / name)
-                model_cm, mean_cm = frame_errors(pred, np.asarray(motion.poses, np.float32),
-                                                 np.asarray(motion.verts, np.float32))
+                model_cm, mean_cm, _ = frame_errors(pred, np.asarray(motion.poses, np.float32),
+                                                    np.asarray(motion.verts, np.float32))
                 row["motion_cm"] = float(model_cm.mean())
                 out["mean_shape"]["motion_cm"] = float(mean_cm.mean())
             out["models"][name] = row
@@ -654,9 +646,7 @@ class Fit:
         """Where everything is, and each model's error on the test poses and on the held-out motion frames beside
         the training mean shape's on the same poses."""
         sc = self.scores()
-        ds = load_dataset(self.data_dir, check=False)
-        counts = ds.manifest.get("counts", {})
-        kept, asked = counts.get("kept", len(ds.poses)), counts.get("requested", len(ds.poses))
+        kept, asked = sc["drapes"]["kept"], sc["drapes"]["asked"]
         g = " ".join(self.overrides)  # as `$G` in a shell: word-split, never re-quoted
         best, mean = sc["models"][sc["kept"]], sc["mean_shape"]
         table = ["models (the lower validation error is kept):",
@@ -707,20 +697,35 @@ class Fit:
             return self.summary()
 
 
+def _replaced(overrides: list[str], new: list[str]) -> list[str]:
+    """`overrides` with those of the keys `new` sets left out, then `new`."""
+    keys = {_key(o) for o in new}
+    return [*(o for o in overrides if _key(o) not in keys), *new]
+
+
 def max_time(seconds: float) -> str:
     """trainer.max_time as Lightning reads it, quoted for Hydra: ``'00:00:12:30'`` (DD:HH:MM:SS)."""
     s = int(seconds)
     return f"'{s // 86400:02d}:{s % 86400 // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}'"
 
 
+def _seconds_left(line: str) -> int | None:
+    """The seconds a progress line says are left (tqdm's [elapsed<left] or the epoch line's ETA), None if none."""
+    m = TQDM_LEFT.search(line)
+    if m is None:
+        m = EPOCH_LEFT.search(line)
+    if m is None or not any(m.groups()):
+        return None
+    h, mi, se = (int(g or 0) for g in m.groups())
+    return 3600 * h + 60 * mi + se
+
+
 def _capped(line: str, cap_s: float) -> str:
     """A training epoch line whose ETA (from its max_epochs) passes the time its run may take (trainer.max_time)
     says that time instead."""
     m = EPOCH_LEFT.search(line)
-    if m is None or not any(m.groups()):
-        return line
-    h, mi, se = (int(g or 0) for g in m.groups())
-    if 3600 * h + 60 * mi + se <= cap_s:
+    left = _seconds_left(line)
+    if m is None or left is None or left <= cap_s:
         return line
     return line[:m.start()] + f"ETA {duration(cap_s)} (its time cap)" + line[m.end():]
 
