@@ -7,9 +7,10 @@ One row per corpus clip (CMU in three releases, Bandai Namco, MakeHuman poses, a
 - **read**: its dialect, units, rest (or the frame standing in for it), the sanity of the retargeted clip, or
   the refusal's reason;
 - per model, on every frame: the frames **flagged** past the model's data (pbc.motion.known: the nearest
-  training pose farther than the model's own test poses are) and the **shattered** frames, as asked and under
-  the default guard (the predicted garment's longest edge past 3x its usual length, the median over the
-  model's shipped drapes), under the guard past the model's worst stretch on its own test poses, and as asked
+  training pose farther than the model's own test poses are) and the **shattered** frames (the predicted
+  garment's longest edge past 3x its usual length, the median over the model's shipped drapes), as asked, under
+  the default guard, and under the guard mended as by default (`ClothPredictor.mend`, conf/mend.yaml); under
+  the guard unmended past the model's worst stretch on its own test poses, and as asked
   with the garment skinned through every joint (`ClothPredictor.hold_unread` off: a shirt's hem follows the
   thighs it never learnt);
 - with drapes (not --no-drape), on K frames spread over each clip: the drapes **kept** by pbc's simulator
@@ -19,7 +20,7 @@ One row per corpus clip (CMU in three releases, Bandai Namco, MakeHuman poses, a
 
 Drapes are cached per model scene and clip under --cache (they depend on the pose, the body, the garment and
 the simulator, not on the model), so a second run measures the models alone. The targets (the corpus issue):
-0 shattered frames under the guard, every clip read or refused with a reason, at most 10% of the frames of
+0 shattered frames under the guard and the mend, every clip read or refused with a reason, at most 10% of the frames of
 the clips a model trained on flagged, the starters at most 0.5x the mean shape on held-out frames, at least
 90% of frames kept. Prints a table per model, one line per target, and as its last line one JSON object of
 the figures with the device.
@@ -45,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 from bench.starter import open_model  # noqa: E402
 from pbc.core.runs import RunRecord  # noqa: E402
 from pbc.data.generate import Scene, drape_pose  # noqa: E402
-from pbc.geometry.meshops import edge_stretch, median_edge_lengths, mesh_edges  # noqa: E402
+from pbc.geometry.meshops import edge_stretch  # noqa: E402
 from pbc.inference.poses import read_motion, run_known  # noqa: E402
 from pbc.inference.scores import mean_shape  # noqa: E402
 from pbc.jobs.predict import guard_frames  # noqa: E402
@@ -117,9 +118,16 @@ def cached_drapes(cache: Path, scene: Scene, poses: np.ndarray) -> tuple[np.ndar
     return np.stack(drapes), np.array(kept)
 
 
-def predict(pred, poses: np.ndarray) -> np.ndarray:
-    with torch.inference_mode():
-        return pred(torch.from_numpy(np.asarray(poses, np.float32)), model="whole").numpy()
+def predict(pred, poses: np.ndarray, mend: bool = True) -> np.ndarray:
+    """The whole model's garments (N, V, 3) at poses (N, J, 3, 3), mended as by default or (mend=False) as the
+    model gives them."""
+    settings = pred.mend
+    pred.mend = settings if mend else None
+    try:
+        with torch.inference_mode():
+            return pred(torch.from_numpy(np.asarray(poses, np.float32)), model="whole").numpy()
+    finally:
+        pred.mend = settings
 
 
 def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: Path) -> tuple[list[dict], dict]:
@@ -127,10 +135,10 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
     pred, run_dir = open_model(name)
     cfg = OmegaConf.create(RunRecord.read(run_dir).config)
     ds = pred.dataset
-    edges = mesh_edges(ds.garment.faces.numpy())
-    usual = median_edge_lengths(np.asarray(ds.verts), edges)
+    edges, usual = pred.edge_lengths()
     known = run_known(pred, float(motion_settings().known.quantile))
-    own = float(edge_stretch(predict(pred, np.asarray(ds.poses)[np.asarray(ds.split("test"))]), edges, usual).max())
+    own = float(edge_stretch(predict(pred, np.asarray(ds.poses)[np.asarray(ds.split("test"))], mend=False), edges,
+                             usual).max())
     scene = Scene(ds.body, ds.garment, ds.cage, ds.embedding, cfg.sim) if drape else None
     rows = []
     for path in clips:
@@ -144,13 +152,15 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
         flagged = np.zeros(len(m.poses), bool)
         k = report.get("known")
         flagged[k["flagged"] if k else report["frames_outside"]] = True
-        raw = edge_stretch(predict(pred, m.poses), edges, usual)
-        safe = edge_stretch(predict(pred, guarded), edges, usual)
+        raw = edge_stretch(predict(pred, m.poses, mend=False), edges, usual)
+        safe = edge_stretch(predict(pred, guarded, mend=False), edges, usual)
+        mended = edge_stretch(predict(pred, guarded), edges, usual)
         pred.hold_unread = False
-        unheld = edge_stretch(predict(pred, m.poses), edges, usual)
+        unheld = edge_stretch(predict(pred, m.poses, mend=False), edges, usual)
         pred.hold_unread = True
         row.update(flagged=int(flagged.sum()), shattered_raw=int((raw > SHATTER).sum()),
-                   shattered=int((safe > SHATTER).sum()), stretch_max=round(float(safe.max()), 2),
+                   shattered_guarded=int((safe > SHATTER).sum()), stretch_guarded_max=round(float(safe.max()), 2),
+                   shattered=int((mended > SHATTER).sum()), stretch_max=round(float(mended.max()), 2),
                    past_own=int((safe > own).sum()), shattered_unheld=int((unheld > SHATTER).sum()),
                    stretch_unheld_max=round(float(unheld.max()), 2),
                    stretch_raw_max=round(float(raw.max()), 2), guard=report["guard"],
@@ -167,7 +177,8 @@ def model_rows(name: str, clips: list[Path], per_clip: int, drape: bool, cache: 
         row["seconds"] = round(time.time() - t0, 1)
         rows.append(row)
         print(f"{name:9s} {row['clip'][:44]:44s} {row['role']:8s} flagged {row['flagged']:4d}/{len(m.poses):<4d} "
-              f"shattered {row['shattered_raw']:4d} -> {row['shattered']:3d} (past own {row['past_own']:3d}; "
+              f"shattered {row['shattered_raw']:4d} -> guarded {row['shattered_guarded']:4d} -> mended "
+              f"{row['shattered']:3d} (guarded past own {row['past_own']:3d}; "
               f"every joint skinned {row['shattered_unheld']:4d})"
               + (f"  kept {row['kept']}/{row['draped']}" if drape else "") + f"  {row['seconds']:.0f} s", flush=True)
     info = {"model": name, "known_limit_deg": None if known is None else round(known.limit_deg, 3),
@@ -183,7 +194,10 @@ def summarise(rows: list[dict], drape: bool) -> dict:
     read = [r for r in rows if r["read"] == "read"]
     frames = sum(r["frames"] for r in read)
     out = {"clips": len(rows), "refused": len(rows) - len(read), "frames": frames,
-           "shattered_raw": sum(r["shattered_raw"] for r in read), "shattered": sum(r["shattered"] for r in read),
+           "shattered_raw": sum(r["shattered_raw"] for r in read),
+           "shattered_guarded": sum(r["shattered_guarded"] for r in read),
+           "shattered": sum(r["shattered"] for r in read),
+           "stretch_max": max((r["stretch_max"] for r in read), default=0.0),
            "past_own": sum(r["past_own"] for r in read),
            "shattered_unheld": sum(r["shattered_unheld"] for r in read),
            "flagged": sum(r["flagged"] for r in read)}
@@ -240,7 +254,7 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"\n## {name}: limit {fig['known_limit_deg']} degrees over {fig['read_joints']} joints, "
               f"{fig['training_poses']} training poses; held at rest: {', '.join(fig['held_joints']) or 'none'}; "
               f"worst stretch on its test poses {fig['own_test_stretch_max']:.2f}x")
-        print("| clip | role | read | units | rest | sanity | flagged | shattered (as asked -> guarded) | "
+        print("| clip | role | read | units | rest | sanity | flagged | shattered (as asked -> guarded -> mended) | "
               "guarded past its test poses | as asked, every joint skinned |"
               + (" kept | model / mean shape (cm) |" if not args.no_drape else ""))
         print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
@@ -250,7 +264,8 @@ def main(argv: list[str] | None = None) -> dict:
                 print(f"| {r['clip']} | {r['role']} | refused: {r['reason']} | | | | | | | |")
                 continue
             cells = (f"| {r['clip']} | {r['role']} | {r['dialect']} | {r['units']} | {r['rest']} | {r['sanity']} | "
-                     f"{r['flagged']}/{r['frames']} | {r['shattered_raw']} -> {r['shattered']} | {r['past_own']} | "
+                     f"{r['flagged']}/{r['frames']} | {r['shattered_raw']} -> {r['shattered_guarded']} -> "
+                     f"{r['shattered']} | {r['past_own']} | "
                      f"{r['shattered_unheld']} |")
             if not args.no_drape:
                 mc = np.mean(r["model_cm"]) if r["model_cm"] else float("nan")

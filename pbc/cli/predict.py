@@ -14,7 +14,7 @@ import numpy as np
 from pbc.cli.errors import entry_point
 from pbc.inference.poses import check_max_poses, read_motion, read_poses
 from pbc.inference.predictor import ClothPredictor, fit_training_pca, pretrained_run, stitch_config
-from pbc.jobs.predict import GUARDS, clip_summary, predict_sequence, predict_to_dir
+from pbc.jobs.predict import GUARDS, clip_summary, mend_summary, predict_sequence, predict_to_dir
 from pbc.motion.retarget import shipped_joint_maps
 from pbc.stitch.pca import dataset_hash, load_pca
 from pbc.stitch.seams import METHODS
@@ -67,6 +67,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--sheet", type=int, default=12, metavar="N", help="poses on contact_sheet.png, for a clip "
                     "frames spread over it (0: none)")
     ap.add_argument("--batch-size", type=int, default=16)
+    ap.add_argument("--no-mend", action="store_true", help="the models' output as is: no edge stretched past "
+                    "stretch_cap of conf/mend.yaml (2x its usual length) shortened")
     motion = ap.add_argument_group("a BVH clip (--poses clip.bvh): motion.mp4, garment.glb, contact_sheet.png "
                                    "(a mesh per frame with --obj)")
     motion.add_argument("--bvh-map", default="auto", metavar="TABLE",
@@ -115,6 +117,8 @@ def run(argv: list[str]) -> int:
     out = Path(args.out or Path(os.environ.get("PBC_ROOT", ".")) / "runs" / "predict" / stamp)
     stitch = stitch_config(args.method) if args.patches else None
     predictor = ClothPredictor.from_runs(args.whole_run, args.patches, stitch)
+    if args.no_mend:
+        predictor.mend = None
     if predictor.stitcher is not None and args.method == "pca":
         predictor.stitcher.pca = (load_pca(args.pca, dataset_hash(predictor.dataset.dir)) if args.pca else
                                   fit_training_pca(predictor, int(stitch.pca_components), 4096))
@@ -133,6 +137,7 @@ def run(argv: list[str]) -> int:
     res = predict_to_dir(predictor, chosen.poses, chosen.names, out, args.format or "obj", args.body, args.sheet,
                          args.batch_size, args.model, truth, info, person)
     err = f"; vertex error vs simulation {res['vertex_error_cm']:.3f} cm" if "vertex_error_cm" in res else ""
+    print(mend_summary(res["mend"], res["num_poses"]))
     print(f"{res['num_poses']} poses -> {out}/meshes/*.{args.format or 'obj'} ({res['model']} model{err}), "
           f"vertices.npy, contact_sheet.png, predict.json ({res['seconds']:.1f} s)")
     return 0
@@ -156,6 +161,7 @@ def run_motion(args, predictor: ClothPredictor, out: Path, info: dict) -> int:
     for note in res["notes"][len(motion.notes):]:  # where the training range came from when not the run
         print(note)
     print(clip_summary(motion, res["pose_range"]))
+    print(mend_summary(res["mend"], res["num_poses"]))
     written = [res["files"][k] for k in ("meshes", "video", "glb", "contact_sheet") if k in res["files"]]
     print(f"{res['num_poses']} frames ({motion.table.name} joint map, {motion.units}, {motion.fps:g} fps) -> "
           f"{out}/: {', '.join([*written, 'vertices.npy', 'predict.json'])} ({res['model']} model, "

@@ -25,6 +25,8 @@ from pbc.core.runs import ModelKind, Run, find_runs, read_run, run_image_config,
 from pbc.core.validate import as_poses
 from pbc.data.dataset import dataset_fingerprint, person_kw
 from pbc.data.trimmed import recorded_known_poses
+from pbc.geometry.mend import MendSettings, edge_operator, mend_settings, shorten_edges
+from pbc.geometry.meshops import median_edge_lengths, mesh_edges
 from pbc.models.decoder import ConvDecoder, pose_features
 from pbc.motion.known import still_joints
 from pbc.pixels.frames import from_offsets, to_offsets
@@ -383,6 +385,10 @@ class ClothPredictor:
             self.use_pca(pca)
         self._held: list[int] | None = None  # held_joints, found on first use
         self.hold_unread = True  # False: skin the garment with every joint as posed (`held_joints`, for study)
+        # edges stretched past mend.stretch_cap times their usual length shortened (`mend_frames`); None: the
+        # models' output as is
+        self.mend: MendSettings | None = mend_settings()
+        self._edges = None  # (edges (E, 2), usual lengths (E,), edge operator), found on first use
         self.to(device)
 
     @property
@@ -507,6 +513,37 @@ class ClothPredictor:
         out[:, held] = torch.eye(3, dtype=pose.dtype, device=pose.device)
         return out
 
+    def edge_lengths(self) -> tuple[np.ndarray, np.ndarray]:
+        """The garment's edges (E, 2) and their usual lengths (E,): the median over its dataset's drapes (at
+        most conf/mend.yaml's usual_drapes, spread evenly), the yardstick of `mend_frames` and of a shattered
+        frame."""
+        if self._edges is None:
+            ds = self.dataset
+            edges = mesh_edges(np.asarray(ds.garment.faces))
+            n, most = len(ds.verts), int((self.mend or mend_settings()).usual_drapes)
+            rows = np.unique(np.linspace(0, n - 1, min(n, most)).round().astype(np.int64))
+            usual = median_edge_lengths(np.asarray(ds.verts)[rows], edges)
+            self._edges = (edges, usual, edge_operator(edges, len(ds.garment.vertices)))
+        return self._edges[0], self._edges[1]
+
+    def mend_frames(self, x: Tensor, stats: list | None = None) -> Tensor:
+        """Garments x (B, V, 3) with every edge past `mend.stretch_cap` times its usual length shortened
+        (pbc.geometry.mend.shorten_edges); frames without one are returned as they are. stats: a list each
+        frame's stats dict is appended to (edges past the cap, the longest edge's ratio before and after, the
+        most a vertex moved in mm)."""
+        if self.mend is None or self.mend.stretch_cap <= 0:
+            return x
+        edges, usual = self.edge_lengths()
+        g = self._edges[2]
+        out = x.clone()
+        for k, frame in enumerate(x.detach().cpu().double().numpy()):
+            y, st = shorten_edges(frame, edges, usual, self.mend, g)
+            if st["stretched"]:
+                out[k] = torch.from_numpy(y).to(out)
+            if stats is not None:
+                stats.append(st)
+        return out
+
     def check_person(self, person) -> None:
         """Refuse a `person` (None, one int, or one per pose) this predictor's dataset does not have, before
         anything is predicted or written (`Skinner.people`)."""
@@ -537,13 +574,14 @@ class ClothPredictor:
 
     @torch.inference_mode()
     def __call__(self, pose, model: str | None = None, method: str | None = None,
-                 person=None) -> Tensor:
+                 person=None, mend_stats: list | None = None) -> Tensor:
         """pose: torch or numpy, (J, 3, 3) / (J*9,) for one pose -> (V, 3), or (B, J, 3, 3) / (B, J*9) ->
         (B, V, 3); checked first (shape, finite, rotations: pbc.core.validate.as_poses).
         model: "patches" or "whole"; None = the patches when there are patch models, else the whole.
         person: in a dataset of several people (`data.body_shape`), the person k whose body the cloth is
         skinned on (the models read the pose only), one int for every pose or (B,) one per pose; None: the
-        base person (body.npz)."""
+        base person (body.npz). The garment is mended (`mend_frames`, each frame's stats appended to
+        mend_stats) unless `self.mend` is None."""
         names = list(self.dataset.body.skeleton.names)
         pose, batched = as_poses(pose, len(names), joint_names=names)
         single = not batched
@@ -562,7 +600,7 @@ class ClothPredictor:
             whole = self.whole_offsets(pose) if method in NEEDS_WHOLE else None
             off = self.stitcher(self.patch_crops(pose), method, whole)
         anchors, frames = self.skinner(self.skinned_pose(pose), person)
-        x = from_offsets(off, anchors, frames, self.space)
+        x = self.mend_frames(from_offsets(off, anchors, frames, self.space), mend_stats)
         return x[0] if single else x
 
 
@@ -591,13 +629,14 @@ def fit_training_pca(predictor: ClothPredictor, n_components: int, max_samples: 
 
 
 def predict_poses(predictor: ClothPredictor, poses: Tensor, batch_size: int = 16, model: str | None = None,
-                  progress: bool = True, person=None) -> Tensor:
+                  progress: bool = True, person=None, mend_stats: list | None = None) -> Tensor:
     """poses (N, J, 3, 3) -> garment vertices (N, V, 3), in batches, with a progress bar for long runs;
-    person: None (the base person), one int, or (N,) one per pose (`ClothPredictor.__call__`)."""
+    person: None (the base person), one int, or (N,) one per pose; mend_stats: a list each frame's mend stats are
+    appended to (`ClothPredictor.__call__`)."""
     out = []
     per_pose = person is not None and np.ndim(person) > 0
     starts = range(0, poses.shape[0], max(1, int(batch_size)))
     for i in tqdm(starts, desc="predict", unit="batch", disable=not progress or len(starts) < 2, mininterval=2):
         who = np.asarray(person)[i:i + batch_size] if per_pose else person
-        out.append(predictor(poses[i:i + batch_size], model=model, person=who))
+        out.append(predictor(poses[i:i + batch_size], model=model, person=who, mend_stats=mend_stats))
     return torch.cat(out)

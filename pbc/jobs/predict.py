@@ -62,7 +62,8 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
     model = predictor.check_model(model)  # before the output dir is made
     predictor.check_person(person)
     out = require_writable_dir(out, "prediction output directory")
-    verts = predict_poses(predictor, poses, batch_size, model, person=person)
+    mended: list[dict] = []
+    verts = predict_poses(predictor, poses, batch_size, model, person=person, mend_stats=mended)
     ds = predictor.dataset
     bodies = posed_bodies(ds, poses, person) if body or sheet else None
     # a full disk: one DiskFull naming the folder; the room for every mesh is checked once the first is written
@@ -81,7 +82,7 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
         result = dict(info or {}, model=model, method=predictor.method if model == "patches" else None,
                       num_poses=len(names), num_vertices=int(verts.shape[1]), format=fmt,
                       files={"meshes": f"meshes/<name>.{fmt}", "vertices": "vertices.npy", "poses": "poses.npy"},
-                      names=list(names))
+                      names=list(names), mend=mend_report(predictor, mended))
         if person is not None:
             result["person"] = np.broadcast_to(np.asarray(person, np.int64), (len(names),)).tolist()
         titles = list(names)
@@ -101,6 +102,29 @@ def predict_to_dir(predictor: ClothPredictor, poses: Tensor, names: Sequence[str
 
 
 GUARDS = ("nearest", "range", "none")  # conf/motion/sequence.yaml guard
+
+
+def mend_report(predictor: ClothPredictor, stats: Sequence[dict]) -> dict:
+    """What predict.json records of the mend (`ClothPredictor.mend_frames`'s per-frame stats): the settings,
+    the frames mended (an edge past the cap), the longest edge against its usual length before and after."""
+    if predictor.mend is None:
+        return {"on": False, "note": "--no-mend: the models' output as is"}
+    hit = [k for k, st in enumerate(stats) if st["stretched"]]
+    return {"on": True, "stretch_cap": predictor.mend.stretch_cap, "frames_mended": hit, "num_mended": len(hit),
+            "longest_edge_before": round(max((st["ratio_before"] for st in stats), default=0.0), 3),
+            "longest_edge_after": round(max((st["ratio_after"] for st in stats), default=0.0), 3),
+            "moved_mm_max": round(max((st["moved_mm"] for st in stats), default=0.0), 2)}
+
+
+def mend_summary(report: dict, frames: int) -> str:
+    """One line of what the mend did, for the command's output."""
+    if not report.get("on"):
+        return "mend: off (--no-mend), the models' output as is"
+    if not report["num_mended"]:
+        return f"mend: no edge past {report['stretch_cap']:g}x its usual length in {frames} frames"
+    return (f"mend: {report['num_mended']} of {frames} frames had an edge past {report['stretch_cap']:g}x its usual "
+            f"length (longest {report['longest_edge_before']:.2f}x, {report['longest_edge_after']:.2f}x after; "
+            f"vertices moved up to {report['moved_mm_max']:.0f} mm); --no-mend leaves them")
 
 
 def guard_frames(predictor: ClothPredictor, poses: np.ndarray, guard: str | None = None) -> tuple[np.ndarray, dict]:
@@ -235,7 +259,8 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
     out = require_writable_dir(out, "prediction output directory")
     stages = {"read": round(t0 - (info or {}).get("started", t0), 3)} if info and "started" in info else {}
     t = time.time()
-    verts = predict_poses(predictor, poses, batch_size, model, progress, person)
+    mended: list[dict] = []
+    verts = predict_poses(predictor, poses, batch_size, model, progress, person, mend_stats=mended)
     stages["predict"] = round(time.time() - t, 3)
     frame_names = [f"frame_{k:05d}" for k in range(len(poses))]
     t = time.time()
@@ -307,7 +332,8 @@ def predict_sequence(predictor: ClothPredictor, motion: Motion, out: Path, fmt: 
                       num_vertices=int(verts.shape[1]), format=fmt if meshes else None, files=files,
                       names=frame_names, motion=motion.summary(),
                       notes=list(motion.notes) + ([range_note] if range_note else []),
-                      pose_range=report, pose_range_source=range_source, estimated_bytes=sizes)
+                      pose_range=report, pose_range_source=range_source, estimated_bytes=sizes,
+                      mend=mend_report(predictor, mended))
         if person is not None:
             result["person"] = int(person)
         result["seconds_by_stage"] = stages
