@@ -59,6 +59,8 @@ def parser() -> argparse.ArgumentParser:
                     "the sanity check (refused otherwise)")
     ap.add_argument("--guard", choices=GUARDS, help="a .bvh sequence: frames past the model's data, as pbc predict "
                     "--guard (default: conf/motion/sequence.yaml guard)")
+    ap.add_argument("--no-mend", action="store_true", help="the models' output as is, as pbc predict --no-mend "
+                    "(default: edges past conf/mend.yaml's stretch_cap shortened)")
     ap.add_argument("--data", metavar="DIR", help="the runs' dataset, when it moved from where they recorded it")
     ap.add_argument("--host", default=str(cfg.host), help=f"address to serve on (default {cfg.host}: this "
                                                           "machine only)")
@@ -79,6 +81,8 @@ def run(argv: list[str]) -> int:
     cfg.method = args.method
     stitch = stitch_config(args.method) if args.patches else None
     predictor = ClothPredictor.from_runs(whole, args.patches, stitch, data_dir=args.data)
+    if args.no_mend:
+        predictor.mend = None
     if predictor.stitcher is not None and args.pca:
         predictor.stitcher.pca = load_pca(args.pca, dataset_hash(predictor.dataset.dir))
     sequence, fps, motion = (load_sequence(args.sequence, predictor.dataset, args.allow_rest, args.rest_frame,

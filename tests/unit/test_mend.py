@@ -15,8 +15,15 @@ from helpers.cli import exit_code
 from omegaconf import OmegaConf
 
 from pbc.core.validate import check_settings_file
-from pbc.geometry.mend import (SETTINGS_FILE, Collider, MendSettings, edge_ratios, mend_settings, push_out_of,
-                               shorten_edges)
+from pbc.geometry.mend import (
+    SETTINGS_FILE,
+    Collider,
+    MendSettings,
+    edge_ratios,
+    mend_settings,
+    push_out_of,
+    shorten_edges,
+)
 from pbc.geometry.meshops import mesh_edges, surface_distance
 
 SETTINGS = MendSettings()
