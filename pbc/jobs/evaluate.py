@@ -69,6 +69,7 @@ def evaluate(cfg: DictConfig, out: Path) -> dict:
         raise ValueError("nothing to evaluate: give whole_run=<run dir> and/or patch_runs=<run dirs>")
     # the dataset the runs recorded (resolved dir + fingerprint); data_dir only to point at a moved copy
     pred = ClothPredictor.from_runs(cfg.whole_run, patch_runs, cfg.stitch, data_dir=cfg.get("data_dir"))
+    pred.mend = None  # the models' own output is scored, as training measures it (pbc predict mends)
     ds = pred.dataset
     patches = pred.stitcher is not None  # else the whole model alone: no stitch, no patch floor
     # a shipped model's data (whole_run=pretrained:NAME) has no training split, only its mean offsets

@@ -216,6 +216,7 @@ def pack_run(run_dir: str | Path, name: str, out: str | Path | None = None, data
         raise ValueError(f"{run.path}: a {run.kind.value!r} run; only a whole-garment run (a whole-shirt CNN or a "
                          "fully connected run) packs as a shipped model")
     full = ClothPredictor.from_runs(run.path, data_dir=data_dir)
+    full.mend = None  # a model's scores are of its own output (pbc evaluate's too)
     # a shipped model's folder (forced) is replaced: git or a reinstall has the old one, and a copy kept there ships
     previous = None if in_shipped_dir(dest) else previous_path(dest, time.strftime("%Y%m%d-%H%M%S"))
     with atomic_dir(dest, previous) as staging:
@@ -281,6 +282,7 @@ def _write_model(out: Path, name: str, run, full: ClothPredictor, trained_on, co
               extra={"pretrained": info}).write(out)
     # the scores of what ships: the packed folder opened as a user opens it, fp16 weights and trimmed data
     packed = ClothPredictor.from_runs(out)
+    packed.mend = None
     mean_back, _ = recorded_mean_offsets(packed.dataset)
     poses = torch.from_numpy(np.array(shipped.poses, np.float32))
     verts = torch.from_numpy(np.array(shipped.verts, np.float32))
