@@ -73,13 +73,19 @@ def edge_operator(edges: np.ndarray, num_vertices: int) -> sp.csr_matrix:
     return sp.csr_matrix((vals, (rows, np.r_[e[:, 0], e[:, 1]])), shape=(len(e), int(num_vertices)))
 
 
+def screened_factor(g: sp.csr_matrix, weights: np.ndarray):
+    """The factorised system G^T G + diag(weights) of `screened_solve`: g (E, V), weights (V,) > 0. Its
+    `.solve(rhs (V, 3))` answers one right-hand side; a loop whose weights stay (`shorten_edges`) factors once."""
+    return spla.splu((g.T @ g + sp.diags(np.asarray(weights, np.float64))).tocsc())
+
+
 def screened_solve(g: sp.csr_matrix, edge_vectors: np.ndarray, targets: np.ndarray, weights: np.ndarray
                    ) -> np.ndarray:
     """y (V, 3) minimising |G y - edge_vectors|^2 + sum_i weights_i |y_i - targets_i|^2: g (E, V),
     edge_vectors (E, 3), targets (V, 3), weights (V,) > 0."""
-    w = sp.diags(np.asarray(weights, np.float64))
-    a = (g.T @ g + w).tocsc()
-    return spla.splu(a).solve(np.asarray(g.T @ edge_vectors + w @ targets, np.float64))
+    w = np.asarray(weights, np.float64)
+    rhs = g.T @ edge_vectors + w[:, None] * np.asarray(targets, np.float64)
+    return screened_factor(g, w).solve(np.asarray(rhs, np.float64))
 
 
 def edge_ratios(x: np.ndarray, edges: np.ndarray, usual: np.ndarray) -> np.ndarray:
@@ -100,8 +106,7 @@ def shorten_edges(x: np.ndarray, edges: np.ndarray, usual: np.ndarray, settings:
         return x, stats
     g = edge_operator(edges, len(x)) if g is None else g
     w = np.full(len(x), float(settings.anchor))
-    a = (g.T @ g + sp.diags(w)).tocsc()
-    lu = spla.splu(a)
+    lu = screened_factor(g, w)
     y = x
     for _ in range(int(settings.iterations)):
         d = g @ y

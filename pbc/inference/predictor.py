@@ -388,7 +388,8 @@ class ClothPredictor:
         # edges stretched past mend.stretch_cap times their usual length shortened (`mend_frames`); None: the
         # models' output as is
         self.mend: MendSettings | None = mend_settings()
-        self._edges = None  # (edges (E, 2), usual lengths (E,), edge operator), found on first use
+        self._edges = None  # (edges (E, 2), usual lengths (E,)), found on first use (`edge_lengths`)
+        self._edge_operator = None  # their operator G (E, V) for the mend, built with them
         self.to(device)
 
     @property
@@ -523,8 +524,9 @@ class ClothPredictor:
             n, most = len(ds.verts), int((self.mend or mend_settings()).usual_drapes)
             rows = np.unique(np.linspace(0, n - 1, min(n, most)).round().astype(np.int64))
             usual = median_edge_lengths(np.asarray(ds.verts)[rows], edges)
-            self._edges = (edges, usual, edge_operator(edges, len(ds.garment.vertices)))
-        return self._edges[0], self._edges[1]
+            self._edges = (edges, usual)
+            self._edge_operator = edge_operator(edges, len(ds.garment.vertices))
+        return self._edges
 
     def mend_frames(self, x: Tensor, stats: list | None = None) -> Tensor:
         """Garments x (B, V, 3) with every edge past `mend.stretch_cap` times its usual length shortened
@@ -534,7 +536,7 @@ class ClothPredictor:
         if self.mend is None or self.mend.stretch_cap <= 0:
             return x
         edges, usual = self.edge_lengths()
-        g = self._edges[2]
+        g = self._edge_operator
         out = x.clone()
         for k, frame in enumerate(x.detach().cpu().double().numpy()):
             y, st = shorten_edges(frame, edges, usual, self.mend, g)
