@@ -32,9 +32,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "cage": ("cage", "a garment's automatic cage as an editable JSON; regenerate committed cages"),
     "cage-study": ("cage_study", "how much of each patch its cage explains (Fig. 4)"),
     "garment": ("garment", "a garment file: inspect (charts, fit, settings), split (an outfit), fit (file -> model)"),
+    "outfit": ("outfit", "several garments on one body: predict (each piece's model, composed as layers)"),
     "view": ("view", "a local web viewer: body + predicted garment under joint sliders, in the browser"),
     "pretrained": ("pretrained", "the models shipped with pbc (--pretrained NAME): list them, pack a run as one"),
-    "motion": ("motion", "a motion clip: inspect (dialect, units, rest pose, joint match, a figure)"),
+    "motion": ("motion", "motion clips: inspect (dialect, units, rest, joint match, a figure), limits (joint limits)"),
 }
 
 

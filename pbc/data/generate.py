@@ -57,6 +57,7 @@ from pbc.data.mocap import motion_capture_poses, source_files_hash
 from pbc.data.shapes import BodyShapes, person_of, sample_phenotypes, save_shapes, shape_bodies, shapes_hash
 from pbc.geometry.body import body_from_config
 from pbc.geometry.body.base import Body, pose_body, save_body
+from pbc.geometry.body.joint_limits import LIMITS_KEY, resolved_limits
 from pbc.geometry.body.skeleton import xzy_angles
 from pbc.geometry.cage.base import Cage, save_cage
 from pbc.geometry.garment import garment_from_config, garment_needs_body
@@ -138,6 +139,8 @@ def _cheap_fingerprint(cfg: DictConfig, garment: Garment) -> dict:
     modes = modes_record(sampling_settings_from_config(cfg.body.sampling))
     if modes:  # the sampler's extra ranges (hanging arms, walking legs) change the poses
         fp["sampling_modes"] = modes
+    if cfg.body.get(LIMITS_KEY) is not None:  # limits from a file (+body.limits_file): their values, not the path
+        fp["joint_limits"] = resolved_limits(cfg.body)
     return fp
 
 

@@ -60,6 +60,15 @@ def mirror_joints(skel: Skeleton, tol: float) -> np.ndarray:
     return m.astype(np.int64)
 
 
+def joints_mirror_map(skel: Skeleton, tol: float) -> MirrorMap:
+    """The joints' part of a mirror map (`mirror_joints`, the pose conjugations), enough for `mirror_poses`; its
+    garment part is empty (no drape to mirror)."""
+    m = mirror_joints(skel, tol)
+    frames = skel.frames().double().numpy()
+    conj = np.swapaxes(frames[m], -1, -2) @ MIRROR @ frames  # Q_j = F_m^T S F_j
+    return MirrorMap(m, conj, np.zeros((0, 3), np.int64), np.zeros((0, 3)), {})
+
+
 def mirror_poses(poses: np.ndarray, mm: MirrorMap) -> np.ndarray:
     """poses (N, J, 3, 3) -> their mirror images (N, J, 3, 3), same dtype."""
     p = np.asarray(poses, np.float64)
@@ -123,9 +132,8 @@ def mirror_map(bodies: list[Body], garment_vertices: np.ndarray, garment_faces: 
     if not tol > 0:
         raise ValueError(f"data.mirror_tolerance={tol}: give a distance in metres > 0, e.g. 0.005")
     skel = bodies[0].skeleton
-    m = mirror_joints(skel, tol)
-    frames = skel.frames().double().numpy()
-    conj = np.swapaxes(frames[m], -1, -2) @ MIRROR @ frames  # Q_j = F_m^T S F_j
+    joints = joints_mirror_map(skel, tol)
+    m, conj = joints.joints, joints.pose_conj
     gv = np.asarray(garment_vertices, np.float64)
     gf = np.asarray(garment_faces, np.int64)
     gap, tri, bary = surface_points(gv @ MIRROR, gv, gf)

@@ -35,6 +35,8 @@ STAGES = [
     ("pbc.jobs", "pbc.jobs.writers"),
     ("pbc.jobs.train", "pbc.jobs.evaluate", "pbc.jobs.edit", "pbc.jobs.view", "pbc.jobs.predict",
      "pbc.pretrained.pack"),
+    # an outfit's job writes as pbc predict does (its guard, its sheet frames)
+    ("pbc.jobs.outfit",),
     ("pbc.jobs.report",),
     ("pbc.jobs.sweeps", "pbc.jobs.robustness", "pbc.jobs.garment_fit", "pbc.jobs.main"),
     # the entry floor: every command (pbc.cli) and the `python -m pbc.X` aliases that hand over to it
